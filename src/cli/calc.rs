@@ -1,0 +1,330 @@
+//! `irsim calc …`: one radiometric quantity from flags, printed as one JSON object.
+
+use clap::{Args, Subcommand, ValueEnum};
+use glam::{DMat3, DVec3};
+use serde_json::{Value, json};
+
+use crate::physics::brdf::CookTorrance;
+use crate::physics::planck::{Band, band_radiance};
+use crate::physics::reflection::{ReflectionGeometry, SphereQuadrature, Sun, direction_from_az_el};
+use crate::physics::sensor::{GrayMapping, Radiometer};
+use crate::physics::signal::{OwnedSignalContext, TargetState, target_signal};
+use crate::physics::skin::{StagnationModel, self_radiance, skin_temperatures, speed_of_sound_m_s};
+use crate::physics::transmittance::Transmittance;
+
+use super::CliError;
+
+/// Hand calculations.
+#[derive(Debug, Subcommand)]
+pub enum CalcCommand {
+    /// Blackbody band radiance times emissivity (eq 3), W m⁻² sr⁻¹.
+    BandRadiance(BandRadianceArgs),
+    /// Ambient (eq 2) and stagnation skin temperature (eq 1), K.
+    Skin(SkinArgs),
+    /// Cook–Torrance BRDF (eqs 4–8), sr⁻¹.
+    Brdf(BrdfArgs),
+    /// The whole chain for one target: T∞, T_s, L_self, L_re, τ, V_s, gray.
+    Signal(Box<SignalArgs>),
+}
+
+/// Flags of `calc band-radiance`.
+#[derive(Debug, Args)]
+pub struct BandRadianceArgs {
+    /// Temperature, K.
+    #[arg(long, allow_negative_numbers = true)]
+    pub temp_k: f64,
+    /// Band bounds, µm: LO HI.
+    #[arg(long, num_args = 2, value_names = ["LO", "HI"], allow_negative_numbers = true)]
+    pub band_um: Vec<f64>,
+    /// Emissivity, [0, 1].
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
+    pub emissivity: f64,
+}
+
+/// Flags of `calc skin`.
+#[derive(Debug, Args)]
+pub struct SkinArgs {
+    /// Altitude, km.
+    #[arg(long, allow_negative_numbers = true)]
+    pub altitude_km: f64,
+    /// Mach number.
+    #[arg(long, allow_negative_numbers = true)]
+    pub mach: f64,
+    /// Sea-level temperature, K.
+    #[arg(long, default_value_t = 288.15, allow_negative_numbers = true)]
+    pub t0_k: f64,
+    /// Recovery factor r of eq 1.
+    #[arg(long, default_value_t = 0.87, allow_negative_numbers = true)]
+    pub recovery: f64,
+    /// Ratio of specific heats k of eq 1.
+    #[arg(long, default_value_t = 1.3, allow_negative_numbers = true)]
+    pub gamma: f64,
+    /// Also print the skin's self-emitted radiance in this band, µm: LO HI.
+    #[arg(long, num_args = 2, value_names = ["LO", "HI"], allow_negative_numbers = true)]
+    pub band_um: Option<Vec<f64>>,
+    /// Emissivity for the radiance, [0, 1].
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
+    pub emissivity: f64,
+}
+
+/// Flags of `calc brdf`.
+#[derive(Debug, Args)]
+pub struct BrdfArgs {
+    /// Beckmann roughness m.
+    #[arg(long, allow_negative_numbers = true)]
+    pub roughness: f64,
+    /// Reflectance at normal incidence.
+    #[arg(long, default_value_t = 0.04, allow_negative_numbers = true)]
+    pub f0: f64,
+    /// Diffuse coefficient.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub kd: f64,
+    /// Specular coefficient.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub ks: f64,
+    /// Zenith angle of the view direction from the normal, degrees.
+    #[arg(long, allow_negative_numbers = true)]
+    pub view_zenith_deg: f64,
+    /// Zenith angle of the light direction from the normal, degrees.
+    #[arg(long, allow_negative_numbers = true)]
+    pub light_zenith_deg: f64,
+    /// Azimuth between view and light, degrees (180 = mirror side).
+    #[arg(long, default_value_t = 180.0, allow_negative_numbers = true)]
+    pub azimuth_deg: f64,
+    /// Use the paper's facet form (normal = half vector) instead of the general form.
+    #[arg(long)]
+    pub facet: bool,
+}
+
+/// How to model the reflection in `calc signal`.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum ReflectionArg {
+    /// The paper's facet (normal = half vector).
+    Facet,
+    /// General form averaged over the ellipsoid's visible surface.
+    Ellipsoid,
+}
+
+/// Flags of `calc signal`.
+#[derive(Debug, Args)]
+pub struct SignalArgs {
+    /// Target altitude, km.
+    #[arg(long, default_value_t = 8.0, allow_negative_numbers = true)]
+    pub altitude_km: f64,
+    /// Target Mach number.
+    #[arg(long, default_value_t = 0.8, allow_negative_numbers = true)]
+    pub mach: f64,
+    /// Target heading, degrees clockwise from north.
+    #[arg(long, default_value_t = 90.0, allow_negative_numbers = true)]
+    pub heading_deg: f64,
+    /// Ellipsoid semi-axes, m: along the velocity, across, up.
+    #[arg(long, num_args = 3, value_names = ["A", "B", "C"], default_values_t = [6.0, 1.5, 1.5], allow_negative_numbers = true)]
+    pub semi_axes_m: Vec<f64>,
+    /// Skin emissivity.
+    #[arg(long, default_value_t = 0.8, allow_negative_numbers = true)]
+    pub emissivity: f64,
+    /// Beckmann roughness.
+    #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
+    pub roughness: f64,
+    /// Reflectance at normal incidence.
+    #[arg(long, default_value_t = 0.04, allow_negative_numbers = true)]
+    pub f0: f64,
+    /// Diffuse coefficient.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub kd: f64,
+    /// Specular coefficient.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub ks: f64,
+    /// Reflection model.
+    #[arg(long, value_enum, default_value = "facet")]
+    pub reflection: ReflectionArg,
+    /// Range from sensor to target, km.
+    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
+    pub range_km: f64,
+    /// Sensor altitude, km; the target lies due north of the sensor at the given range.
+    #[arg(long, default_value_t = 8.0, allow_negative_numbers = true)]
+    pub sensor_altitude_km: f64,
+    /// Sea-level temperature, K.
+    #[arg(long, default_value_t = 288.15, allow_negative_numbers = true)]
+    pub t0_k: f64,
+    /// Sensor band, µm: LO HI.
+    #[arg(long, num_args = 2, value_names = ["LO", "HI"], default_values_t = [8.0, 12.0], allow_negative_numbers = true)]
+    pub band_um: Vec<f64>,
+    /// Sun azimuth, degrees clockwise from north.
+    #[arg(long, default_value_t = 135.0, allow_negative_numbers = true)]
+    pub sun_azimuth_deg: f64,
+    /// Sun elevation, degrees.
+    #[arg(long, default_value_t = 45.0, allow_negative_numbers = true)]
+    pub sun_elevation_deg: f64,
+    /// Fixed atmospheric transmittance (default 1 unless --extinction-per-km is given).
+    #[arg(long, conflicts_with = "extinction_per_km", allow_negative_numbers = true)]
+    pub tau: Option<f64>,
+    /// Sea-level extinction coefficient, km⁻¹ (Beer–Lambert).
+    #[arg(long, allow_negative_numbers = true)]
+    pub extinction_per_km: Option<f64>,
+    /// Scale height of the extinction, km.
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    pub scale_height_km: f64,
+    /// Aperture diameter, mm.
+    #[arg(long, default_value_t = 100.0, allow_negative_numbers = true)]
+    pub aperture_mm: f64,
+    /// Focal length, mm.
+    #[arg(long, default_value_t = 100.0, allow_negative_numbers = true)]
+    pub focal_mm: f64,
+    /// Pixel pitch, µm.
+    #[arg(long, default_value_t = 17.0, allow_negative_numbers = true)]
+    pub pitch_um: f64,
+    /// Optics transmittance.
+    #[arg(long, default_value_t = 0.8, allow_negative_numbers = true)]
+    pub optics_transmittance: f64,
+    /// Responsivity, V/W.
+    #[arg(long, default_value_t = 1e8, allow_negative_numbers = true)]
+    pub responsivity_v_per_w: f64,
+    /// Voltage at the lowest gray level, V.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub v_low: f64,
+    /// Voltage at the highest gray level, V.
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    pub v_high: f64,
+    /// Bit depth.
+    #[arg(long, default_value_t = 16)]
+    pub bit_depth: u32,
+    /// Lowest gray level.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub g_min: f64,
+    /// Highest gray level (default 2^bit_depth − 1).
+    #[arg(long, allow_negative_numbers = true)]
+    pub g_max: Option<f64>,
+    /// Assume the target fills the pixel footprint, as the paper does (no sub-pixel fill factor).
+    #[arg(long)]
+    pub no_fill_factor: bool,
+}
+
+/// Runs a `calc` subcommand and returns the JSON it prints.
+///
+/// # Errors
+/// [`CliError::Invalid`] for an input out of range.
+pub fn run(cmd: &CalcCommand) -> Result<Value, CliError> {
+    match cmd {
+        CalcCommand::BandRadiance(a) => {
+            let band = band_from(&a.band_um)?;
+            finite("temp_k", a.temp_k, a.temp_k >= 0.0 && a.temp_k <= 1e6, "[0, 1e6]")?;
+            finite("emissivity", a.emissivity, (0.0..=1.0).contains(&a.emissivity), "[0, 1]")?;
+            Ok(json!({ "radiance_w_m2_sr": band_radiance(band, a.temp_k, a.emissivity) }))
+        }
+        CalcCommand::Skin(a) => {
+            let model = StagnationModel { recovery: a.recovery, gamma: a.gamma };
+            let t = skin_temperatures(&model, a.altitude_km * 1000.0, a.mach, a.t0_k).map_err(invalid)?;
+            let mut out = json!({
+                "ambient_temp_k": t.ambient_temp_k,
+                "skin_temp_k": t.skin_temp_k,
+                "speed_of_sound_m_s": speed_of_sound_m_s(t.ambient_temp_k),
+            });
+            if let Some(b) = &a.band_um {
+                let l = self_radiance(band_from(b)?, t.skin_temp_k, a.emissivity).map_err(invalid)?;
+                out["self_radiance_w_m2_sr"] = json!(l);
+            }
+            Ok(out)
+        }
+        CalcCommand::Brdf(a) => {
+            let ct = CookTorrance { kd: a.kd, ks: a.ks, f0: a.f0, roughness: a.roughness };
+            ct.validate().map_err(invalid)?;
+            for (name, v) in [
+                ("view_zenith_deg", a.view_zenith_deg),
+                ("light_zenith_deg", a.light_zenith_deg),
+                ("azimuth_deg", a.azimuth_deg),
+            ] {
+                finite(name, v, true, "finite")?;
+            }
+            let value = if a.facet {
+                let v = crate::physics::brdf::direction_from_zenith(a.view_zenith_deg, 0.0);
+                let l = crate::physics::brdf::direction_from_zenith(a.light_zenith_deg, a.azimuth_deg);
+                ct.evaluate_facet(v, l)
+            } else {
+                ct.evaluate_angles(a.view_zenith_deg, a.light_zenith_deg, a.azimuth_deg)
+            };
+            Ok(serde_json::to_value(value).expect("plain struct serializes"))
+        }
+        CalcCommand::Signal(a) => signal(a),
+    }
+}
+
+fn signal(a: &SignalArgs) -> Result<Value, CliError> {
+    let band = band_from(&a.band_um)?;
+    for (name, v) in [("range_km", a.range_km), ("altitude_km", a.altitude_km), ("sensor_altitude_km", a.sensor_altitude_km)] {
+        finite(name, v, true, "finite")?;
+    }
+    let dz = (a.altitude_km - a.sensor_altitude_km) * 1000.0;
+    let range_m = a.range_km * 1000.0;
+    finite("range_km", a.range_km, range_m > dz.abs(), "greater than the altitude difference")?;
+    let sensor = DVec3::new(0.0, 0.0, a.sensor_altitude_km * 1000.0);
+    let target_pos = sensor + DVec3::new(0.0, (range_m * range_m - dz * dz).sqrt(), dz);
+    let axes = DVec3::from_slice(&a.semi_axes_m);
+    if !axes.cmpgt(DVec3::ZERO).all() || !axes.is_finite() {
+        return Err(CliError::Invalid(format!("--semi-axes-m {:?}: each semi-axis must be a finite number > 0", a.semi_axes_m)));
+    }
+    let forward = direction_from_az_el(a.heading_deg, 0.0);
+    let attitude = DMat3::from_cols(forward, DVec3::Z.cross(forward), DVec3::Z);
+    let target = TargetState {
+        position_m: target_pos,
+        mach: a.mach,
+        emissivity: a.emissivity,
+        brdf: CookTorrance { kd: a.kd, ks: a.ks, f0: a.f0, roughness: a.roughness },
+        semi_axes_m: axes,
+        attitude,
+    };
+    finite("emissivity", a.emissivity, (0.0..=1.0).contains(&a.emissivity), "[0, 1]")?;
+    let atmosphere = match (a.tau, a.extinction_per_km) {
+        (_, Some(e)) => Transmittance::BeerLambert { extinction_per_km: e, scale_height_km: a.scale_height_km },
+        (Some(tau), None) => Transmittance::Fixed { tau },
+        (None, None) => Transmittance::Fixed { tau: 1.0 },
+    };
+    atmosphere.validate().map_err(invalid)?;
+    let gray = GrayMapping {
+        v_low: a.v_low,
+        v_high: a.v_high,
+        g_min: a.g_min,
+        g_max: a.g_max.unwrap_or(((1u64 << a.bit_depth.min(32)) - 1) as f64),
+        bit_depth: a.bit_depth,
+    };
+    let ctx = OwnedSignalContext {
+        band,
+        t0_k: a.t0_k,
+        stagnation: StagnationModel::default(),
+        sun: Sun { azimuth_deg: a.sun_azimuth_deg, elevation_deg: a.sun_elevation_deg, ..Sun::default() },
+        atmosphere,
+        reflection: match a.reflection {
+            ReflectionArg::Facet => ReflectionGeometry::Facet,
+            ReflectionArg::Ellipsoid => ReflectionGeometry::Ellipsoid,
+        },
+        quadrature: SphereQuadrature::default(),
+        radiometer: Radiometer {
+            aperture_m: a.aperture_mm * 1e-3,
+            focal_length_m: a.focal_mm * 1e-3,
+            pixel_pitch_m: a.pitch_um * 1e-6,
+            detector_fill: 1.0,
+            optics_transmittance: a.optics_transmittance,
+            responsivity_v_per_w: a.responsivity_v_per_w,
+        },
+        gray,
+        fill_factor: !a.no_fill_factor,
+    };
+    let s = target_signal(&target, sensor, &ctx.as_context()).map_err(invalid)?;
+    Ok(serde_json::to_value(s).expect("plain struct serializes"))
+}
+
+fn band_from(v: &[f64]) -> Result<Band, CliError> {
+    Band::try_new(v[0], v[1]).map_err(|e| CliError::Invalid(format!("--band-um: {e}")))
+}
+
+fn finite(name: &str, value: f64, ok: bool, range: &str) -> Result<(), CliError> {
+    if value.is_finite() && ok {
+        Ok(())
+    } else {
+        Err(CliError::Invalid(format!("--{}: {value} is outside the allowed range {range}", name.replace('_', "-"))))
+    }
+}
+
+fn invalid(e: impl std::fmt::Display) -> CliError {
+    CliError::Invalid(e.to_string())
+}

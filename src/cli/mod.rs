@@ -1,0 +1,78 @@
+//! The `irsim` command line: argument parsing, output, exit codes.
+//!
+//! Exit codes: 0 success, 1 a failure while running (I/O), 2 bad input (flags, values, files).
+
+pub mod calc;
+
+use std::ffi::OsString;
+use std::io::Write;
+
+use clap::{Parser, Subcommand};
+use thiserror::Error;
+
+/// An error that ends the program.
+#[derive(Debug, Error)]
+pub enum CliError {
+    /// Bad input: exit code 2.
+    #[error("{0}")]
+    Invalid(String),
+    /// A failure while running: exit code 1.
+    #[error("{0}")]
+    Failed(String),
+}
+
+impl CliError {
+    /// The process exit code for this error.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            CliError::Invalid(_) => 2,
+            CliError::Failed(_) => 1,
+        }
+    }
+}
+
+/// irsim: infrared images of small aircraft against the sky, with exact ground truth.
+#[derive(Debug, Parser)]
+#[command(name = "irsim", version, about)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Top-level commands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Compute one radiometric quantity and print it as JSON.
+    #[command(subcommand)]
+    Calc(calc::CalcCommand),
+}
+
+/// Parses `args`, runs the command and returns the process exit code.
+pub fn run<I, T>(args: I) -> i32
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let cli = match Cli::try_parse_from(args) {
+        Ok(cli) => cli,
+        Err(e) => {
+            let code = if e.use_stderr() { 2 } else { 0 };
+            let _ = e.print();
+            return code;
+        }
+    };
+    let result = match &cli.command {
+        Command::Calc(cmd) => calc::run(cmd).and_then(|value| {
+            let mut out = std::io::stdout().lock();
+            writeln!(out, "{value}").map_err(|e| CliError::Failed(format!("writing to standard output: {e}")))
+        }),
+    };
+    match result {
+        Ok(()) => 0,
+        Err(e) => {
+            eprintln!("error: {e}");
+            e.exit_code()
+        }
+    }
+}

@@ -1,0 +1,15 @@
+//! irsim: infrared imaging simulation of small aerial targets.
+//!
+//! It simulates what an infrared camera sees when small aircraft fly through its field of view against the sky:
+//! sequences of sensor frames with exact ground truth. It implements, and corrects where needed, the method of
+//! "Dynamic infrared imaging simulation of small aerial target": skin temperature from Mach and altitude
+//! (eqs 1–2), Planck band radiance (eq 3), Cook–Torrance sun reflection (eqs 4–9), atmospheric transmittance,
+//! the sensor's optics, gray mapping and noise (eqs 13–15).
+//!
+//! Layers, dependencies pointing down only:
+//! - [`physics`]: pure numerics, no Bevy;
+//! - [`cli`]: the `irsim` command line.
+#![warn(missing_docs)]
+
+pub mod cli;
+pub mod physics;

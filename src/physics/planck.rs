@@ -1,0 +1,406 @@
+//! Planck's law: spectral radiance and exact band radiance (paper eq 3).
+//!
+//! The band integral is done in the reduced variable `x = c₂/(λT)` (`c₂ = hc/k`), where
+//!
+//! ```text
+//! ∫_{λ1}^{λ2} B_λ(λ, T) dλ = (2k⁴T⁴ / (h³c²)) · ∫_{x2}^{x1} t³/(eᵗ − 1) dt,   x_i = c₂/(λ_i T).
+//! ```
+//!
+//! The integral of `g(t) = t³/(eᵗ − 1)` is evaluated without truncation error beyond f64 rounding:
+//!
+//! - for `t ≥ 2`, the upper tail `F(x) = ∫_x^∞ g = Σₙ e^{−nx}(x³/n + 3x²/n² + 6x/n³ + 6/n⁴)`, kept in the
+//!   log domain (`F = e^{−x}·S(x)`) so that bands far in the Wien tail neither underflow early nor lose digits;
+//! - for `t < 2`, the lower part `P(x) = ∫_0^x g = Σ_k B_k x^{k+3}/((k+3)·k!)` (Bernoulli series, radius 2π);
+//! - where a difference of two such values would cancel (a narrow band), 20-point Gauss–Legendre quadrature of
+//!   `g` directly, which is exact to rounding there because `g` is analytic within 2π of the real axis.
+//!
+//! A band straddling `t = 2` is split there, so every piece is a sum of positive terms. The result is assembled
+//! as one `exp` of a log, which returns exactly 0 when the true radiance is below the smallest subnormal.
+
+use std::sync::OnceLock;
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// Planck constant, J s (CODATA 2018, exact).
+pub const PLANCK_H: f64 = 6.626_070_15e-34;
+/// Speed of light in vacuum, m/s (exact).
+pub const SPEED_OF_LIGHT: f64 = 299_792_458.0;
+/// Boltzmann constant, J/K (CODATA 2018, exact).
+pub const BOLTZMANN_K: f64 = 1.380_649e-23;
+/// Stefan–Boltzmann constant, W m⁻² K⁻⁴ (CODATA 2018).
+pub const STEFAN_BOLTZMANN: f64 = 5.670_374_419e-8;
+
+/// Second radiation constant c₂ = hc/k, in m·K.
+pub const C2_M_K: f64 = PLANCK_H * SPEED_OF_LIGHT / BOLTZMANN_K;
+
+/// Where the evaluation switches from the Bernoulli series to the exponential tail series.
+const SPLIT_X: f64 = 2.0;
+/// Above this `x` the band radiance is far below the smallest subnormal for any admissible temperature.
+const X_NEGLIGIBLE: f64 = 1e15;
+
+/// `B_{2j}/((2j+3)·(2j)!)` for j = 0, 1, …: the even-k coefficients of `P(x)/x³` as a series in `x²`.
+const BERNOULLI_COEF: [f64; 22] = [
+    0.333_333_333_333_333_3,
+    0.016_666_666_666_666_666,
+    -0.000_198_412_698_412_698_4,
+    3.674_309_229_864_785_5e-6,
+    -7.515_632_515_632_516e-8,
+    1.605_904_383_682_161_5e-9,
+    -3.522_793_425_791_662e-11,
+    7.872_080_312_167_458e-13,
+    -1.784_042_261_222_412e-14,
+    4.088_600_979_179_926e-16,
+    -9.455_950_863_295_921e-18,
+    2.203_601_131_344_092e-19,
+    -5.168_320_254_004_638_5e-21,
+    1.218_864_496_423_954_2e-22,
+    -2.888_231_428_076_628e-24,
+    6.872_583_188_902_07e-26,
+    -1.641_368_762_534_915e-27,
+    3.932_898_582_742_878_4e-29,
+    -9.451_269_078_629_001e-31,
+    2.277_252_257_828_059_7e-32,
+    -5.500_052_129_536_348e-34,
+    1.331_260_391_662_696_6e-35,
+];
+
+/// An error in a spectral band's bounds.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum BandError {
+    /// A bound is zero, negative, infinite or NaN.
+    #[error("band bound {name} = {value} µm must be a finite number > 0")]
+    NonPositive {
+        /// Which bound: `lo_um` or `hi_um`.
+        name: &'static str,
+        /// The value given.
+        value: f64,
+    },
+    /// The lower bound is above the upper bound.
+    #[error("band lower bound {lo_um} µm is above its upper bound {hi_um} µm")]
+    Reversed {
+        /// Lower bound, µm.
+        lo_um: f64,
+        /// Upper bound, µm.
+        hi_um: f64,
+    },
+}
+
+/// A spectral band `[lo_um, hi_um]` in micrometres, validated: `0 < lo_um ≤ hi_um < ∞`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "[f64; 2]", into = "[f64; 2]")]
+pub struct Band {
+    lo_um: f64,
+    hi_um: f64,
+}
+
+impl Band {
+    /// The long-wave infrared band of the paper, 8–12 µm.
+    pub const LWIR_8_12: Band = Band { lo_um: 8.0, hi_um: 12.0 };
+    /// The mid-wave infrared window, 3–5 µm.
+    pub const MWIR_3_5: Band = Band { lo_um: 3.0, hi_um: 5.0 };
+
+    /// A band from its bounds in µm.
+    ///
+    /// # Errors
+    /// [`BandError::NonPositive`] if a bound is not a finite number above 0; [`BandError::Reversed`] if
+    /// `lo_um > hi_um`. An empty band (`lo_um == hi_um`) is allowed and has zero radiance.
+    pub fn try_new(lo_um: f64, hi_um: f64) -> Result<Self, BandError> {
+        for (name, value) in [("lo_um", lo_um), ("hi_um", hi_um)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(BandError::NonPositive { name, value });
+            }
+        }
+        if lo_um > hi_um {
+            return Err(BandError::Reversed { lo_um, hi_um });
+        }
+        Ok(Self { lo_um, hi_um })
+    }
+
+    /// Lower bound, µm.
+    pub fn lo_um(&self) -> f64 {
+        self.lo_um
+    }
+
+    /// Upper bound, µm.
+    pub fn hi_um(&self) -> f64 {
+        self.hi_um
+    }
+
+    /// Width, µm.
+    pub fn width_um(&self) -> f64 {
+        self.hi_um - self.lo_um
+    }
+}
+
+impl TryFrom<[f64; 2]> for Band {
+    type Error = BandError;
+    fn try_from(v: [f64; 2]) -> Result<Self, BandError> {
+        Band::try_new(v[0], v[1])
+    }
+}
+
+impl From<Band> for [f64; 2] {
+    fn from(b: Band) -> Self {
+        [b.lo_um, b.hi_um]
+    }
+}
+
+/// Blackbody spectral radiance B_λ(λ, T) in W m⁻² sr⁻¹ µm⁻¹.
+///
+/// Returns 0 for `temp_k ≤ 0` and where the value underflows; never NaN for finite positive inputs.
+pub fn spectral_radiance(wavelength_um: f64, temp_k: f64) -> f64 {
+    if !(temp_k > 0.0) || !(wavelength_um > 0.0) {
+        return 0.0;
+    }
+    let lambda_m = wavelength_um * 1e-6;
+    let x = C2_M_K / (lambda_m * temp_k);
+    // 2hc²/λ⁵ may overflow for tiny λ, so combine in logs: ln(2hc²) − 5 ln λ − ln(eˣ − 1).
+    let ln_denominator = if x > 30.0 { x + (-(-x).exp()).ln_1p() } else { x.exp_m1().ln() };
+    let ln_b = (2.0 * PLANCK_H * SPEED_OF_LIGHT * SPEED_OF_LIGHT).ln() - 5.0 * lambda_m.ln() - ln_denominator;
+    // per metre → per micrometre
+    ln_b.exp() * 1e-6
+}
+
+/// Blackbody radiance integrated over `band`, W m⁻² sr⁻¹, times `emissivity` (paper eq 3).
+///
+/// Exact to about `4·(x+4)` ulp, `x = c₂/(λ_hi T)`; 0 for `temp_k ≤ 0`, for an empty band and where the true
+/// value is below the smallest subnormal. Never NaN, infinite or negative for `temp_k` in [0, 1e6] K.
+///
+/// # Examples
+/// ```
+/// use irsim::physics::planck::{band_radiance, Band};
+/// let l = band_radiance(Band::LWIR_8_12, 300.0, 1.0);
+/// assert!((l - 38.500_423_933_347_86).abs() < 1e-12);
+/// ```
+pub fn band_radiance(band: Band, temp_k: f64, emissivity: f64) -> f64 {
+    if !(temp_k > 0.0) || !(emissivity > 0.0) || band.lo_um == band.hi_um {
+        return 0.0;
+    }
+    // x is largest at the short-wave edge.
+    let x_hi = C2_M_K / (band.lo_um * 1e-6 * temp_k);
+    let x_lo = C2_M_K / (band.hi_um * 1e-6 * temp_k);
+    let Some(ln_integral) = ln_reduced_integral(x_lo, x_hi) else {
+        return 0.0;
+    };
+    // 2k⁴T⁴/(h³c²), in logs so that extreme temperatures cannot overflow an intermediate.
+    let ln_prefactor = (2.0 * BOLTZMANN_K.powi(4) / (PLANCK_H.powi(3) * SPEED_OF_LIGHT * SPEED_OF_LIGHT)).ln()
+        + 4.0 * temp_k.ln();
+    (ln_prefactor + ln_integral + emissivity.ln()).exp()
+}
+
+/// Total (all-wavelength) blackbody radiance σT⁴/π, W m⁻² sr⁻¹.
+pub fn total_radiance(temp_k: f64) -> f64 {
+    if temp_k > 0.0 { STEFAN_BOLTZMANN * temp_k.powi(4) / std::f64::consts::PI } else { 0.0 }
+}
+
+/// `ln ∫_a^b t³/(eᵗ−1) dt` for `0 < a ≤ b`, or `None` when the integral is zero or negligible.
+fn ln_reduced_integral(a: f64, b: f64) -> Option<f64> {
+    if !(a < b) || a >= X_NEGLIGIBLE {
+        return None;
+    }
+    let b = b.min(X_NEGLIGIBLE);
+    if b <= SPLIT_X {
+        return Some(ln_lower_piece(a, b));
+    }
+    if a >= SPLIT_X {
+        return Some(ln_upper_piece(a, b));
+    }
+    // Straddles the split: both pieces positive, add them without cancellation.
+    let lower = ln_lower_piece(a, SPLIT_X).exp();
+    let (s, ln_scale) = upper_piece_scaled(SPLIT_X, b);
+    Some((lower + s * ln_scale.exp()).ln())
+}
+
+/// `ln ∫_a^b g` for `0 < a < b ≤ 2`, from the Bernoulli series or, if that would cancel, quadrature.
+fn ln_lower_piece(a: f64, b: f64) -> f64 {
+    let pa = lower_cumulative(a);
+    let pb = lower_cumulative(b);
+    if pa <= 0.5 * pb {
+        (pb - pa).ln()
+    } else {
+        let (m, ln_scale) = gauss_legendre_scaled(a, b);
+        m.ln() + ln_scale
+    }
+}
+
+/// `ln ∫_a^b g` for `2 ≤ a < b`.
+fn ln_upper_piece(a: f64, b: f64) -> f64 {
+    let (m, ln_scale) = upper_piece_scaled(a, b);
+    m.ln() + ln_scale
+}
+
+/// `∫_a^b g = m·e^{ln_scale}` for `2 ≤ a < b`, with `ln_scale = −a`.
+fn upper_piece_scaled(a: f64, b: f64) -> (f64, f64) {
+    let sa = tail_scaled(a);
+    let ratio = (-(b - a)).exp() * tail_scaled(b) / sa;
+    if ratio <= 0.5 { (sa * (1.0 - ratio), -a) } else { gauss_legendre_scaled(a, b) }
+}
+
+/// `P(x) = ∫_0^x t³/(eᵗ−1) dt` for `0 ≤ x ≤ 2` (Bernoulli series).
+fn lower_cumulative(x: f64) -> f64 {
+    let x2 = x * x;
+    let mut sum = 0.0;
+    for &c in BERNOULLI_COEF.iter().rev() {
+        sum = sum * x2 + c;
+    }
+    x * x2 * (sum - x / 8.0)
+}
+
+/// `S(x) = eˣ·∫_x^∞ t³/(eᵗ−1) dt = Σₙ e^{−(n−1)x}(x³/n + 3x²/n² + 6x/n³ + 6/n⁴)` for `x ≥ 2`.
+fn tail_scaled(x: f64) -> f64 {
+    let q = (-x).exp();
+    let mut sum = 0.0;
+    let mut qn = 1.0; // e^{-(n-1)x}
+    for n in 1..=64 {
+        let nf = f64::from(n);
+        let inv = 1.0 / nf;
+        let term = qn * inv * (x * x * x + 3.0 * inv * (x * x + 2.0 * inv * (x + inv)));
+        sum += term;
+        if term <= sum * 1e-18 {
+            break;
+        }
+        qn *= q;
+    }
+    sum
+}
+
+/// `∫_a^b g` by 20-point Gauss–Legendre, as `m·e^{ln_scale}` with the factor `e^{−a}` taken out for `a ≥ 2`.
+fn gauss_legendre_scaled(a: f64, b: f64) -> (f64, f64) {
+    let (nodes, weights) = gauss_legendre_20();
+    let half = 0.5 * (b - a);
+    let mid = 0.5 * (a + b);
+    let scaled = a >= SPLIT_X;
+    let mut sum = 0.0;
+    for (&t, &w) in nodes.iter().zip(weights) {
+        let x = mid + half * t;
+        let value = if scaled {
+            // x³ e^{−(x−a)} / (1 − e^{−x})
+            x * x * x * (-(x - a)).exp() / -(-x).exp_m1()
+        } else {
+            x * x * x / x.exp_m1()
+        };
+        sum += w * value;
+    }
+    (sum * half, if scaled { -a } else { 0.0 })
+}
+
+/// Nodes and weights of 20-point Gauss–Legendre quadrature on [−1, 1], computed once by Newton iteration.
+fn gauss_legendre_20() -> &'static ([f64; 20], [f64; 20]) {
+    static TABLE: OnceLock<([f64; 20], [f64; 20])> = OnceLock::new();
+    TABLE.get_or_init(|| gauss_legendre::<20>())
+}
+
+/// Gauss–Legendre nodes and weights of order `N` on [−1, 1].
+pub(crate) fn gauss_legendre<const N: usize>() -> ([f64; N], [f64; N]) {
+    let mut nodes = [0.0; N];
+    let mut weights = [0.0; N];
+    let n = N as f64;
+    for i in 0..N {
+        // Chebyshev-like first guess, then Newton on P_N.
+        let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n + 0.5)).cos();
+        let mut dp = 1.0;
+        for _ in 0..100 {
+            let (p, d) = legendre_and_derivative(N, x);
+            dp = d;
+            let dx = p / d;
+            x -= dx;
+            if dx.abs() < 1e-16 {
+                break;
+            }
+        }
+        let (_, d) = legendre_and_derivative(N, x);
+        dp = if d != 0.0 { d } else { dp };
+        nodes[i] = x;
+        weights[i] = 2.0 / ((1.0 - x * x) * dp * dp);
+    }
+    (nodes, weights)
+}
+
+fn legendre_and_derivative(n: usize, x: f64) -> (f64, f64) {
+    let mut p0 = 1.0;
+    let mut p1 = x;
+    for k in 2..=n {
+        let kf = k as f64;
+        let p2 = ((2.0 * kf - 1.0) * x * p1 - (kf - 1.0) * p0) / kf;
+        p0 = p1;
+        p1 = p2;
+    }
+    let nf = n as f64;
+    (p1, nf * (x * p1 - p0) / (x * x - 1.0))
+}
+
+/// Band radiance by composite Simpson quadrature in wavelength with `intervals` (even) sub-intervals.
+///
+/// The baseline the exact method is benchmarked against; not used by the simulation.
+pub fn band_radiance_simpson(band: Band, temp_k: f64, emissivity: f64, intervals: usize) -> f64 {
+    let n = intervals.max(2) & !1;
+    let h = band.width_um() / n as f64;
+    let mut sum = spectral_radiance(band.lo_um, temp_k) + spectral_radiance(band.hi_um, temp_k);
+    for i in 1..n {
+        let w = if i % 2 == 1 { 4.0 } else { 2.0 };
+        sum += w * spectral_radiance(band.lo_um + h * i as f64, temp_k);
+    }
+    emissivity * sum * h / 3.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gauss_legendre_integrates_polynomials_exactly() {
+        let (x, w) = gauss_legendre::<20>();
+        // ∫_{-1}^{1} t^38 dt = 2/39
+        let s: f64 = x.iter().zip(w).map(|(t, w)| w * t.powi(38)).sum();
+        assert!((s - 2.0 / 39.0).abs() < 1e-15);
+        let total: f64 = w.iter().sum();
+        assert!((total - 2.0).abs() < 1e-14);
+    }
+
+    #[test]
+    fn series_pieces_agree_at_the_split() {
+        // P(2) + F(2) = π⁴/15
+        let p = lower_cumulative(SPLIT_X);
+        let f = tail_scaled(SPLIT_X) * (-SPLIT_X).exp();
+        let want = std::f64::consts::PI.powi(4) / 15.0;
+        assert!(((p + f) - want).abs() / want < 1e-15, "{p} + {f} vs {want}");
+    }
+
+    #[test]
+    fn whole_spectrum_is_sigma_t4_over_pi() {
+        for t in [50.0, 300.0, 1000.0, 5772.0] {
+            let band = Band::try_new(1e-4, 1e6).unwrap();
+            let l = band_radiance(band, t, 1.0);
+            let want = total_radiance(t);
+            assert!(((l - want) / want).abs() < 1e-9, "T={t}: {l} vs {want}");
+        }
+    }
+
+    #[test]
+    fn wien_peak() {
+        // λ_max T = 2897.771955 µm K
+        let t = 300.0;
+        let peak = 2897.771_955 / t;
+        let at = |l| spectral_radiance(l, t);
+        assert!(at(peak) > at(peak * (1.0 + 1e-4)));
+        assert!(at(peak) > at(peak * (1.0 - 1e-4)));
+    }
+
+    #[test]
+    fn band_rejects_bad_bounds() {
+        assert!(matches!(Band::try_new(12.0, 8.0), Err(BandError::Reversed { .. })));
+        assert!(matches!(Band::try_new(0.0, 8.0), Err(BandError::NonPositive { .. })));
+        assert!(matches!(Band::try_new(-1.0, 8.0), Err(BandError::NonPositive { .. })));
+        assert!(matches!(Band::try_new(1.0, f64::NAN), Err(BandError::NonPositive { .. })));
+        assert!(matches!(Band::try_new(1.0, f64::INFINITY), Err(BandError::NonPositive { .. })));
+        assert_eq!(band_radiance(Band::try_new(8.0, 8.0).unwrap(), 300.0, 1.0), 0.0);
+    }
+
+    #[test]
+    fn simpson_converges_to_the_exact_value() {
+        let exact = band_radiance(Band::LWIR_8_12, 300.0, 1.0);
+        let s = band_radiance_simpson(Band::LWIR_8_12, 300.0, 1.0, 1024);
+        assert!(((s - exact) / exact).abs() < 1e-10);
+    }
+}

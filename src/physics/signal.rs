@@ -1,0 +1,223 @@
+//! The whole radiometric chain for one target: altitude and Mach to gray value (eqs 1–3, 9–10, 13–15).
+//!
+//! This is what `irsim calc signal` prints and what the simulation's radiometry stage computes per target.
+
+use glam::{DMat3, DVec3};
+use serde::Serialize;
+use thiserror::Error;
+
+use super::brdf::{BrdfError, CookTorrance};
+use super::reflection::{ReflectionGeometry, ReflectionInput, SphereQuadrature, Sun, reflected_radiance};
+use super::sensor::{GrayMapping, Radiometer, SensorError};
+use super::skin::{SkinError, StagnationModel, self_radiance, skin_temperatures};
+use super::transmittance::{PathTransmittance, Transmittance, TransmittanceError};
+use super::planck::Band;
+
+/// Any error of the radiometric chain.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum SignalError {
+    /// Atmosphere or stagnation model.
+    #[error(transparent)]
+    Skin(#[from] SkinError),
+    /// Material.
+    #[error(transparent)]
+    Brdf(#[from] BrdfError),
+    /// Sensor.
+    #[error(transparent)]
+    Sensor(#[from] SensorError),
+    /// Transmittance.
+    #[error(transparent)]
+    Transmittance(#[from] TransmittanceError),
+    /// A geometric input.
+    #[error("{0}")]
+    Geometry(String),
+}
+
+/// A target's flight condition and material.
+#[derive(Debug, Clone, Copy)]
+pub struct TargetState {
+    /// Position, m, world frame (z up: `position_m.z` is the altitude).
+    pub position_m: DVec3,
+    /// Mach number.
+    pub mach: f64,
+    /// Emissivity of the skin, [0, 1].
+    pub emissivity: f64,
+    /// Reflectance model.
+    pub brdf: CookTorrance,
+    /// Ellipsoid semi-axes, m, body frame (x along the velocity).
+    pub semi_axes_m: DVec3,
+    /// Body-to-world rotation.
+    pub attitude: DMat3,
+}
+
+/// Everything else that the chain needs: the scene and the sensor.
+#[derive(Clone, Copy)]
+pub struct SignalContext<'a> {
+    /// Sensor band.
+    pub band: Band,
+    /// Sea-level temperature for eq 2, K.
+    pub t0_k: f64,
+    /// Stagnation constants.
+    pub stagnation: StagnationModel,
+    /// The sun.
+    pub sun: Sun,
+    /// Atmospheric transmittance model.
+    pub atmosphere: &'a (dyn PathTransmittance + Sync),
+    /// Facet (paper) or ellipsoid-averaged reflection.
+    pub reflection: ReflectionGeometry,
+    /// Quadrature for the ellipsoid average.
+    pub quadrature: &'a SphereQuadrature,
+    /// Optics and detector.
+    pub radiometer: Radiometer,
+    /// Gray mapping.
+    pub gray: GrayMapping,
+    /// Use the sub-pixel fill factor (DESIGN.md) rather than the paper's "target fills the pixel".
+    pub fill_factor: bool,
+}
+
+/// The chain's intermediate and final values.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TargetSignal {
+    /// T∞ at the target's altitude, K.
+    pub ambient_temp_k: f64,
+    /// Skin temperature, K.
+    pub skin_temp_k: f64,
+    /// Self-emitted radiance, W m⁻² sr⁻¹.
+    pub self_radiance_w_m2_sr: f64,
+    /// Reflected sun radiance, W m⁻² sr⁻¹.
+    pub reflected_radiance_w_m2_sr: f64,
+    /// Total radiance, W m⁻² sr⁻¹.
+    pub total_radiance_w_m2_sr: f64,
+    /// Transmittance of the path target → sensor.
+    pub tau: f64,
+    /// Transmittance of the path target → sun.
+    pub sun_tau: f64,
+    /// Range, m.
+    pub range_m: f64,
+    /// Projected area of the ellipsoid seen from the sensor, m².
+    pub projected_area_m2: f64,
+    /// Fill factor of eq 13.
+    pub fill_factor: f64,
+    /// Power on the detector, W.
+    pub power_w: f64,
+    /// Sensor voltage, V.
+    pub voltage_v: f64,
+    /// Gray value (eq 15), before quantization.
+    pub gray: f64,
+    /// Quantized gray level.
+    pub gray_level: u16,
+}
+
+/// Runs the whole chain for one target seen from `sensor_m`.
+///
+/// # Errors
+/// [`SignalError`] for an out-of-range altitude, Mach number, material, sensor or transmittance parameter, or a
+/// target at the sensor's position.
+pub fn target_signal(target: &TargetState, sensor_m: DVec3, ctx: &SignalContext<'_>) -> Result<TargetSignal, SignalError> {
+    target.brdf.validate()?;
+    ctx.radiometer.validate()?;
+    ctx.gray.validate()?;
+    let temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    let l_self = self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
+    let line = sensor_m - target.position_m;
+    let range_m = line.length();
+    if !(range_m > 0.0) || !range_m.is_finite() {
+        return Err(SignalError::Geometry(format!("range {range_m} m between sensor and target must be > 0")));
+    }
+    let to_viewer = line / range_m;
+    let sun_tau = ctx.atmosphere.to_space(target.position_m, ctx.sun.direction());
+    let input = ReflectionInput { brdf: &target.brdf, sun: &ctx.sun, band: ctx.band, sun_transmittance: sun_tau, to_viewer };
+    let l_re = reflected_radiance(
+        &input,
+        ctx.reflection,
+        Some((target.semi_axes_m, target.attitude, ctx.quadrature)),
+    );
+    let l_sum = l_self + l_re;
+    let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m);
+    let projected_area_m2 = ellipsoid_projected_area(target.semi_axes_m, target.attitude, to_viewer);
+    let area = if ctx.fill_factor { projected_area_m2 } else { f64::INFINITY };
+    let s = ctx.radiometer.signal(l_sum, tau, area, range_m);
+    let gray = ctx.gray.gray(s.voltage_v);
+    Ok(TargetSignal {
+        ambient_temp_k: temps.ambient_temp_k,
+        skin_temp_k: temps.skin_temp_k,
+        self_radiance_w_m2_sr: l_self,
+        reflected_radiance_w_m2_sr: l_re,
+        total_radiance_w_m2_sr: l_sum,
+        tau,
+        sun_tau,
+        range_m,
+        projected_area_m2,
+        fill_factor: s.fill_factor,
+        power_w: s.power_w,
+        voltage_v: s.voltage_v,
+        gray,
+        gray_level: ctx.gray.quantize(gray),
+    })
+}
+
+/// Area of an ellipsoid's orthographic projection along unit direction `d`, m².
+///
+/// For semi-axes `a, b, c` in the body frame and `d` in body coordinates, the area is
+/// `π·√((bc·d_x)² + (ac·d_y)² + (ab·d_z)²)`.
+pub fn ellipsoid_projected_area(semi_axes_m: DVec3, body_to_world: DMat3, d: DVec3) -> f64 {
+    let d = body_to_world.transpose() * d.normalize_or_zero();
+    let (a, b, c) = (semi_axes_m.x, semi_axes_m.y, semi_axes_m.z);
+    std::f64::consts::PI * ((b * c * d.x).powi(2) + (a * c * d.y).powi(2) + (a * b * d.z).powi(2)).sqrt()
+}
+
+/// A convenience context holder with owned parts, for callers that build one from flags or a scenario.
+#[derive(Debug, Clone)]
+pub struct OwnedSignalContext {
+    /// Sensor band.
+    pub band: Band,
+    /// Sea-level temperature, K.
+    pub t0_k: f64,
+    /// Stagnation constants.
+    pub stagnation: StagnationModel,
+    /// The sun.
+    pub sun: Sun,
+    /// Transmittance model.
+    pub atmosphere: Transmittance,
+    /// Reflection geometry.
+    pub reflection: ReflectionGeometry,
+    /// Quadrature for the ellipsoid average.
+    pub quadrature: SphereQuadrature,
+    /// Optics and detector.
+    pub radiometer: Radiometer,
+    /// Gray mapping.
+    pub gray: GrayMapping,
+    /// Apply the fill factor.
+    pub fill_factor: bool,
+}
+
+impl OwnedSignalContext {
+    /// Borrows it as a [`SignalContext`].
+    pub fn as_context(&self) -> SignalContext<'_> {
+        SignalContext {
+            band: self.band,
+            t0_k: self.t0_k,
+            stagnation: self.stagnation,
+            sun: self.sun,
+            atmosphere: &self.atmosphere,
+            reflection: self.reflection,
+            quadrature: &self.quadrature,
+            radiometer: self.radiometer,
+            gray: self.gray,
+            fill_factor: self.fill_factor,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn projected_area_of_a_spheroid() {
+        let axes = DVec3::new(3.0, 1.0, 1.0);
+        let pi = std::f64::consts::PI;
+        assert!((ellipsoid_projected_area(axes, DMat3::IDENTITY, DVec3::X) - pi).abs() < 1e-12);
+        assert!((ellipsoid_projected_area(axes, DMat3::IDENTITY, DVec3::Y) - 3.0 * pi).abs() < 1e-12);
+    }
+}
