@@ -7,9 +7,11 @@
 //! the sensor's optics, gray mapping and noise (eqs 13–15).
 //!
 //! Layers, dependencies pointing down only:
-//! - [`physics`]: pure numerics, no Bevy;
+//! - [`physics`]: radiometry, atmosphere, sensor and noise — pure numerics, no Bevy;
+//! - [`imaging`]: camera, sky-plane ray casting, target blob, Poisson fusion, frames — pure, no Bevy;
 //! - [`cli`]: the `irsim` command line.
 #![warn(missing_docs)]
 
 pub mod cli;
+pub mod imaging;
 pub mod physics;

@@ -77,7 +77,11 @@ fn cook_torrance_table_every_finite_row() {
             assert!(got.specular_per_sr < 1e-300, "{r:?}: spec {:e}", got.specular_per_sr);
         } else {
             let rel = ((got.specular_per_sr - want_spec) / want_spec).abs();
-            assert!(rel <= tol, "m={m} θv={tv} θl={tl} φ={phi}: spec {:e} vs {want_spec:e} (rel {rel:e})", got.specular_per_sr);
+            assert!(
+                rel <= tol,
+                "m={m} θv={tv} θl={tl} φ={phi}: spec {:e} vs {want_spec:e} (rel {rel:e})",
+                got.specular_per_sr
+            );
         }
         let rel = ((got.f_per_sr - want_total) / want_total).abs();
         assert!(rel <= tol, "m={m} θv={tv} θl={tl} φ={phi}: f {:e} vs {want_total:e} (rel {rel:e})", got.f_per_sr);

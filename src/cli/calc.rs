@@ -251,7 +251,9 @@ pub fn run(cmd: &CalcCommand) -> Result<Value, CliError> {
 
 fn signal(a: &SignalArgs) -> Result<Value, CliError> {
     let band = band_from(&a.band_um)?;
-    for (name, v) in [("range_km", a.range_km), ("altitude_km", a.altitude_km), ("sensor_altitude_km", a.sensor_altitude_km)] {
+    for (name, v) in
+        [("range_km", a.range_km), ("altitude_km", a.altitude_km), ("sensor_altitude_km", a.sensor_altitude_km)]
+    {
         finite(name, v, true, "finite")?;
     }
     let dz = (a.altitude_km - a.sensor_altitude_km) * 1000.0;
@@ -261,7 +263,10 @@ fn signal(a: &SignalArgs) -> Result<Value, CliError> {
     let target_pos = sensor + DVec3::new(0.0, (range_m * range_m - dz * dz).sqrt(), dz);
     let axes = DVec3::from_slice(&a.semi_axes_m);
     if !axes.cmpgt(DVec3::ZERO).all() || !axes.is_finite() {
-        return Err(CliError::Invalid(format!("--semi-axes-m {:?}: each semi-axis must be a finite number > 0", a.semi_axes_m)));
+        return Err(CliError::Invalid(format!(
+            "--semi-axes-m {:?}: each semi-axis must be a finite number > 0",
+            a.semi_axes_m
+        )));
     }
     let forward = direction_from_az_el(a.heading_deg, 0.0);
     let attitude = DMat3::from_cols(forward, DVec3::Z.cross(forward), DVec3::Z);

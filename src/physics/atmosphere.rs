@@ -21,16 +21,8 @@ pub const MIN_ALTITUDE_M: f64 = -5_000.0;
 pub const MAX_ALTITUDE_M: f64 = 86_000.0;
 
 /// Layer bases (km) and lapse rates (K/km) of the standard atmosphere, from the tropopause of eq 2 upward.
-const LAYERS: [(f64, f64); 8] = [
-    (-5.0, -6.5),
-    (11.0, 0.0),
-    (20.0, 1.0),
-    (32.0, 2.8),
-    (47.0, 0.0),
-    (51.0, -2.8),
-    (71.0, -2.0),
-    (84.852, 0.0),
-];
+const LAYERS: [(f64, f64); 8] =
+    [(-5.0, -6.5), (11.0, 0.0), (20.0, 1.0), (32.0, 2.8), (47.0, 0.0), (51.0, -2.8), (71.0, -2.0), (84.852, 0.0)];
 
 /// An altitude or sea-level temperature outside what the model supports.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -128,10 +120,7 @@ mod tests {
     #[test]
     fn rejects_out_of_range() {
         for h in [-5000.1, 86000.1, f64::NAN, f64::INFINITY] {
-            assert!(matches!(
-                ambient_temperature_k(h, STANDARD_T0_K),
-                Err(AtmosphereError::AltitudeOutOfRange { .. })
-            ));
+            assert!(matches!(ambient_temperature_k(h, STANDARD_T0_K), Err(AtmosphereError::AltitudeOutOfRange { .. })));
         }
         assert!(ambient_temperature_k(0.0, 50.0).is_err());
         assert!(ambient_temperature_k(0.0, f64::NAN).is_err());

@@ -149,7 +149,7 @@ impl CookTorrance {
     /// The half vector is formed from sum-to-product identities rather than by adding the two direction
     /// vectors, which keeps full precision near the mirror direction at grazing angles.
     pub fn evaluate_angles(&self, view_zenith_deg: f64, light_zenith_deg: f64, azimuth_deg: f64) -> BrdfValue {
-        let (sin_v, cos_v) = sin_cos_deg(view_zenith_deg);
+        let (_, cos_v) = sin_cos_deg(view_zenith_deg);
         let (sin_l, cos_l) = sin_cos_deg(light_zenith_deg);
         let (sin_p, _) = sin_cos_deg(azimuth_deg);
         let (_, cos_half_p) = sin_cos_deg(0.5 * azimuth_deg);

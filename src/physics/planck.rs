@@ -184,8 +184,8 @@ pub fn band_radiance(band: Band, temp_k: f64, emissivity: f64) -> f64 {
         return 0.0;
     };
     // 2k⁴T⁴/(h³c²), in logs so that extreme temperatures cannot overflow an intermediate.
-    let ln_prefactor = (2.0 * BOLTZMANN_K.powi(4) / (PLANCK_H.powi(3) * SPEED_OF_LIGHT * SPEED_OF_LIGHT)).ln()
-        + 4.0 * temp_k.ln();
+    let ln_prefactor =
+        (2.0 * BOLTZMANN_K.powi(4) / (PLANCK_H.powi(3) * SPEED_OF_LIGHT * SPEED_OF_LIGHT)).ln() + 4.0 * temp_k.ln();
     (ln_prefactor + ln_integral + emissivity.ln()).exp()
 }
 
@@ -292,7 +292,7 @@ fn gauss_legendre_20() -> &'static ([f64; 20], [f64; 20]) {
 }
 
 /// Gauss–Legendre nodes and weights of order `N` on [−1, 1].
-pub(crate) fn gauss_legendre<const N: usize>() -> ([f64; N], [f64; N]) {
+fn gauss_legendre<const N: usize>() -> ([f64; N], [f64; N]) {
     let mut nodes = [0.0; N];
     let mut weights = [0.0; N];
     let n = N as f64;

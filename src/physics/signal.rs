@@ -7,11 +7,11 @@ use serde::Serialize;
 use thiserror::Error;
 
 use super::brdf::{BrdfError, CookTorrance};
+use super::planck::Band;
 use super::reflection::{ReflectionGeometry, ReflectionInput, SphereQuadrature, Sun, reflected_radiance};
 use super::sensor::{GrayMapping, Radiometer, SensorError};
 use super::skin::{SkinError, StagnationModel, self_radiance, skin_temperatures};
 use super::transmittance::{PathTransmittance, Transmittance, TransmittanceError};
-use super::planck::Band;
 
 /// Any error of the radiometric chain.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -113,7 +113,11 @@ pub struct TargetSignal {
 /// # Errors
 /// [`SignalError`] for an out-of-range altitude, Mach number, material, sensor or transmittance parameter, or a
 /// target at the sensor's position.
-pub fn target_signal(target: &TargetState, sensor_m: DVec3, ctx: &SignalContext<'_>) -> Result<TargetSignal, SignalError> {
+pub fn target_signal(
+    target: &TargetState,
+    sensor_m: DVec3,
+    ctx: &SignalContext<'_>,
+) -> Result<TargetSignal, SignalError> {
     target.brdf.validate()?;
     ctx.radiometer.validate()?;
     ctx.gray.validate()?;
@@ -126,12 +130,9 @@ pub fn target_signal(target: &TargetState, sensor_m: DVec3, ctx: &SignalContext<
     }
     let to_viewer = line / range_m;
     let sun_tau = ctx.atmosphere.to_space(target.position_m, ctx.sun.direction());
-    let input = ReflectionInput { brdf: &target.brdf, sun: &ctx.sun, band: ctx.band, sun_transmittance: sun_tau, to_viewer };
-    let l_re = reflected_radiance(
-        &input,
-        ctx.reflection,
-        Some((target.semi_axes_m, target.attitude, ctx.quadrature)),
-    );
+    let input =
+        ReflectionInput { brdf: &target.brdf, sun: &ctx.sun, band: ctx.band, sun_transmittance: sun_tau, to_viewer };
+    let l_re = reflected_radiance(&input, ctx.reflection, Some((target.semi_axes_m, target.attitude, ctx.quadrature)));
     let l_sum = l_self + l_re;
     let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m);
     let projected_area_m2 = ellipsoid_projected_area(target.semi_axes_m, target.attitude, to_viewer);

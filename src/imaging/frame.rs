@@ -1,0 +1,142 @@
+//! The sensor frame: row-major f32 gray values, and its conversions to 8/16-bit images and PNG.
+
+use std::io::Write;
+
+use image::{ImageBuffer, Luma};
+
+/// A row-major f32 image of gray values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    width: usize,
+    height: usize,
+    pixels: Vec<f32>,
+}
+
+impl Frame {
+    /// A frame of zeros.
+    pub fn new(width: usize, height: usize) -> Self {
+        Self { width, height, pixels: vec![0.0; width * height] }
+    }
+
+    /// A frame from row-major data.
+    ///
+    /// # Panics
+    /// If `pixels.len() != width·height`.
+    pub fn from_pixels(width: usize, height: usize, pixels: Vec<f32>) -> Self {
+        assert_eq!(pixels.len(), width * height, "frame data length");
+        Self { width, height, pixels }
+    }
+
+    /// Width, px.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height, px.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Row-major values.
+    pub fn pixels(&self) -> &[f32] {
+        &self.pixels
+    }
+
+    /// Row-major values, mutable.
+    pub fn pixels_mut(&mut self) -> &mut [f32] {
+        &mut self.pixels
+    }
+
+    /// Value at `(x, y)`.
+    ///
+    /// # Panics
+    /// If the pixel is outside the frame.
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        assert!(x < self.width && y < self.height, "pixel ({x}, {y}) outside {}×{}", self.width, self.height);
+        self.pixels[y * self.width + x]
+    }
+
+    /// Sets the value at `(x, y)`.
+    ///
+    /// # Panics
+    /// If the pixel is outside the frame.
+    pub fn set(&mut self, x: usize, y: usize, value: f32) {
+        assert!(x < self.width && y < self.height, "pixel ({x}, {y}) outside {}×{}", self.width, self.height);
+        self.pixels[y * self.width + x] = value;
+    }
+
+    /// Fills the frame with one value.
+    pub fn fill(&mut self, value: f32) {
+        self.pixels.fill(value);
+    }
+
+    /// 16-bit image: each value rounded and clamped to `[0, max_level]` (NaN → 0).
+    pub fn to_gray16(&self, max_level: u16) -> ImageBuffer<Luma<u16>, Vec<u16>> {
+        let data = self.pixels.iter().map(|&v| quantize(v, max_level as f32) as u16).collect();
+        ImageBuffer::from_raw(self.width as u32, self.height as u32, data).expect("size matches")
+    }
+
+    /// 8-bit image: values in `[0, max_level]` scaled to `[0, 255]`, rounded and clamped (NaN → 0).
+    pub fn to_gray8(&self, max_level: f32) -> ImageBuffer<Luma<u8>, Vec<u8>> {
+        let scale = if max_level > 0.0 { 255.0 / max_level } else { 1.0 };
+        let data = self.pixels.iter().map(|&v| quantize(v * scale, 255.0) as u8).collect();
+        ImageBuffer::from_raw(self.width as u32, self.height as u32, data).expect("size matches")
+    }
+
+    /// Writes the frame as a 16-bit grayscale PNG to `out`.
+    ///
+    /// # Errors
+    /// The encoder's error, e.g. on a failed write.
+    pub fn write_png16<W: Write>(&self, max_level: u16, out: W) -> image::ImageResult<()> {
+        use image::ImageEncoder;
+        let img = self.to_gray16(max_level);
+        // the encoder takes native-endian samples and writes PNG's big-endian itself
+        let bytes: Vec<u8> = img.as_raw().iter().flat_map(|v| v.to_ne_bytes()).collect();
+        image::codecs::png::PngEncoder::new_with_quality(
+            out,
+            image::codecs::png::CompressionType::Fast,
+            image::codecs::png::FilterType::Sub,
+        )
+        .write_image(&bytes, self.width as u32, self.height as u32, image::ExtendedColorType::L16)
+    }
+
+    /// Writes the frame as an 8-bit grayscale PNG to `out`, scaling `[0, max_level]` to `[0, 255]`.
+    ///
+    /// # Errors
+    /// The encoder's error, e.g. on a failed write.
+    pub fn write_png8<W: Write>(&self, max_level: f32, out: W) -> image::ImageResult<()> {
+        use image::ImageEncoder;
+        let img = self.to_gray8(max_level);
+        image::codecs::png::PngEncoder::new_with_quality(
+            out,
+            image::codecs::png::CompressionType::Fast,
+            image::codecs::png::FilterType::Sub,
+        )
+        .write_image(img.as_raw(), self.width as u32, self.height as u32, image::ExtendedColorType::L8)
+    }
+}
+
+fn quantize(v: f32, max: f32) -> f32 {
+    if v.is_nan() { 0.0 } else { v.round().clamp(0.0, max) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png16_round_trip() {
+        let mut f = Frame::new(3, 2);
+        f.pixels_mut().copy_from_slice(&[0.0, 1.4, 65535.0, 70000.0, -5.0, f32::NAN]);
+        let mut bytes = Vec::new();
+        f.write_png16(65535, &mut bytes).unwrap();
+        let back = image::load_from_memory(&bytes).unwrap().into_luma16();
+        assert_eq!(back.into_raw(), vec![0, 1, 65535, 65535, 0, 0]);
+    }
+
+    #[test]
+    fn gray8_scales_the_bit_depth() {
+        let f = Frame::from_pixels(2, 1, vec![4095.0, 2047.5]);
+        assert_eq!(f.to_gray8(4095.0).into_raw(), vec![255, 128]);
+    }
+}

@@ -1,0 +1,10 @@
+//! Image formation: camera, sky plane ray casting, target blob, Poisson fusion, frames.
+//!
+//! Pure Rust, no Bevy. Geometry in f64; frame pixels in f32. Every kernel is plain data in, plain data out,
+//! and row-parallel kernels give the same result for any thread count.
+
+pub mod camera;
+pub mod frame;
+pub mod fusion;
+pub mod sky_plane;
+pub mod target_blob;

@@ -1,0 +1,412 @@
+//! The sky as an image placed on a plane in the world, ray cast into the sensor (paper III.B, Figs. 2–3).
+//!
+//! The plane is fixed by an anchor point P (a world position), the pixel of the image that sits at P, the
+//! image's width and height in metres, and its orientation: a unit normal facing the camera and the world
+//! direction of the image's "up" (default: vertical plane, facing the camera, image up = world up, as in the
+//! paper's example with the camera at [0, 0, 8] km and P at [0, 30, 6] km on a 4 km × 4 km image).
+//!
+//! Each sensor pixel's ray is intersected with the plane; the hit point's image coordinates are sampled by
+//! nearest neighbour, bilinearly, or as an n × n supersampled average over the sensor pixel's area. A ray that
+//! misses the image gets 0 (the paper), a constant, or the nearest edge value. Rows are computed in parallel;
+//! each row's result depends only on its own pixels, so the output does not depend on the thread count.
+
+use std::path::Path;
+
+use glam::{DVec2, DVec3};
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use super::camera::Camera;
+use super::frame::Frame;
+
+/// An error loading or placing a sky image.
+#[derive(Debug, Error)]
+pub enum SkyError {
+    /// The image file could not be read or decoded.
+    #[error("sky image {path}: {message}")]
+    Image {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// A placement parameter out of range.
+    #[error("sky plane {name}: {message}")]
+    Placement {
+        /// Parameter name.
+        name: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// A grayscale sky image at full precision: 8-bit values 0–255, 16-bit 0–65535, float as given.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkyImage {
+    width: usize,
+    height: usize,
+    pixels: Vec<f32>,
+}
+
+impl SkyImage {
+    /// An image from row-major float data.
+    ///
+    /// # Errors
+    /// [`SkyError::Placement`] if the data length is not `width·height`, the image is empty, or a value is not
+    /// finite.
+    pub fn from_f32(width: usize, height: usize, pixels: Vec<f32>) -> Result<Self, SkyError> {
+        if width == 0 || height == 0 || pixels.len() != width * height {
+            return Err(SkyError::Placement {
+                name: "image",
+                message: format!("{} values for a {width}×{height} image", pixels.len()),
+            });
+        }
+        if let Some(i) = pixels.iter().position(|p| !p.is_finite()) {
+            return Err(SkyError::Placement {
+                name: "image",
+                message: format!("value at ({}, {}) is not finite", i % width, i / width),
+            });
+        }
+        Ok(Self { width, height, pixels })
+    }
+
+    /// Reads any image the `image` crate decodes (PNG here). Gray images keep their integer values; colour
+    /// images are converted to luma at their bit depth.
+    ///
+    /// # Errors
+    /// [`SkyError::Image`] naming the file if it cannot be read or decoded.
+    pub fn load(path: &Path) -> Result<Self, SkyError> {
+        let err = |message: String| SkyError::Image { path: path.display().to_string(), message };
+        let img = image::ImageReader::open(path)
+            .map_err(|e| err(e.to_string()))?
+            .with_guessed_format()
+            .map_err(|e| err(e.to_string()))?
+            .decode()
+            .map_err(|e| err(e.to_string()))?;
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        use image::DynamicImage as D;
+        let pixels: Vec<f32> = match img {
+            D::ImageLuma8(b) => b.into_raw().into_iter().map(f32::from).collect(),
+            D::ImageLuma16(b) => b.into_raw().into_iter().map(f32::from).collect(),
+            D::ImageLumaA8(_) | D::ImageRgb8(_) | D::ImageRgba8(_) => {
+                img.to_luma8().into_raw().into_iter().map(f32::from).collect()
+            }
+            D::ImageLumaA16(_) | D::ImageRgb16(_) | D::ImageRgba16(_) => {
+                img.to_luma16().into_raw().into_iter().map(f32::from).collect()
+            }
+            other => other.to_luma32f().into_raw(),
+        };
+        Self::from_f32(w, h, pixels).map_err(|e| err(e.to_string()))
+    }
+
+    /// Width, px.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height, px.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Row-major values.
+    pub fn pixels(&self) -> &[f32] {
+        &self.pixels
+    }
+
+    /// Value of pixel `(x, y)`, clamped to the image.
+    #[inline]
+    fn at_clamped(&self, x: isize, y: isize) -> f32 {
+        let x = x.clamp(0, self.width as isize - 1) as usize;
+        let y = y.clamp(0, self.height as isize - 1) as usize;
+        self.pixels[y * self.width + x]
+    }
+}
+
+/// How a ray's hit point is turned into a value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+pub enum Sampling {
+    /// The image pixel containing the hit point.
+    Nearest,
+    /// Bilinear interpolation between the four nearest pixel centres.
+    #[default]
+    Bilinear,
+    /// Mean of `n × n` bilinear samples spread over the sensor pixel (an area average).
+    Supersample {
+        /// Samples per side, 1 … 16.
+        n: u32,
+    },
+}
+
+/// What a ray that misses the image gets.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+pub enum MissFill {
+    /// 0, as in the paper.
+    #[default]
+    Zero,
+    /// A constant value.
+    Constant {
+        /// The value.
+        value: f32,
+    },
+    /// The nearest edge pixel of the image (the image extends to infinity).
+    Edge,
+}
+
+/// Where and how the sky image sits in the world.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkyPlacement {
+    /// World position of the anchor point P, m.
+    pub anchor_m: DVec3,
+    /// Image coordinates of P, px (pixel centres at `i + 0.5`); `None` is the image centre.
+    #[serde(default)]
+    pub anchor_px: Option<DVec2>,
+    /// Width of the whole image in the world, m.
+    pub width_m: f64,
+    /// Height of the whole image in the world, m.
+    pub height_m: f64,
+    /// Unit normal of the plane, pointing toward the camera; `None` faces the camera horizontally (vertical
+    /// plane).
+    #[serde(default)]
+    pub normal: Option<DVec3>,
+    /// World direction of the image's up, projected into the plane; default world +z.
+    #[serde(default)]
+    pub up: Option<DVec3>,
+}
+
+/// The sky plane, ready to be ray cast.
+#[derive(Debug, Clone)]
+pub struct SkyPlane {
+    image: SkyImage,
+    anchor_m: DVec3,
+    anchor_px: DVec2,
+    normal: DVec3,
+    /// World displacement per image pixel along +u (right) and +v (down).
+    du_m: DVec3,
+    dv_m: DVec3,
+    /// Image pixels per metre along `right` and `down`.
+    px_per_m: DVec2,
+    right: DVec3,
+    down: DVec3,
+}
+
+impl SkyPlane {
+    /// Places `image` in the world. `camera_position_m` orients a plane given without a normal: vertical, facing
+    /// the camera.
+    ///
+    /// # Errors
+    /// [`SkyError::Placement`] for a non-positive size, a zero or non-finite normal, an up direction along
+    /// the normal, or a camera on the anchor's vertical line when no normal is given.
+    pub fn new(image: SkyImage, placement: &SkyPlacement, camera_position_m: DVec3) -> Result<Self, SkyError> {
+        let bad = |name, message: &str| SkyError::Placement { name, message: message.to_owned() };
+        for (name, v) in [("width_m", placement.width_m), ("height_m", placement.height_m)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(name, &format!("{v} must be a finite number > 0")));
+            }
+        }
+        if !placement.anchor_m.is_finite() {
+            return Err(bad("anchor_m", "must be finite"));
+        }
+        let normal = match placement.normal {
+            Some(n) => n.try_normalize().ok_or_else(|| bad("normal", "must be a non-zero finite vector"))?,
+            None => {
+                let to_cam = camera_position_m - placement.anchor_m;
+                DVec3::new(to_cam.x, to_cam.y, 0.0)
+                    .try_normalize()
+                    .ok_or_else(|| bad("normal", "camera is straight above or below the anchor; give a normal"))?
+            }
+        };
+        let up = placement.up.unwrap_or(DVec3::Z);
+        let up_in_plane = (up - normal * up.dot(normal))
+            .try_normalize()
+            .ok_or_else(|| bad("up", "must not be parallel to the plane's normal"))?;
+        // image right = up × normal (facing the camera, right is to the viewer's right); down = right × normal
+        let right = up_in_plane.cross(normal);
+        let down = -up_in_plane;
+        let (w, h) = (image.width as f64, image.height as f64);
+        let anchor_px = placement.anchor_px.unwrap_or(DVec2::new(w / 2.0, h / 2.0));
+        let px_per_m = DVec2::new(w / placement.width_m, h / placement.height_m);
+        Ok(Self {
+            du_m: right / px_per_m.x,
+            dv_m: down / px_per_m.y,
+            image,
+            anchor_m: placement.anchor_m,
+            anchor_px,
+            normal,
+            px_per_m,
+            right,
+            down,
+        })
+    }
+
+    /// The image.
+    pub fn image(&self) -> &SkyImage {
+        &self.image
+    }
+
+    /// Unit normal, toward the camera side.
+    pub fn normal(&self) -> DVec3 {
+        self.normal
+    }
+
+    /// World position of image coordinates `(x, y)` (px, pixel centres at `i + 0.5`).
+    pub fn world_point(&self, image_px: DVec2) -> DVec3 {
+        let d = image_px - self.anchor_px;
+        self.anchor_m + self.du_m * d.x + self.dv_m * d.y
+    }
+
+    /// Image coordinates (px) where the ray from `origin` along `dir` meets the plane, or `None` if it is
+    /// parallel to the plane or the plane is behind the origin.
+    #[inline]
+    pub fn intersect(&self, origin: DVec3, dir: DVec3) -> Option<DVec2> {
+        let denom = dir.dot(self.normal);
+        if denom.abs() < 1e-15 {
+            return None;
+        }
+        let t = (self.anchor_m - origin).dot(self.normal) / denom;
+        if !(t > 0.0) {
+            return None;
+        }
+        let rel = origin + dir * t - self.anchor_m;
+        Some(self.anchor_px + DVec2::new(rel.dot(self.right) * self.px_per_m.x, rel.dot(self.down) * self.px_per_m.y))
+    }
+
+    /// Samples the image at image coordinates `p` (px).
+    #[inline]
+    fn sample(&self, p: DVec2, sampling: Sampling, fill: MissFill) -> f32 {
+        let (w, h) = (self.image.width as f64, self.image.height as f64);
+        let inside = p.x >= 0.0 && p.y >= 0.0 && p.x < w && p.y < h;
+        if !inside {
+            match fill {
+                MissFill::Zero => return 0.0,
+                MissFill::Constant { value } => return value,
+                MissFill::Edge => {}
+            }
+        }
+        match sampling {
+            Sampling::Nearest => self.image.at_clamped(p.x.floor() as isize, p.y.floor() as isize),
+            _ => {
+                // pixel centres at i + 0.5
+                let x = p.x - 0.5;
+                let y = p.y - 0.5;
+                let (x0, y0) = (x.floor(), y.floor());
+                let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+                let (x0, y0) = (x0 as isize, y0 as isize);
+                let a = self.image.at_clamped(x0, y0);
+                let b = self.image.at_clamped(x0 + 1, y0);
+                let c = self.image.at_clamped(x0, y0 + 1);
+                let d = self.image.at_clamped(x0 + 1, y0 + 1);
+                let top = a + (b - a) * fx;
+                let bottom = c + (d - c) * fx;
+                top + (bottom - top) * fy
+            }
+        }
+    }
+
+    /// Value seen along the ray through sensor pixel coordinates `pixel` of `camera`.
+    fn value_through(&self, camera: &Camera, pixel: DVec2, sampling: Sampling, fill: MissFill) -> f32 {
+        let dir = camera.camera_to_world * camera.ray_camera(pixel);
+        match self.intersect(camera.position_m, dir) {
+            Some(p) => self.sample(p, sampling, fill),
+            None => match fill {
+                MissFill::Constant { value } => value,
+                _ => 0.0,
+            },
+        }
+    }
+
+    /// Ray casts the sky into `frame` as seen by `camera` (the frame's size must match the camera's).
+    pub fn render(&self, camera: &Camera, sampling: Sampling, fill: MissFill, frame: &mut Frame) {
+        use rayon::prelude::*;
+        let width = frame.width();
+        debug_assert_eq!(width as u32, camera.intrinsics.width);
+        let n = match sampling {
+            Sampling::Supersample { n } => n.clamp(1, 16) as usize,
+            _ => 1,
+        };
+        frame.pixels_mut().par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+            for (i, out) in row.iter_mut().enumerate() {
+                *out = if n == 1 {
+                    self.value_through(camera, DVec2::new(i as f64 + 0.5, j as f64 + 0.5), sampling, fill)
+                } else {
+                    let mut sum = 0.0f32;
+                    for sy in 0..n {
+                        for sx in 0..n {
+                            let p = DVec2::new(
+                                i as f64 + (sx as f64 + 0.5) / n as f64,
+                                j as f64 + (sy as f64 + 0.5) / n as f64,
+                            );
+                            sum += self.value_through(camera, p, Sampling::Bilinear, fill);
+                        }
+                    }
+                    sum / (n * n) as f32
+                };
+            }
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imaging::camera::{Intrinsics, YawPitchRoll};
+
+    fn plane(image: SkyImage) -> SkyPlane {
+        let placement = SkyPlacement {
+            anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
+            anchor_px: None,
+            width_m: 4000.0,
+            height_m: 4000.0,
+            normal: None,
+            up: None,
+        };
+        SkyPlane::new(image, &placement, DVec3::new(0.0, 0.0, 8000.0)).unwrap()
+    }
+
+    #[test]
+    fn paper_placement_is_vertical_and_faces_the_camera() {
+        let p = plane(SkyImage::from_f32(4, 4, vec![1.0; 16]).unwrap());
+        assert!((p.normal() + DVec3::Y).length() < 1e-15);
+        // image centre at P, top-left corner 2 km up and 2 km west
+        assert!((p.world_point(DVec2::new(2.0, 2.0)) - DVec3::new(0.0, 30_000.0, 6000.0)).length() < 1e-9);
+        assert!((p.world_point(DVec2::ZERO) - DVec3::new(-2000.0, 30_000.0, 8000.0)).length() < 1e-9);
+    }
+
+    #[test]
+    fn misses_get_the_fill() {
+        let p = plane(SkyImage::from_f32(2, 2, vec![5.0; 4]).unwrap());
+        let intr = Intrinsics::try_new(8, 8, 0.1, 17e-6).unwrap();
+        // looking away from the plane
+        let cam = Camera::new(intr, DVec3::new(0.0, 0.0, 8000.0), YawPitchRoll { yaw_deg: 180.0, ..Default::default() });
+        let mut f = Frame::new(8, 8);
+        p.render(&cam, Sampling::Bilinear, MissFill::Zero, &mut f);
+        assert!(f.pixels().iter().all(|&v| v == 0.0));
+        p.render(&cam, Sampling::Bilinear, MissFill::Constant { value: 7.0 }, &mut f);
+        assert!(f.pixels().iter().all(|&v| v == 7.0));
+        // looking at P
+        let cam = Camera::look_at(intr, DVec3::new(0.0, 0.0, 8000.0), DVec3::new(0.0, 30_000.0, 6000.0), 0.0).unwrap();
+        p.render(&cam, Sampling::Nearest, MissFill::Zero, &mut f);
+        assert!(f.pixels().iter().all(|&v| v == 5.0));
+    }
+
+    #[test]
+    fn rejects_bad_placement() {
+        let img = || SkyImage::from_f32(2, 2, vec![0.0; 4]).unwrap();
+        let base = SkyPlacement {
+            anchor_m: DVec3::ZERO,
+            anchor_px: None,
+            width_m: 10.0,
+            height_m: 10.0,
+            normal: None,
+            up: None,
+        };
+        assert!(SkyPlane::new(img(), &SkyPlacement { width_m: 0.0, ..base }, DVec3::Y).is_err());
+        assert!(SkyPlane::new(img(), &base, DVec3::Z).is_err()); // camera straight above, no normal
+        assert!(SkyPlane::new(img(), &SkyPlacement { normal: Some(DVec3::Z), ..base }, DVec3::Y).is_err());
+        assert!(SkyImage::from_f32(2, 2, vec![0.0; 3]).is_err());
+        assert!(SkyImage::from_f32(1, 1, vec![f32::NAN]).is_err());
+    }
+}

@@ -1,0 +1,113 @@
+//! The `irsim calc` commands: JSON output, reference values and exit codes.
+
+use std::process::Command;
+
+fn irsim(args: &[&str]) -> (i32, serde_json::Value, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_irsim")).args(args).output().expect("run irsim");
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    let json = serde_json::from_str(stdout.trim()).unwrap_or(serde_json::Value::Null);
+    (out.status.code().unwrap_or(-1), json, String::from_utf8_lossy(&out.stderr).to_string())
+}
+
+#[test]
+fn band_radiance_matches_the_reference() {
+    let (code, v, _) = irsim(&["calc", "band-radiance", "--temp-k", "300", "--band-um", "8", "12"]);
+    assert_eq!(code, 0);
+    let l = v["radiance_w_m2_sr"].as_f64().unwrap();
+    assert!(((l - 38.50042393334786) / 38.50042393334786).abs() < 1e-13, "{l}");
+    let (_, v, _) = irsim(&["calc", "band-radiance", "--temp-k", "300", "--band-um", "8", "12", "--emissivity", "0.5"]);
+    assert!((v["radiance_w_m2_sr"].as_f64().unwrap() - 0.5 * 38.50042393334786).abs() < 1e-12);
+}
+
+#[test]
+fn skin_matches_the_stagnation_table() {
+    let (code, v, _) = irsim(&["calc", "skin", "--altitude-km", "20", "--mach", "1.2"]);
+    assert_eq!(code, 0);
+    assert!((v["ambient_temp_k"].as_f64().unwrap() - 216.65).abs() < 1e-9);
+    assert!((v["skin_temp_k"].as_f64().unwrap() - 257.362868).abs() < 1e-9);
+}
+
+#[test]
+fn brdf_prints_f_and_specular() {
+    let args = [
+        "calc",
+        "brdf",
+        "--roughness",
+        "0.2",
+        "--f0",
+        "0.04",
+        "--kd",
+        "0.5",
+        "--ks",
+        "0.5",
+        "--view-zenith-deg",
+        "30",
+        "--light-zenith-deg",
+        "30",
+        "--azimuth-deg",
+        "180",
+    ];
+    let (code, v, _) = irsim(&args);
+    assert_eq!(code, 0);
+    let f = v["f_per_sr"].as_f64().unwrap();
+    let s = v["specular_per_sr"].as_f64().unwrap();
+    assert!((f - (0.5 / std::f64::consts::PI + 0.5 * s)).abs() < 1e-15);
+    // exactly opposite directions: finite
+    let (code, v, _) = irsim(&[
+        "calc",
+        "brdf",
+        "--roughness",
+        "0.2",
+        "--view-zenith-deg",
+        "90",
+        "--light-zenith-deg",
+        "90",
+        "--azimuth-deg",
+        "180",
+    ]);
+    assert_eq!(code, 0);
+    assert!(v["f_per_sr"].as_f64().unwrap().is_finite());
+}
+
+#[test]
+fn signal_prints_the_whole_chain() {
+    let (code, v, _) = irsim(&["calc", "signal"]);
+    assert_eq!(code, 0);
+    for key in [
+        "ambient_temp_k",
+        "skin_temp_k",
+        "self_radiance_w_m2_sr",
+        "reflected_radiance_w_m2_sr",
+        "tau",
+        "voltage_v",
+        "gray",
+    ] {
+        assert!(v[key].as_f64().is_some_and(f64::is_finite), "{key} missing in {v}");
+    }
+    let (code, v, _) =
+        irsim(&["calc", "signal", "--reflection", "ellipsoid", "--extinction-per-km", "0.1", "--range-km", "20"]);
+    assert_eq!(code, 0);
+    assert!(v["tau"].as_f64().unwrap() < 1.0);
+}
+
+#[test]
+fn bad_flags_exit_2_with_a_message() {
+    for args in [
+        &["calc", "band-radiance", "--temp-k", "300", "--band-um", "12", "8"][..],
+        &["calc", "band-radiance", "--temp-k", "300", "--band-um", "-1", "8"],
+        &["calc", "band-radiance", "--temp-k", "-5", "--band-um", "8", "12"],
+        &["calc", "band-radiance", "--temp-k", "abc", "--band-um", "8", "12"],
+        &["calc", "skin", "--altitude-km", "90", "--mach", "1"],
+        &["calc", "skin", "--altitude-km", "-6", "--mach", "1"],
+        &["calc", "skin", "--altitude-km", "10", "--mach", "-1"],
+        &["calc", "brdf", "--roughness", "0", "--view-zenith-deg", "0", "--light-zenith-deg", "0"],
+        &["calc", "signal", "--v-low", "2", "--v-high", "1"],
+        &["calc", "signal", "--tau", "1.5"],
+        &["calc", "nonsense"],
+    ] {
+        let (code, _, stderr) = irsim(args);
+        assert_eq!(code, 2, "{args:?}: {stderr}");
+        assert!(!stderr.trim().is_empty(), "{args:?}: no message");
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    }
+}
