@@ -252,9 +252,7 @@ mod tests {
     fn projects_known_points() {
         let cam = Camera::new(intr(), DVec3::new(0.0, 0.0, 8000.0), YawPitchRoll::default());
         // on the axis → principal point
-        let Projection::InFront { pixel, depth_m } = cam.project(DVec3::new(0.0, 10_000.0, 8000.0)) else {
-            panic!()
-        };
+        let Projection::InFront { pixel, depth_m } = cam.project(DVec3::new(0.0, 10_000.0, 8000.0)) else { panic!() };
         assert!((pixel - DVec2::new(128.0, 128.0)).length() < 1e-12);
         assert!((depth_m - 10_000.0).abs() < 1e-9);
         // 17 m east at 10 km = 17e-6·... : u offset = f/pitch · 17/10000 = 5882.35 · 0.0017 = 10 px
@@ -274,8 +272,11 @@ mod tests {
             YawPitchRoll { yaw_deg: -170.0, pitch_deg: -60.0, roll_deg: 90.0 },
         ];
         for att in attitudes {
-            let cam = Camera::new(intr(), DVec3::new(100.0, -50.0, 3000.0), att)
-                .jittered(Jitter { x_rad: 0.003, y_rad: -0.002, z_rad: 0.01 });
+            let cam = Camera::new(intr(), DVec3::new(100.0, -50.0, 3000.0), att).jittered(Jitter {
+                x_rad: 0.003,
+                y_rad: -0.002,
+                z_rad: 0.01,
+            });
             for (u, v) in [(0.0, 0.0), (0.5, 0.5), (255.99, 3.25), (128.0, 128.0), (17.3, 240.8)] {
                 let px = DVec2::new(u, v);
                 let p = cam.position_m + cam.ray(px) * 12_345.0;

@@ -23,7 +23,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use rustdct::{Dst1, DctPlanner};
+use rustdct::{DctPlanner, Dst1};
 use serde::{Deserialize, Serialize};
 
 use super::frame::Frame;
@@ -159,7 +159,13 @@ impl PoissonFusion {
     }
 
     /// Fuses `patches` into `frame` with `guidance`, solving with `solver`.
-    pub fn fuse(&mut self, frame: &mut Frame, patches: &[Patch<'_>], guidance: Guidance, solver: Solver) -> FusionStats {
+    pub fn fuse(
+        &mut self,
+        frame: &mut Frame,
+        patches: &[Patch<'_>],
+        guidance: Guidance,
+        solver: Solver,
+    ) -> FusionStats {
         self.merge_regions(patches, frame.width(), frame.height());
         let mut stats = FusionStats { regions: self.rects.len(), ..FusionStats::default() };
         for k in 0..self.rects.len() {
@@ -278,19 +284,39 @@ impl PoissonFusion {
         }
     }
 
+    /// Solves `(4I − adjacency) x = rhs` on an `nx × ny` grid with zero Dirichlet boundary, in place, in f64: the
+    /// direct solver that [`PoissonFusion::fuse`] uses, exposed for checks and other drivers.
+    ///
+    /// # Panics
+    /// If `rhs.len() != nx·ny`.
+    pub fn solve_dirichlet(&mut self, nx: usize, ny: usize, rhs: &mut [f64]) {
+        assert_eq!(rhs.len(), nx * ny, "right-hand side length");
+        if rhs.is_empty() {
+            return;
+        }
+        self.reserve(rhs.len());
+        self.work[..rhs.len()].copy_from_slice(rhs);
+        self.solve_direct(nx, ny);
+        rhs.copy_from_slice(&self.work[..rhs.len()]);
+    }
+
     /// Solves `(4I − adjacency) x = work` on an `nx × ny` grid with zero Dirichlet boundary, in place.
     fn solve_direct(&mut self, nx: usize, ny: usize) {
         let dst_x = self.plan(nx);
         let dst_y = self.plan(ny);
         let n = nx * ny;
-        let (work, tmp, scratch) = (&mut self.work[..n], &mut self.work2, &mut self.scratch);
+        // Each transform gets exactly the scratch it asks for (some split the slice by its length), zeroed
+        // before every call: rustdct 0.7's FFT-based DST-I reads two cells of its scratch it never writes.
+        let len = dst_x.get_scratch_len().max(dst_y.get_scratch_len());
+        let (work, tmp, scratch) = (&mut self.work[..n], &mut self.work2, &mut self.scratch[..len]);
+        let (sx, sy) = (dst_x.get_scratch_len(), dst_y.get_scratch_len());
         // rows: DST along x
         for row in work.chunks_exact_mut(nx) {
-            dst_x.process_dst1_with_scratch(row, scratch);
+            dst1(&*dst_x, row, &mut scratch[..sx]);
         }
         transpose(work, &mut tmp[..n], nx, ny);
         for col in tmp[..n].chunks_exact_mut(ny) {
-            dst_y.process_dst1_with_scratch(col, scratch);
+            dst1(&*dst_y, col, &mut scratch[..sy]);
         }
         // divide by the eigenvalues (tmp is ny-fast: index kx·ny + ky)
         let cx: f64 = std::f64::consts::PI / (nx + 1) as f64;
@@ -304,11 +330,11 @@ impl PoissonFusion {
             }
         }
         for col in tmp[..n].chunks_exact_mut(ny) {
-            dst_y.process_dst1_with_scratch(col, scratch);
+            dst1(&*dst_y, col, &mut scratch[..sy]);
         }
         transpose(&tmp[..n], work, ny, nx);
         for row in work.chunks_exact_mut(nx) {
-            dst_x.process_dst1_with_scratch(row, scratch);
+            dst1(&*dst_x, row, &mut scratch[..sx]);
         }
     }
 
@@ -358,6 +384,13 @@ impl PoissonFusion {
         }
         max_iterations
     }
+}
+
+/// One DST-I with a zeroed scratch.
+#[inline]
+fn dst1(dst: &dyn Dst1<f64>, buffer: &mut [f64], scratch: &mut [f64]) {
+    scratch.fill(0.0);
+    dst.process_dst1_with_scratch(buffer, scratch);
 }
 
 /// Writes `value(i)` (region-layout index) into `frame` on `rect`, skipping a ring of `margin` pixels.

@@ -380,7 +380,8 @@ mod tests {
         let p = plane(SkyImage::from_f32(2, 2, vec![5.0; 4]).unwrap());
         let intr = Intrinsics::try_new(8, 8, 0.1, 17e-6).unwrap();
         // looking away from the plane
-        let cam = Camera::new(intr, DVec3::new(0.0, 0.0, 8000.0), YawPitchRoll { yaw_deg: 180.0, ..Default::default() });
+        let cam =
+            Camera::new(intr, DVec3::new(0.0, 0.0, 8000.0), YawPitchRoll { yaw_deg: 180.0, ..Default::default() });
         let mut f = Frame::new(8, 8);
         p.render(&cam, Sampling::Bilinear, MissFill::Zero, &mut f);
         assert!(f.pixels().iter().all(|&v| v == 0.0));

@@ -386,7 +386,11 @@ mod tests {
         let cam = camera();
         let f = cam.intrinsics.focal_px();
         let (r, d) = (10.0, 5000.0);
-        let e = Ellipsoid { center_m: DVec3::new(0.0, d, 0.0), semi_axes_m: DVec3::splat(r), body_to_world: DMat3::IDENTITY };
+        let e = Ellipsoid {
+            center_m: DVec3::new(0.0, d, 0.0),
+            semi_axes_m: DVec3::splat(r),
+            body_to_world: DMat3::IDENTITY,
+        };
         let EllipsoidProjection::Visible(el) = project_ellipsoid(&e, &cam) else { panic!() };
         // tangent cone half-angle asin(r/d): image radius f·tan(asin(r/d))
         let want = f * (r / d).asin().tan();
@@ -411,11 +415,23 @@ mod tests {
     #[test]
     fn behind_and_inside_are_reported() {
         let cam = camera();
-        let behind = Ellipsoid { center_m: DVec3::new(0.0, -100.0, 0.0), semi_axes_m: DVec3::splat(5.0), body_to_world: DMat3::IDENTITY };
+        let behind = Ellipsoid {
+            center_m: DVec3::new(0.0, -100.0, 0.0),
+            semi_axes_m: DVec3::splat(5.0),
+            body_to_world: DMat3::IDENTITY,
+        };
         assert_eq!(project_ellipsoid(&behind, &cam), EllipsoidProjection::Behind);
-        let straddling = Ellipsoid { center_m: DVec3::new(0.0, 2.0, 0.0), semi_axes_m: DVec3::new(1.0, 5.0, 1.0), body_to_world: DMat3::IDENTITY };
-        assert!(matches!(project_ellipsoid(&straddling, &cam), EllipsoidProjection::Behind | EllipsoidProjection::Inside));
-        let around = Ellipsoid { center_m: DVec3::ZERO, semi_axes_m: DVec3::splat(5.0), body_to_world: DMat3::IDENTITY };
+        let straddling = Ellipsoid {
+            center_m: DVec3::new(0.0, 2.0, 0.0),
+            semi_axes_m: DVec3::new(1.0, 5.0, 1.0),
+            body_to_world: DMat3::IDENTITY,
+        };
+        assert!(matches!(
+            project_ellipsoid(&straddling, &cam),
+            EllipsoidProjection::Behind | EllipsoidProjection::Inside
+        ));
+        let around =
+            Ellipsoid { center_m: DVec3::ZERO, semi_axes_m: DVec3::splat(5.0), body_to_world: DMat3::IDENTITY };
         assert_eq!(project_ellipsoid(&around, &cam), EllipsoidProjection::Inside);
     }
 
