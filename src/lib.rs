@@ -10,7 +10,6 @@
 //! - [`physics`]: radiometry, atmosphere, sensor and noise — pure numerics, no Bevy;
 //! - [`imaging`]: camera, sky-plane ray casting, target blob, Poisson fusion, frames — pure, no Bevy;
 //! - [`cli`]: the `irsim` command line.
-#![warn(missing_docs)]
 
 pub mod cli;
 pub mod imaging;

@@ -14,7 +14,9 @@ use rand_chacha::ChaCha8Rng;
 const SQUARE: usize = 4; // checker squares, sky pixels
 
 fn checkerboard(n: usize) -> SkyImage {
-    let px = (0..n * n).map(|i| if ((i % n) / SQUARE + (i / n) / SQUARE) % 2 == 0 { 0.0 } else { 1000.0 }).collect();
+    let px = (0..n * n)
+        .map(|i| if ((i % n) / SQUARE + (i / n) / SQUARE).is_multiple_of(2) { 0.0 } else { 1000.0 })
+        .collect();
     SkyImage::from_f32(n, n, px).unwrap()
 }
 
@@ -342,10 +344,24 @@ fn fusion_solves_the_equation_keeps_the_boundary_and_touches_nothing_else() {
     for guidance in [Guidance::Normal, Guidance::Mixed] {
         let (mut frame, blob) = scene(64, 48, 1);
         let before = frame.clone();
-        let (rect, patch) = region(&frame, &blob);
+        let (patch_rect, patch) = region(&frame, &blob);
         let mut fusion = PoissonFusion::new();
-        fusion.fuse(&mut frame, &[Patch { rect, values: &patch }], guidance, Solver::Direct);
-        let u: Vec<f64> = patch.iter().map(|&v| v as f64).collect();
+        fusion.fuse(&mut frame, &[Patch { rect: patch_rect, values: &patch }], guidance, Solver::Direct);
+        let rect = fusion.regions()[0];
+        assert!(
+            rect.x0 <= patch_rect.x0
+                && rect.x1 >= patch_rect.x1
+                && rect.y0 <= patch_rect.y0
+                && rect.y1 >= patch_rect.y1
+        );
+        // the patch on the (possibly grown) region
+        let mut u = vec![0.0; rect.width() * rect.height()];
+        for y in patch_rect.y0..patch_rect.y1 {
+            for x in patch_rect.x0..patch_rect.x1 {
+                u[(y - rect.y0) * rect.width() + x - rect.x0] =
+                    f64::from(patch[(y - patch_rect.y0) * patch_rect.width() + x - patch_rect.x0]);
+            }
+        }
         let bg = region_values(&before, rect);
         let res = max_residual(&frame, rect, &u, &bg, guidance);
         assert!(res <= 1e-4, "{guidance:?}: f32 residual {res}");

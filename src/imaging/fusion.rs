@@ -127,6 +127,12 @@ impl PoissonFusion {
         }
     }
 
+    /// The regions the last [`PoissonFusion::fuse`] solved: the patches' rectangles clipped to the frame,
+    /// merged where they touch, and grown by a few pixels where that gives a faster transform size.
+    pub fn regions(&self) -> &[PixelRect] {
+        &self.rects
+    }
+
     /// Plans transforms and sizes buffers for regions up to `max_side × max_side`, so later calls do not allocate.
     pub fn with_capacity(max_side: usize) -> Self {
         let mut s = Self::new();
@@ -215,18 +221,31 @@ impl PoissonFusion {
                 self.rects.push(r);
             }
         }
-        let mut merged = true;
-        while merged {
-            merged = false;
-            'outer: for i in 0..self.rects.len() {
-                for j in i + 1..self.rects.len() {
-                    if self.rects[i].touches(&self.rects[j]) {
-                        self.rects[i] = self.rects[i].union(&self.rects[j]);
-                        self.rects.swap_remove(j);
-                        merged = true;
-                        break 'outer;
+        // Merge touching regions, then grow each so that its DST length n has a smooth n + 1 (fast FFT sizes);
+        // growing can make regions touch again, so repeat until nothing changes.
+        loop {
+            let mut merged = true;
+            while merged {
+                merged = false;
+                'outer: for i in 0..self.rects.len() {
+                    for j in i + 1..self.rects.len() {
+                        if self.rects[i].touches(&self.rects[j]) {
+                            self.rects[i] = self.rects[i].union(&self.rects[j]);
+                            self.rects.swap_remove(j);
+                            merged = true;
+                            break 'outer;
+                        }
                     }
                 }
+            }
+            let mut grown = false;
+            for r in &mut self.rects {
+                let g = grow_to_fast_size(*r, width, height);
+                grown |= g != *r;
+                *r = g;
+            }
+            if !grown {
+                break;
             }
         }
     }
@@ -386,6 +405,43 @@ impl PoissonFusion {
     }
 }
 
+/// True if `n` has no prime factor above 7.
+fn is_smooth(mut n: usize) -> bool {
+    if n == 0 {
+        return false;
+    }
+    for p in [2, 3, 5, 7] {
+        while n.is_multiple_of(p) {
+            n /= p;
+        }
+    }
+    n == 1
+}
+
+/// Grows `rect` (within the frame) until each side's interior length `n = side − 2` has a smooth `n + 1`,
+/// adding columns alternately right and left (rows down and up). A side that cannot grow stays as it is.
+fn grow_to_fast_size(rect: PixelRect, width: usize, height: usize) -> PixelRect {
+    let grow = |mut lo: usize, mut hi: usize, max: usize| {
+        let mut right = true;
+        while hi - lo >= 3 && !is_smooth(hi - lo - 1) {
+            if right && hi < max {
+                hi += 1;
+            } else if lo > 0 {
+                lo -= 1;
+            } else if hi < max {
+                hi += 1;
+            } else {
+                break;
+            }
+            right = !right;
+        }
+        (lo, hi)
+    };
+    let (x0, x1) = grow(rect.x0, rect.x1, width);
+    let (y0, y1) = grow(rect.y0, rect.y1, height);
+    PixelRect { x0, y0, x1, y1 }
+}
+
 /// One DST-I with a zeroed scratch.
 #[inline]
 fn dst1(dst: &dyn Dst1<f64>, buffer: &mut [f64], scratch: &mut [f64]) {
@@ -448,6 +504,18 @@ mod tests {
         let c = Patch { rect: PixelRect { x0: 40, y0: 40, x1: 50, y1: 50 }, values: &vals };
         f.merge_regions(&[a, b, c], 64, 64);
         assert_eq!(f.rects.len(), 2);
-        assert!(f.rects.contains(&PixelRect { x0: 0, y0: 0, x1: 15, y1: 15 }));
+        // 0..15 merged, then grown to 0..16 so that the interior length 14 has 14 + 1 = 15 = 3·5 … already smooth
+        assert!(f.rects.iter().any(|r| r.x0 == 0 && r.y0 == 0 && r.x1 >= 15 && r.y1 >= 15), "{:?}", f.rects);
+    }
+
+    #[test]
+    fn regions_grow_to_fast_transform_sizes() {
+        // side 128: interior 126, 126 + 1 = 127 is prime → grows to 129 (interior 127, 128 = 2⁷)
+        let r = grow_to_fast_size(PixelRect { x0: 10, y0: 10, x1: 138, y1: 138 }, 300, 300);
+        assert_eq!((r.width(), r.height()), (129, 129));
+        // at the frame edge it grows the other way, or not at all
+        let r = grow_to_fast_size(PixelRect { x0: 0, y0: 0, x1: 128, y1: 128 }, 128, 128);
+        assert_eq!((r.width(), r.height()), (128, 128));
+        assert!(is_smooth(63) && !is_smooth(127) && !is_smooth(0));
     }
 }

@@ -185,7 +185,7 @@ impl CookTorrance {
         let vh = (0.5 * len).min(1.0);
         let fresnel = self.fresnel(vh);
         let distribution = self.beckmann(nh, n.cross(h).length());
-        let geometry = (2.0 * nh * nv / vh).min(2.0 * nh * nl / vh).min(1.0).max(0.0);
+        let geometry = (2.0 * nh * nv / vh).min(2.0 * nh * nl / vh).clamp(0.0, 1.0);
         let regime = if nv > 0.0 && nl > 0.0 { BrdfRegime::Regular } else { BrdfRegime::GrazingLimit };
         let specular = if distribution == 0.0 || nh <= 0.0 {
             0.0

@@ -288,7 +288,7 @@ fn gauss_legendre_scaled(a: f64, b: f64) -> (f64, f64) {
 /// Nodes and weights of 20-point Gauss–Legendre quadrature on [−1, 1], computed once by Newton iteration.
 fn gauss_legendre_20() -> &'static ([f64; 20], [f64; 20]) {
     static TABLE: OnceLock<([f64; 20], [f64; 20])> = OnceLock::new();
-    TABLE.get_or_init(|| gauss_legendre::<20>())
+    TABLE.get_or_init(gauss_legendre::<20>)
 }
 
 /// Gauss–Legendre nodes and weights of order `N` on [−1, 1].
@@ -381,7 +381,7 @@ mod tests {
     fn wien_peak() {
         // λ_max T = 2897.771955 µm K
         let t = 300.0;
-        let peak = 2897.771_955 / t;
+        let peak = 2_897.771_955 / t;
         let at = |l| spectral_radiance(l, t);
         assert!(at(peak) > at(peak * (1.0 + 1e-4)));
         assert!(at(peak) > at(peak * (1.0 - 1e-4)));
