@@ -14,7 +14,7 @@
 //! Solvers: Jacobi sweeps exactly as eq 20 (the paper's, kept as a reference), red-black SOR, and the default
 //! exact direct solver: the 5-point Laplacian with Dirichlet boundaries is diagonalised by the type-I discrete
 //! sine transform, so `f = S_y S_x (Ŝ_x Ŝ_y b / λ)` with `λ_kl = 4 − 2cos(πk/(n_x+1)) − 2cos(πl/(n_y+1))`, in
-//! O(n² log n), in f64.
+//! O(n² log n), in f64, two rows per complex FFT.
 //!
 //! Overlapping (or touching) regions of several targets are merged into one solve. Regions are clipped to the
 //! frame; a region thinner than 3 pixels has no interior and is left as it is in the solved modes. After the
@@ -23,7 +23,8 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use rustdct::{DctPlanner, Dst1};
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
 
 use super::frame::Frame;
@@ -85,10 +86,71 @@ pub struct FusionStats {
     pub iterations: u32,
 }
 
+/// A planned type-I discrete sine transform of length `n`, two real rows per complex FFT.
+///
+/// `X_k = Σ_j x_j sin(π(j+1)(k+1)/(n+1))` (unnormalised; applying it twice multiplies by `(n+1)/2`). The odd
+/// extension `[0, x, 0, −x reversed]` of length `M = 2(n+1)` has the FFT `Y_{k+1} = −2i·X_k`; packing two rows
+/// as real and imaginary parts gives both from one FFT: `Z_{k+1} = 2B_k − 2i·A_k`.
+struct Dst1 {
+    n: usize,
+    fft: Arc<dyn Fft<f64>>,
+    /// `2 − 2cos(π(k+1)/(n+1))`: this axis's share of the Laplacian's eigenvalues.
+    eigen: Vec<f64>,
+}
+
+impl Dst1 {
+    /// Transforms `a` and, if given, `b` in place; `buf` holds `2(n+1)` values, `scratch` the FFT's scratch.
+    fn process_pair(
+        &self,
+        a: &mut [f64],
+        b: Option<&mut [f64]>,
+        buf: &mut [Complex<f64>],
+        scratch: &mut [Complex<f64>],
+    ) {
+        let n = self.n;
+        let m = 2 * (n + 1);
+        let buf = &mut buf[..m];
+        buf[0] = Complex::new(0.0, 0.0);
+        buf[n + 1] = Complex::new(0.0, 0.0);
+        match &b {
+            Some(b) => {
+                for j in 0..n {
+                    buf[j + 1] = Complex::new(a[j], b[j]);
+                    buf[m - 1 - j] = Complex::new(-a[j], -b[j]);
+                }
+            }
+            None => {
+                for j in 0..n {
+                    buf[j + 1] = Complex::new(a[j], 0.0);
+                    buf[m - 1 - j] = Complex::new(-a[j], 0.0);
+                }
+            }
+        }
+        self.fft.process_with_scratch(buf, scratch);
+        for k in 0..n {
+            a[k] = -0.5 * buf[k + 1].im;
+        }
+        if let Some(b) = b {
+            for k in 0..n {
+                b[k] = 0.5 * buf[k + 1].re;
+            }
+        }
+    }
+
+    /// Transforms every row of length `n` in `rows`, two at a time.
+    fn process_rows(&self, rows: &mut [f64], buf: &mut [Complex<f64>], scratch: &mut [Complex<f64>]) {
+        let mut chunks = rows.chunks_exact_mut(self.n);
+        while let Some(a) = chunks.next() {
+            let b = chunks.next();
+            self.process_pair(a, b, buf, scratch);
+        }
+    }
+}
+
 /// Poisson fusion with planned transforms and reusable buffers.
 pub struct PoissonFusion {
-    planner: DctPlanner<f64>,
-    dst: HashMap<usize, Arc<dyn Dst1<f64>>>,
+    planner: FftPlanner<f64>,
+    dst: HashMap<usize, Arc<Dst1>>,
     rects: Vec<PixelRect>,
     /// Guidance patch u on the region.
     u: Vec<f64>,
@@ -97,7 +159,10 @@ pub struct PoissonFusion {
     /// Right-hand side / solution on the interior (or the whole region for the iterative solvers).
     work: Vec<f64>,
     work2: Vec<f64>,
-    scratch: Vec<f64>,
+    /// Second buffer of the Jacobi sweeps.
+    next: Vec<f64>,
+    fft_buf: Vec<Complex<f64>>,
+    fft_scratch: Vec<Complex<f64>>,
 }
 
 impl std::fmt::Debug for PoissonFusion {
@@ -116,14 +181,16 @@ impl PoissonFusion {
     /// A fusion engine with nothing planned yet.
     pub fn new() -> Self {
         Self {
-            planner: DctPlanner::new(),
+            planner: FftPlanner::new(),
             dst: HashMap::new(),
             rects: Vec::new(),
             u: Vec::new(),
             bg: Vec::new(),
             work: Vec::new(),
             work2: Vec::new(),
-            scratch: Vec::new(),
+            next: Vec::new(),
+            fft_buf: Vec::new(),
+            fft_scratch: Vec::new(),
         }
     }
 
@@ -144,14 +211,22 @@ impl PoissonFusion {
         s
     }
 
-    fn plan(&mut self, n: usize) -> Arc<dyn Dst1<f64>> {
+    fn plan(&mut self, n: usize) -> Arc<Dst1> {
         if let Some(d) = self.dst.get(&n) {
             return Arc::clone(d);
         }
-        let d = self.planner.plan_dst1(n);
-        if self.scratch.len() < d.get_scratch_len() {
-            self.scratch.resize(d.get_scratch_len(), 0.0);
+        let m = 2 * (n + 1);
+        let fft = self.planner.plan_fft_forward(m);
+        let zero = Complex::new(0.0, 0.0);
+        if self.fft_scratch.len() < fft.get_inplace_scratch_len() {
+            self.fft_scratch.resize(fft.get_inplace_scratch_len(), zero);
         }
+        if self.fft_buf.len() < m {
+            self.fft_buf.resize(m, zero);
+        }
+        let c = std::f64::consts::PI / (n + 1) as f64;
+        let eigen = (0..n).map(|k| 2.0 - 2.0 * (c * (k + 1) as f64).cos()).collect();
+        let d = Arc::new(Dst1 { n, fft, eigen });
         self.dst.insert(n, Arc::clone(&d));
         d
     }
@@ -278,24 +353,29 @@ impl PoissonFusion {
     fn build_rhs(&mut self, w: usize, h: usize, guidance: Guidance) {
         let nx = w - 2;
         let (u, bg) = (&self.u, &self.bg);
+        let mixed = guidance == Guidance::Mixed;
         for y in 1..h - 1 {
             for x in 1..w - 1 {
                 let p = y * w + x;
                 let mut b = 0.0;
-                let mut ring = 0.0;
                 for q in [p - 1, p + 1, p - w, p + w] {
                     let gu = u[p] - u[q];
-                    b += match guidance {
-                        Guidance::Mixed => {
-                            let gb = bg[p] - bg[q];
-                            if gb.abs() > gu.abs() { gb } else { gu }
-                        }
-                        _ => gu,
-                    };
-                    let (qx, qy) = (q % w, q / w);
-                    if qx == 0 || qy == 0 || qx == w - 1 || qy == h - 1 {
-                        ring += bg[q];
-                    }
+                    let gb = bg[p] - bg[q];
+                    b += if mixed && gb.abs() > gu.abs() { gb } else { gu };
+                }
+                // known boundary neighbours move to the right-hand side
+                let mut ring = 0.0;
+                if x == 1 {
+                    ring += bg[p - 1];
+                }
+                if x == w - 2 {
+                    ring += bg[p + 1];
+                }
+                if y == 1 {
+                    ring += bg[p - w];
+                }
+                if y == h - 2 {
+                    ring += bg[p + w];
                 }
                 self.work2[p] = b;
                 self.work[(y - 1) * nx + (x - 1)] = b + ring;
@@ -324,44 +404,30 @@ impl PoissonFusion {
         let dst_x = self.plan(nx);
         let dst_y = self.plan(ny);
         let n = nx * ny;
-        // Each transform gets exactly the scratch it asks for (some split the slice by its length), zeroed
-        // before every call: rustdct 0.7's FFT-based DST-I reads two cells of its scratch it never writes.
-        let len = dst_x.get_scratch_len().max(dst_y.get_scratch_len());
-        let (work, tmp, scratch) = (&mut self.work[..n], &mut self.work2, &mut self.scratch[..len]);
-        let (sx, sy) = (dst_x.get_scratch_len(), dst_y.get_scratch_len());
+        let (work, tmp) = (&mut self.work[..n], &mut self.work2[..n]);
+        let (buf, scratch) = (&mut self.fft_buf, &mut self.fft_scratch);
+        let (sx, sy) = (dst_x.fft.get_inplace_scratch_len(), dst_y.fft.get_inplace_scratch_len());
         // rows: DST along x
-        for row in work.chunks_exact_mut(nx) {
-            dst1(&*dst_x, row, &mut scratch[..sx]);
-        }
-        transpose(work, &mut tmp[..n], nx, ny);
-        for col in tmp[..n].chunks_exact_mut(ny) {
-            dst1(&*dst_y, col, &mut scratch[..sy]);
-        }
-        // divide by the eigenvalues (tmp is ny-fast: index kx·ny + ky)
-        let cx: f64 = std::f64::consts::PI / (nx + 1) as f64;
-        let cy: f64 = std::f64::consts::PI / (ny + 1) as f64;
+        dst_x.process_rows(work, buf, &mut scratch[..sx]);
+        transpose(work, tmp, nx, ny);
+        dst_y.process_rows(tmp, buf, &mut scratch[..sy]);
+        // divide by the eigenvalues λ = (2 − 2cos θx) + (2 − 2cos θy); tmp is ny-fast: index kx·ny + ky
         let scale = 4.0 / ((nx + 1) * (ny + 1)) as f64;
-        for kx in 0..nx {
-            let lx = 4.0 - 2.0 * (cx * (kx + 1) as f64).cos();
-            for ky in 0..ny {
-                let lambda = lx - 2.0 * (cy * (ky + 1) as f64).cos();
-                tmp[kx * ny + ky] *= scale / lambda;
+        for (row, &lx) in tmp.chunks_exact_mut(ny).zip(&dst_x.eigen) {
+            for (v, &ly) in row.iter_mut().zip(&dst_y.eigen) {
+                *v *= scale / (lx + ly);
             }
         }
-        for col in tmp[..n].chunks_exact_mut(ny) {
-            dst1(&*dst_y, col, &mut scratch[..sy]);
-        }
-        transpose(&tmp[..n], work, ny, nx);
-        for row in work.chunks_exact_mut(nx) {
-            dst1(&*dst_x, row, &mut scratch[..sx]);
-        }
+        dst_y.process_rows(tmp, buf, &mut scratch[..sy]);
+        transpose(tmp, work, ny, nx);
+        dst_x.process_rows(work, buf, &mut scratch[..sx]);
     }
 
     /// Jacobi (eq 20, `omega = None`) or red-black SOR on the whole region layout, starting from the
     /// background; the solution is left in `work` (region layout). Returns the sweeps used.
     fn solve_iterative(&mut self, w: usize, h: usize, tolerance: f64, max_iterations: u32, omega: Option<f64>) -> u32 {
         let area = w * h;
-        let (f, next, bg, guide) = (&mut self.work, &mut self.scratch, &self.bg, &self.work2);
+        let (f, next, bg, guide) = (&mut self.work, &mut self.next, &self.bg, &self.work2);
         if next.len() < area {
             next.resize(area, 0.0);
         }
@@ -405,12 +471,12 @@ impl PoissonFusion {
     }
 }
 
-/// True if `n` has no prime factor above 7.
+/// True if `n` is `2^a·3^b`: FFT lengths `2n` that rustfft runs fastest.
 fn is_smooth(mut n: usize) -> bool {
     if n == 0 {
         return false;
     }
-    for p in [2, 3, 5, 7] {
+    for p in [2, 3] {
         while n.is_multiple_of(p) {
             n /= p;
         }
@@ -418,7 +484,7 @@ fn is_smooth(mut n: usize) -> bool {
     n == 1
 }
 
-/// Grows `rect` (within the frame) until each side's interior length `n = side − 2` has a smooth `n + 1`,
+/// Grows `rect` (within the frame) until each side's interior length `n = side − 2` has `n + 1 = 2^a·3^b`,
 /// adding columns alternately right and left (rows down and up). A side that cannot grow stays as it is.
 fn grow_to_fast_size(rect: PixelRect, width: usize, height: usize) -> PixelRect {
     let grow = |mut lo: usize, mut hi: usize, max: usize| {
@@ -440,13 +506,6 @@ fn grow_to_fast_size(rect: PixelRect, width: usize, height: usize) -> PixelRect 
     let (x0, x1) = grow(rect.x0, rect.x1, width);
     let (y0, y1) = grow(rect.y0, rect.y1, height);
     PixelRect { x0, y0, x1, y1 }
-}
-
-/// One DST-I with a zeroed scratch.
-#[inline]
-fn dst1(dst: &dyn Dst1<f64>, buffer: &mut [f64], scratch: &mut [f64]) {
-    scratch.fill(0.0);
-    dst.process_dst1_with_scratch(buffer, scratch);
 }
 
 /// Writes `value(i)` (region-layout index) into `frame` on `rect`, skipping a ring of `margin` pixels.
@@ -504,7 +563,7 @@ mod tests {
         let c = Patch { rect: PixelRect { x0: 40, y0: 40, x1: 50, y1: 50 }, values: &vals };
         f.merge_regions(&[a, b, c], 64, 64);
         assert_eq!(f.rects.len(), 2);
-        // 0..15 merged, then grown to 0..16 so that the interior length 14 has 14 + 1 = 15 = 3·5 … already smooth
+        // 0..15 merged, then grown so that interior length + 1 is 2^a·3^b
         assert!(f.rects.iter().any(|r| r.x0 == 0 && r.y0 == 0 && r.x1 >= 15 && r.y1 >= 15), "{:?}", f.rects);
     }
 
@@ -516,6 +575,6 @@ mod tests {
         // at the frame edge it grows the other way, or not at all
         let r = grow_to_fast_size(PixelRect { x0: 0, y0: 0, x1: 128, y1: 128 }, 128, 128);
         assert_eq!((r.width(), r.height()), (128, 128));
-        assert!(is_smooth(63) && !is_smooth(127) && !is_smooth(0));
+        assert!(is_smooth(64) && is_smooth(54) && !is_smooth(63) && !is_smooth(127) && !is_smooth(0));
     }
 }
