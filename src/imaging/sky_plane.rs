@@ -287,18 +287,26 @@ impl SkyPlane {
             }
         }
         match sampling {
-            Sampling::Nearest => self.image.at_clamped(p.x.floor() as isize, p.y.floor() as isize),
+            Sampling::Nearest => self.image.at_clamped(floor_isize(p.x), floor_isize(p.y)),
             _ => {
                 // pixel centres at i + 0.5
                 let x = p.x - 0.5;
                 let y = p.y - 0.5;
-                let (x0, y0) = (x.floor(), y.floor());
-                let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-                let (x0, y0) = (x0 as isize, y0 as isize);
-                let a = self.image.at_clamped(x0, y0);
-                let b = self.image.at_clamped(x0 + 1, y0);
-                let c = self.image.at_clamped(x0, y0 + 1);
-                let d = self.image.at_clamped(x0 + 1, y0 + 1);
+                let (x0, y0) = (floor_isize(x), floor_isize(y));
+                let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+                let (w, h) = (self.image.width as isize, self.image.height as isize);
+                let (a, b, c, d) = if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
+                    let i = y0 as usize * self.image.width + x0 as usize;
+                    let px = &self.image.pixels;
+                    (px[i], px[i + 1], px[i + self.image.width], px[i + self.image.width + 1])
+                } else {
+                    (
+                        self.image.at_clamped(x0, y0),
+                        self.image.at_clamped(x0 + 1, y0),
+                        self.image.at_clamped(x0, y0 + 1),
+                        self.image.at_clamped(x0 + 1, y0 + 1),
+                    )
+                };
                 let top = a + (b - a) * fx;
                 let bottom = c + (d - c) * fx;
                 top + (bottom - top) * fy
@@ -306,19 +314,11 @@ impl SkyPlane {
         }
     }
 
-    /// Value seen along the ray through sensor pixel coordinates `pixel` of `camera`.
-    fn value_through(&self, camera: &Camera, pixel: DVec2, sampling: Sampling, fill: MissFill) -> f32 {
-        let dir = camera.camera_to_world * camera.ray_camera(pixel);
-        match self.intersect(camera.position_m, dir) {
-            Some(p) => self.sample(p, sampling, fill),
-            None => match fill {
-                MissFill::Constant { value } => value,
-                _ => 0.0,
-            },
-        }
-    }
-
     /// Ray casts the sky into `frame` as seen by `camera` (the frame's size must match the camera's).
+    ///
+    /// Along a row of sensor pixels the ray direction is linear in `u`, so its dot products with the plane's
+    /// normal and in-plane axes are too: each pixel costs three additions and one division (the plane-to-image
+    /// homography, evaluated incrementally), then the sample.
     pub fn render(&self, camera: &Camera, sampling: Sampling, fill: MissFill, frame: &mut Frame) {
         use rayon::prelude::*;
         let width = frame.width();
@@ -327,25 +327,107 @@ impl SkyPlane {
             Sampling::Supersample { n } => n.clamp(1, 16) as usize,
             _ => 1,
         };
+        let point_sampling = if n == 1 { sampling } else { Sampling::Bilinear };
+        let geometry = RowGeometry::new(self, camera);
+        let inv = 1.0 / (n * n) as f32;
         frame.pixels_mut().par_chunks_mut(width).enumerate().for_each(|(j, row)| {
-            for (i, out) in row.iter_mut().enumerate() {
-                *out = if n == 1 {
-                    self.value_through(camera, DVec2::new(i as f64 + 0.5, j as f64 + 0.5), sampling, fill)
-                } else {
-                    let mut sum = 0.0f32;
-                    for sy in 0..n {
-                        for sx in 0..n {
-                            let p = DVec2::new(
-                                i as f64 + (sx as f64 + 0.5) / n as f64,
-                                j as f64 + (sy as f64 + 0.5) / n as f64,
-                            );
-                            sum += self.value_through(camera, p, Sampling::Bilinear, fill);
-                        }
-                    }
-                    sum / (n * n) as f32
-                };
+            if n == 1 {
+                geometry.cast_row(self, j as f64 + 0.5, 0.5, 1.0, point_sampling, fill, row, false);
+                return;
+            }
+            row.fill(0.0);
+            for sy in 0..n {
+                let v = j as f64 + (sy as f64 + 0.5) / n as f64;
+                for sx in 0..n {
+                    let u0 = (sx as f64 + 0.5) / n as f64;
+                    geometry.cast_row(self, v, u0, 1.0, point_sampling, fill, row, true);
+                }
+            }
+            for p in row.iter_mut() {
+                *p *= inv;
             }
         });
+    }
+}
+
+/// `⌊x⌋` as an integer without a libm call (the baseline x86-64 target has no rounding instruction);
+/// saturates for values beyond `isize`.
+#[inline]
+fn floor_isize(x: f64) -> isize {
+    let i = x as isize;
+    if (i as f64) > x { i - 1 } else { i }
+}
+
+/// Per-frame constants of the ray cast: how the ray's dot products with the plane axes vary over the image.
+struct RowGeometry {
+    /// `(a − o)·n`: the numerator of the ray parameter.
+    numerator: f64,
+    /// `(o − a)·right·ppm_x` and `(o − a)·down·ppm_y`: image coordinates of the ray origin's projection.
+    origin_px: DVec2,
+    /// Dot products of the camera ray `K⁻¹(u, v, 1)` with (n, right·ppm_x, down·ppm_y) as affine functions of
+    /// u and v: value = base + u·du + v·dv.
+    base: DVec3,
+    du: DVec3,
+    dv: DVec3,
+}
+
+impl RowGeometry {
+    fn new(plane: &SkyPlane, camera: &Camera) -> Self {
+        let axes = [plane.normal, plane.right * plane.px_per_m.x, plane.down * plane.px_per_m.y];
+        // camera ray (unnormalised, world) = R·(ray_camera(u, v)) = R·((u − cx)/f, (v − cy)/f, 1)
+        let r = camera.camera_to_world;
+        let f = camera.intrinsics.focal_px();
+        let c = camera.intrinsics.principal_point();
+        let d_u = r.x_axis / f;
+        let d_v = r.y_axis / f;
+        let d0 = r.z_axis - d_u * c.x - d_v * c.y;
+        let dot = |d: DVec3| DVec3::new(d.dot(axes[0]), d.dot(axes[1]), d.dot(axes[2]));
+        let rel = camera.position_m - plane.anchor_m;
+        Self {
+            numerator: -rel.dot(plane.normal),
+            origin_px: plane.anchor_px + DVec2::new(rel.dot(axes[1]), rel.dot(axes[2])),
+            base: dot(d0),
+            du: dot(d_u),
+            dv: dot(d_v),
+        }
+    }
+
+    /// Casts the rays of one sensor row at `v`, pixel `i` at `u = i + u0`, writing (or adding, if `accumulate`)
+    /// into `out`.
+    #[allow(clippy::too_many_arguments)]
+    fn cast_row(
+        &self,
+        plane: &SkyPlane,
+        v: f64,
+        u0: f64,
+        step: f64,
+        sampling: Sampling,
+        fill: MissFill,
+        out: &mut [f32],
+        accumulate: bool,
+    ) {
+        let mut d = self.base + self.dv * v + self.du * u0;
+        let inc = self.du * step;
+        let miss = match fill {
+            MissFill::Constant { value } => value,
+            _ => 0.0,
+        };
+        for o in out.iter_mut() {
+            // d = (d·n, d·right', d·down'); t = numerator / (d·n)
+            let value = if d.x.abs() < 1e-15 || !(self.numerator / d.x > 0.0) {
+                miss
+            } else {
+                let t = self.numerator / d.x;
+                let p = DVec2::new(self.origin_px.x + t * d.y, self.origin_px.y + t * d.z);
+                plane.sample(p, sampling, fill)
+            };
+            if accumulate {
+                *o += value;
+            } else {
+                *o = value;
+            }
+            d += inc;
+        }
     }
 }
 
