@@ -9,8 +9,10 @@
 //! Layers, dependencies pointing down only:
 //! - [`physics`]: radiometry, atmosphere, sensor and noise — pure numerics, no Bevy;
 //! - [`imaging`]: camera, sky-plane ray casting, target blob, Poisson fusion, frames — pure, no Bevy;
+//! - [`scenario`]: the scenario schema, validation and trajectories — pure, no Bevy;
 //! - [`cli`]: the `irsim` command line.
 
 pub mod cli;
 pub mod imaging;
 pub mod physics;
+pub mod scenario;

@@ -8,3 +8,4 @@ pub mod frame;
 pub mod fusion;
 pub mod sky_plane;
 pub mod target_blob;
+pub mod vibration;
