@@ -3,6 +3,7 @@
 //! Exit codes: 0 success, 1 a failure while running (I/O), 2 bad input (flags, values, files).
 
 pub mod calc;
+pub mod run;
 
 use std::ffi::OsString;
 use std::io::Write;
@@ -46,6 +47,14 @@ pub enum Command {
     /// Compute one radiometric quantity and print it as JSON.
     #[command(subcommand)]
     Calc(calc::CalcCommand),
+    /// Simulate a scenario and write frames, labels, MOT ground truth and a manifest.
+    Record(run::RecordArgs),
+    /// Check a scenario file and report the first error with file, line, column and field.
+    Validate(run::ValidateArgs),
+    /// Generate an infrared sky image (16-bit PNG).
+    Sky(run::SkyArgs),
+    /// Frames per second of the whole pipeline on built-in scenarios.
+    Bench(run::BenchArgs),
 }
 
 /// Parses `args`, runs the command and returns the process exit code.
@@ -67,6 +76,10 @@ where
             let mut out = std::io::stdout().lock();
             writeln!(out, "{value}").map_err(|e| CliError::Failed(format!("writing to standard output: {e}")))
         }),
+        Command::Record(a) => run::record(a),
+        Command::Validate(a) => run::validate(a),
+        Command::Sky(a) => run::sky(a),
+        Command::Bench(a) => run::bench(a),
     };
     match result {
         Ok(()) => 0,

@@ -79,31 +79,38 @@ pub fn load_str(text: &str, format: Format, source: &Path, base_dir: &Path) -> R
         Format::Toml => toml::from_str(text).map_err(|e| {
             let offset = e.span().map(|s| s.start).unwrap_or(0);
             let (line, column) = line_col(text, offset);
-            ScenarioError { file: file.clone(), line, column, field: toml_key_at(text, offset), message: e.message().trim().to_owned() }
+            ScenarioError {
+                file: file.clone(),
+                line,
+                column,
+                field: toml_key_at(text, offset),
+                message: e.message().trim().to_owned(),
+            }
         })?,
         Format::Json => serde_json::from_str(text).map_err(|e| {
             let offset = offset_of(text, e.line(), e.column());
             let message = e.to_string();
             let message = message.split(" at line ").next().unwrap_or(&message).to_owned();
-            ScenarioError { file: file.clone(), line: e.line(), column: e.column(), field: json_key_before(text, offset), message }
+            ScenarioError {
+                file: file.clone(),
+                line: e.line(),
+                column: e.column(),
+                field: json_key_before(text, offset),
+                message,
+            }
         })?,
     };
-    let (observer_trajectory, target_trajectories, sky_image) = spec.check(base_dir).map_err(|FieldError { path, message }| {
-        let (line, column) = match format {
-            Format::Toml => locate_toml(text, &path),
-            Format::Json => locate_json(text, &path),
-        }
-        .map(|o| line_col(text, o))
-        .unwrap_or((0, 0));
-        ScenarioError { file: file.clone(), line, column, field: path, message }
-    })?;
-    Ok(CheckedScenario {
-        spec,
-        source: PathBuf::from(source),
-        observer_trajectory,
-        target_trajectories,
-        sky_image,
-    })
+    let (observer_trajectory, target_trajectories, sky_image) =
+        spec.check(base_dir).map_err(|FieldError { path, message }| {
+            let (line, column) = match format {
+                Format::Toml => locate_toml(text, &path),
+                Format::Json => locate_json(text, &path),
+            }
+            .map(|o| line_col(text, o))
+            .unwrap_or((0, 0));
+            ScenarioError { file: file.clone(), line, column, field: path, message }
+        })?;
+    Ok(CheckedScenario { spec, source: PathBuf::from(source), observer_trajectory, target_trajectories, sky_image })
 }
 
 /// 1-based line and column of byte `offset`.
@@ -251,8 +258,9 @@ pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
 
     #[test]
     fn json_errors_have_positions() {
-        let e = load_str("{\n  \"sensor\": {\"width\": \"wide\"}\n}", Format::Json, Path::new("s.json"), Path::new("."))
-            .unwrap_err();
+        let e =
+            load_str("{\n  \"sensor\": {\"width\": \"wide\"}\n}", Format::Json, Path::new("s.json"), Path::new("."))
+                .unwrap_err();
         assert_eq!(e.line, 2);
         assert_eq!(e.field, "width");
     }

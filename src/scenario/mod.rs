@@ -424,8 +424,13 @@ impl Scenario {
             };
             fe(format!("sensor.{name}"), format!("{} is outside its allowed range {}", e.value, e.range))
         })?;
-        s.gray.validate().map_err(|e| fe(format!("sensor.gray.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
-        s.noise.model().validate().map_err(|e| fe(format!("sensor.noise.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+        s.gray
+            .validate()
+            .map_err(|e| fe(format!("sensor.gray.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+        s.noise
+            .model()
+            .validate()
+            .map_err(|e| fe(format!("sensor.noise.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
         let b = &s.blob;
         if !(b.min_blur_px.is_finite() && (0.0..=100.0).contains(&b.min_blur_px)) {
             return Err(fe("sensor.blob.min_blur_px", format!("{} must be in [0, 100]", b.min_blur_px)));
@@ -442,7 +447,11 @@ impl Scenario {
             return Err(fe("sensor.blob.sampling.n", format!("{n} must be in 1 … 16")));
         }
 
-        let observer = self.observer.trajectory.build(base_dir).map_err(|e| fe(format!("observer.trajectory.{}", e.field), e.message))?;
+        let observer = self
+            .observer
+            .trajectory
+            .build(base_dir)
+            .map_err(|e| fe(format!("observer.trajectory.{}", e.field), e.message))?;
         self.observer.vibration.validate().map_err(|(f, m)| fe(format!("observer.vibration.{f}"), m))?;
         match &self.observer.pointing {
             Pointing::LookAt { target_m, roll_deg } => {
@@ -511,7 +520,9 @@ impl Scenario {
         if !(a.t0_k.is_finite() && a.t0_k > 100.0 && a.t0_k < 400.0) {
             return Err(fe("atmosphere.t0_k", format!("{} must be in (100, 400) K", a.t0_k)));
         }
-        a.transmittance.validate().map_err(|e| fe(format!("atmosphere.transmittance.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+        a.transmittance.validate().map_err(|e| {
+            fe(format!("atmosphere.transmittance.{}", e.name), format!("{} is outside {}", e.value, e.range))
+        })?;
         a.stagnation.validate().map_err(|e| fe("atmosphere.stagnation", e))?;
         let sun = &self.sun;
         for (n, v, ok) in [
@@ -545,7 +556,8 @@ impl Scenario {
             if self.targets[..i].iter().any(|o| o.name == t.name) {
                 return Err(fe(format!("{p}.name"), format!("`{}` is used by an earlier target", t.name)));
             }
-            trajectories.push(t.trajectory.build(base_dir).map_err(|e| fe(format!("{p}.trajectory.{}", e.field), e.message))?);
+            trajectories
+                .push(t.trajectory.build(base_dir).map_err(|e| fe(format!("{p}.trajectory.{}", e.field), e.message))?);
             if !(t.semi_axes_m.is_finite() && t.semi_axes_m.min_element() > 0.0) {
                 return Err(fe(format!("{p}.semi_axes_m"), "each semi-axis must be a finite number > 0"));
             }
@@ -557,7 +569,9 @@ impl Scenario {
             if !(0.0..=1.0).contains(&t.emissivity) {
                 return Err(fe(format!("{p}.emissivity"), format!("{} must be in [0, 1]", t.emissivity)));
             }
-            t.brdf.validate().map_err(|e| fe(format!("{p}.brdf.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+            t.brdf
+                .validate()
+                .map_err(|e| fe(format!("{p}.brdf.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
         }
         Ok((observer, trajectories, sky_image))
     }

@@ -139,7 +139,14 @@ impl TrajectorySpec {
                 Ok(Trajectory::ConstantVelocity { p0: *position_m, v: *velocity_m_s })
             }
             TrajectorySpec::Waypoints { points } => spline(points.iter().copied(), "points"),
-            TrajectorySpec::CoordinatedTurn { center_m, radius_m, speed_m_s, start_bearing_deg, clockwise, climb_m_s } => {
+            TrajectorySpec::CoordinatedTurn {
+                center_m,
+                radius_m,
+                speed_m_s,
+                start_bearing_deg,
+                clockwise,
+                climb_m_s,
+            } => {
                 if !center_m.is_finite() {
                     return Err(err("center_m", "must be finite"));
                 }
@@ -282,7 +289,11 @@ mod tests {
 
     #[test]
     fn paper_polynomial() {
-        let spec = TrajectorySpec::Polynomial { x_m: vec![0.0, 340.0, 5.0], y_m: vec![4000.0, 340.0], z_m: vec![8000.0, 10.0] };
+        let spec = TrajectorySpec::Polynomial {
+            x_m: vec![0.0, 340.0, 5.0],
+            y_m: vec![4000.0, 340.0],
+            z_m: vec![8000.0, 10.0],
+        };
         let tr = spec.build(Path::new(".")).unwrap();
         let (p, v) = tr.state(2.0);
         assert!((p - DVec3::new(700.0, 4680.0, 8020.0)).length() < 1e-9);

@@ -1,0 +1,365 @@
+//! `irsim record`, `irsim validate`, `irsim sky` and `irsim bench`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use clap::{Args, ValueEnum};
+use serde_json::json;
+
+use super::CliError;
+use crate::imaging::frame::Frame;
+use crate::imaging::sky_gen::{SkyGenSpec, SkyKind, generate};
+use crate::record::{FrameFormat, Recorder, prepare_dir, write_atomic};
+use crate::scenario::{CheckedScenario, load};
+use crate::sim::{RunOptions, SensorFrame, StageTimings, build_app, step};
+
+/// Flags of `irsim record`.
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// Scenario file (TOML, or JSON by extension).
+    pub scenario: PathBuf,
+    /// Output directory; refused if not empty unless --force.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Number of frames (default: the scenario's).
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Seed (default: the scenario's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Replace the outputs of an earlier run in --out.
+    #[arg(long)]
+    pub force: bool,
+    /// No sensor noise.
+    #[arg(long)]
+    pub no_noise: bool,
+    /// No camera vibration.
+    #[arg(long)]
+    pub no_vibration: bool,
+    /// Frame file format.
+    #[arg(long, value_enum, default_value = "png16")]
+    pub format: FrameFormat,
+    /// Also write per-frame target masks (8-bit PNG, pixel = target id, 0 = sky).
+    #[arg(long)]
+    pub masks: bool,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Flags of `irsim validate`.
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// Scenario file.
+    pub scenario: PathBuf,
+}
+
+/// Kind of generated sky.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SkyKindArg {
+    /// Clear sky with the elevation gradient.
+    Clear,
+    /// Broken cumulus.
+    Cumulus,
+}
+
+/// Flags of `irsim sky`.
+#[derive(Debug, Args)]
+pub struct SkyArgs {
+    /// Kind of sky.
+    #[arg(long, value_enum)]
+    pub kind: SkyKindArg,
+    /// Output 16-bit PNG.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Width, px.
+    #[arg(long, default_value_t = 1024)]
+    pub width: usize,
+    /// Height, px.
+    #[arg(long, default_value_t = 1024)]
+    pub height: usize,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Cloud cover, 0–1 (cumulus).
+    #[arg(long, default_value_t = 0.45)]
+    pub cover: f64,
+    /// Elevation of the top row, degrees.
+    #[arg(long, default_value_t = 12.0, allow_negative_numbers = true)]
+    pub elevation_top_deg: f64,
+    /// Elevation of the bottom row, degrees.
+    #[arg(long, default_value_t = -2.0, allow_negative_numbers = true)]
+    pub elevation_bottom_deg: f64,
+    /// Overwrite an existing file.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Flags of `irsim bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Frames per case.
+    #[arg(long, default_value_t = 2000)]
+    pub frames: u64,
+}
+
+fn load_scenario(path: &Path) -> Result<CheckedScenario, CliError> {
+    load(path).map_err(|e| CliError::Invalid(e.to_string()))
+}
+
+/// `irsim validate`: loads and checks the scenario and builds its simulation without running it.
+///
+/// # Errors
+/// [`CliError::Invalid`] with the located error.
+pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
+    let s = load_scenario(&a.scenario)?;
+    let _app = build_app(&s, RunOptions::default())
+        .map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenario.display())))?;
+    println!(
+        "{}: ok ({} targets, {} frames of {}×{} at {} Hz)",
+        a.scenario.display(),
+        s.spec.targets.len(),
+        s.spec.run.frames,
+        s.spec.sensor.width,
+        s.spec.sensor.height,
+        s.spec.run.frame_rate_hz
+    );
+    Ok(())
+}
+
+/// `irsim record`.
+///
+/// # Errors
+/// [`CliError::Invalid`] for a bad scenario or a non-empty output directory; [`CliError::Failed`] for a write
+/// error during the run.
+pub fn record(a: &RecordArgs) -> Result<(), CliError> {
+    let scenario = load_scenario(&a.scenario)?;
+    let frames = a.frames.unwrap_or(scenario.spec.run.frames);
+    if frames == 0 {
+        return Err(CliError::Invalid("--frames must be at least 1".into()));
+    }
+    let options = RunOptions {
+        seed: a.seed,
+        noise: !a.no_noise,
+        vibration: !a.no_vibration,
+        keep_float: a.format == FrameFormat::Npy,
+        masks: a.masks,
+        timings: true,
+    };
+    let mut app =
+        build_app(&scenario, options).map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenario.display())))?;
+    prepare_dir(&a.out, a.force).map_err(|e| match e {
+        crate::record::RecordError::NotEmpty(_) => CliError::Invalid(e.to_string()),
+        other => CliError::Failed(other.to_string()),
+    })?;
+    let seed = a.seed.unwrap_or(scenario.spec.run.seed);
+    let mut spec_as_run = scenario.spec.clone();
+    spec_as_run.run.frames = frames;
+    spec_as_run.run.seed = seed;
+    let manifest = json!({
+        "program": "irsim",
+        "version": env!("CARGO_PKG_VERSION"),
+        "scenario_file": a.scenario.display().to_string(),
+        "scenario": spec_as_run,
+        "seed": seed,
+        "options": { "noise": !a.no_noise, "vibration": !a.no_vibration, "format": a.format, "masks": a.masks },
+    });
+    let max_level = scenario.spec.sensor.gray.max_level() as u16;
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
+    let mut rec = Recorder::new(&a.out, a.format, a.masks, max_level, threads, manifest, frames)
+        .map_err(|e| CliError::Failed(e.to_string()))?;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        // a second handler cannot be installed in the same process (tests run record twice); ignore that
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
+    }
+    let bar = if a.quiet {
+        indicatif::ProgressBar::hidden()
+    } else {
+        let b = indicatif::ProgressBar::new(frames);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {per_sec}, eta {eta}")
+                .expect("valid template"),
+        );
+        b
+    };
+    let started = Instant::now();
+    let mut interrupted = false;
+    for _ in 0..frames {
+        if stop.load(Ordering::SeqCst) {
+            interrupted = true;
+            break;
+        }
+        if rec.failed() {
+            break;
+        }
+        let labels = step(&mut app);
+        let world = app.world_mut();
+        let mask = world.resource::<crate::sim::FrameOutput>().mask.clone();
+        let mut q = world.query::<&SensorFrame>();
+        let sf = q.single(world).expect("one sensor");
+        let frame: Frame = match (a.format, &sf.float_frame) {
+            (FrameFormat::Npy, Some(f)) => f.clone(),
+            _ => sf.frame.clone(),
+        };
+        rec.push(frame, mask, labels);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let elapsed = started.elapsed().as_secs_f64();
+    if let Some(t) = app.world().get_resource::<StageTimings>() {
+        let stages: serde_json::Map<String, serde_json::Value> =
+            t.mean_ms().into_iter().map(|(k, v)| (k.to_owned(), json!(v))).collect();
+        rec.set_manifest("timings", json!({ "wall_s": elapsed, "stage_ms_per_frame": stages }));
+    }
+    let progress = rec.finish(interrupted).map_err(|e| CliError::Failed(format!("recording stopped: {e}")))?;
+    eprintln!(
+        "{}: {} of {} frames written to {} ({:.1} frames/s)",
+        progress.status,
+        progress.frames_written,
+        progress.frames_requested,
+        a.out.display(),
+        progress.frames_written as f64 / elapsed.max(1e-9)
+    );
+    if interrupted {
+        return Err(CliError::Failed("interrupted".into()));
+    }
+    Ok(())
+}
+
+/// `irsim sky`: writes a generated 16-bit sky.
+///
+/// # Errors
+/// [`CliError::Invalid`] for bad sizes or an existing file without --force; [`CliError::Failed`] on a write
+/// error.
+pub fn sky(a: &SkyArgs) -> Result<(), CliError> {
+    if !(1..=16384).contains(&a.width) || !(1..=16384).contains(&a.height) {
+        return Err(CliError::Invalid("--width and --height must be in 1 … 16384".into()));
+    }
+    if !(0.0..=1.0).contains(&a.cover) {
+        return Err(CliError::Invalid(format!("--cover {} must be in [0, 1]", a.cover)));
+    }
+    if a.out.exists() && !a.force {
+        return Err(CliError::Invalid(format!("{} exists; use --force to replace it", a.out.display())));
+    }
+    let kind = match a.kind {
+        SkyKindArg::Clear => SkyKind::Clear,
+        SkyKindArg::Cumulus => SkyKind::Cumulus,
+    };
+    let spec = SkyGenSpec {
+        width: a.width,
+        height: a.height,
+        seed: a.seed,
+        cloud_cover: a.cover,
+        elevation_top_deg: a.elevation_top_deg,
+        elevation_bottom_deg: a.elevation_bottom_deg,
+        ..SkyGenSpec::new(kind)
+    };
+    let data = generate(&spec);
+    let frame = Frame::from_pixels(a.width, a.height, data.iter().map(|&v| f32::from(v)).collect());
+    let mut bytes = Vec::new();
+    frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
+    write_atomic(&a.out, &bytes).map_err(|e| CliError::Failed(e.to_string()))?;
+    println!("{}", a.out.display());
+    Ok(())
+}
+
+/// Built-in benchmark scenarios: 256×256 with one target, 640×512 with eight.
+fn bench_scenario(width: u32, height: u32, targets: usize) -> String {
+    let mut s = format!(
+        r#"
+name = "bench_{width}x{height}_{targets}"
+[run]
+frame_rate_hz = 30
+frames = 1000
+seed = 1
+[sensor]
+width = {width}
+height = {height}
+pixel_pitch_um = 17
+focal_length_mm = 100
+aperture_mm = 100
+band_um = [8, 12]
+[observer]
+trajectory = {{ kind = "constant_velocity", position_m = [0, 0, 8000] }}
+pointing = {{ mode = "look_at", target_m = [0, 30000, 7000] }}
+vibration = {{ amplitude_deg = 0.05, cutoff_hz = 5 }}
+[sky]
+image = "clear.png"
+anchor_m = [0, 30000, 6000]
+width_m = 4000
+height_m = 4000
+gray_gain = 0.5
+"#
+    );
+    for i in 0..targets {
+        let dx = (i as f64 - targets as f64 / 2.0) * 60.0;
+        s.push_str(&format!(
+            "[[targets]]\nname = \"t{i}\"\ntrajectory = {{ kind = \"constant_velocity\", position_m = [{dx}, 20000, {}], velocity_m_s = [200, 0, 0] }}\nsemi_axes_m = [6, 1.5, 1.5]\n",
+            7000.0 + 15.0 * i as f64
+        ));
+    }
+    s
+}
+
+/// `irsim bench`: frames per second of the whole pipeline without disk writes, and with 16-bit PNG recording.
+///
+/// # Errors
+/// [`CliError::Failed`] if the temporary scenario cannot be written or run.
+pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
+    let dir = std::env::temp_dir().join(format!("irsim-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| CliError::Failed(e.to_string()))?;
+    let sky = SkyGenSpec { width: 512, height: 512, ..SkyGenSpec::new(SkyKind::Clear) };
+    let frame = Frame::from_pixels(512, 512, generate(&sky).iter().map(|&v| f32::from(v)).collect());
+    let mut bytes = Vec::new();
+    frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
+    std::fs::write(dir.join("clear.png"), bytes).map_err(|e| CliError::Failed(e.to_string()))?;
+    let frames = a.frames.max(10);
+    let mut results = Vec::new();
+    for (w, h, n, recording) in [(256, 256, 1, false), (640, 512, 8, false), (256, 256, 1, true)] {
+        let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
+        std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;
+        let fps = if recording {
+            let out = dir.join("out");
+            let args = RecordArgs {
+                scenario: path.clone(),
+                out,
+                frames: Some(frames),
+                seed: None,
+                force: true,
+                no_noise: false,
+                no_vibration: false,
+                format: FrameFormat::Png16,
+                masks: false,
+                quiet: true,
+            };
+            let t = Instant::now();
+            record(&args)?;
+            frames as f64 / t.elapsed().as_secs_f64()
+        } else {
+            let scenario = load_scenario(&path)?;
+            let mut app = build_app(&scenario, RunOptions::default()).map_err(|e| CliError::Failed(e.to_string()))?;
+            for _ in 0..10 {
+                step(&mut app);
+            }
+            let t = Instant::now();
+            for _ in 0..frames {
+                step(&mut app);
+            }
+            frames as f64 / t.elapsed().as_secs_f64()
+        };
+        let case = format!(
+            "{w}x{h}, {n} target{}{}",
+            if n > 1 { "s" } else { "" },
+            if recording { ", png16 recording" } else { ", no disk" }
+        );
+        println!("{case:<40} {fps:>9.1} frames/s");
+        results.push(json!({ "case": case, "frames": frames, "frames_per_s": fps }));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}

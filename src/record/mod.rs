@@ -1,0 +1,423 @@
+//! Recording a run: frames encoded on worker threads, labels, MOT ground truth and a manifest, all written
+//! atomically (a temporary file renamed into place).
+//!
+//! Frames are committed in order: the labels on disk always describe exactly the frames on disk. Labels,
+//! the MOT file and the manifest are rewritten at checkpoints (every second) and at the end, so an
+//! interruption (Ctrl-C) or a write error (disk full) leaves complete frames, matching labels, and a manifest
+//! whose `status` and `frames_written` say where the run stopped.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::imaging::frame::Frame;
+use crate::sim::FrameLabels;
+
+/// How frames are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameFormat {
+    /// 16-bit grayscale PNG at the sensor's levels.
+    Png16,
+    /// 8-bit grayscale PNG, the sensor's range scaled to 0–255.
+    Png8,
+    /// float32 `.npy` before quantization.
+    Npy,
+}
+
+impl FrameFormat {
+    fn extension(self) -> &'static str {
+        match self {
+            FrameFormat::Png16 | FrameFormat::Png8 => "png",
+            FrameFormat::Npy => "npy",
+        }
+    }
+}
+
+/// An error preparing or writing the output.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// The output directory holds files and `--force` was not given.
+    #[error("{0} is not empty; use --force to replace its contents")]
+    NotEmpty(String),
+    /// An I/O error, with the path.
+    #[error("{path}: {message}")]
+    Io {
+        /// The file or directory.
+        path: String,
+        /// What failed.
+        message: String,
+    },
+}
+
+fn io_err(path: &Path, e: impl std::fmt::Display) -> RecordError {
+    RecordError::Io { path: path.display().to_string(), message: e.to_string() }
+}
+
+/// Writes `bytes` to `path` atomically: a temporary file in the same directory, synced, renamed into place.
+///
+/// # Errors
+/// The I/O error with the path.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
+    let tmp = path.with_extension(format!("{}.tmp", path.extension().and_then(|e| e.to_str()).unwrap_or("")));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_data()?;
+        std::fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        io_err(path, e)
+    })
+}
+
+/// Prepares `dir`: creates it, or refuses if it holds anything unless `force`, in which case it removes the
+/// outputs of an earlier run (frames, masks, labels, MOT file, manifest) and nothing else.
+///
+/// # Errors
+/// [`RecordError::NotEmpty`] or an I/O error.
+pub fn prepare_dir(dir: &Path, force: bool) -> Result<(), RecordError> {
+    if dir.exists() {
+        let mut entries = std::fs::read_dir(dir).map_err(|e| io_err(dir, e))?;
+        if entries.next().is_some() {
+            if !force {
+                return Err(RecordError::NotEmpty(dir.display().to_string()));
+            }
+            for sub in ["frames", "masks"] {
+                let p = dir.join(sub);
+                if p.exists() {
+                    std::fs::remove_dir_all(&p).map_err(|e| io_err(&p, e))?;
+                }
+            }
+            for f in ["labels.jsonl", "gt_mot.txt", "manifest.json"] {
+                let p = dir.join(f);
+                if p.exists() {
+                    std::fs::remove_file(&p).map_err(|e| io_err(&p, e))?;
+                }
+            }
+        }
+    }
+    std::fs::create_dir_all(dir.join("frames")).map_err(|e| io_err(dir, e))
+}
+
+/// One frame for the workers.
+struct Job {
+    index: u64,
+    frame: Frame,
+    mask: Option<Vec<u8>>,
+    labels: FrameLabels,
+}
+
+/// A worker's answer.
+struct Done {
+    index: u64,
+    result: Result<(), RecordError>,
+    labels: FrameLabels,
+}
+
+/// Encodes `frame` in `format` into bytes.
+pub fn encode(frame: &Frame, format: FrameFormat, max_level: u16) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(frame.width() * frame.height() * 2 + 1024);
+    match format {
+        FrameFormat::Png16 => frame.write_png16(max_level, &mut bytes).expect("writing to memory"),
+        FrameFormat::Png8 => frame.write_png8(f32::from(max_level), &mut bytes).expect("writing to memory"),
+        FrameFormat::Npy => write_npy_f32(frame, &mut bytes),
+    }
+    bytes
+}
+
+/// A little-endian float32 `.npy` (format 1.0) of shape (height, width).
+fn write_npy_f32(frame: &Frame, out: &mut Vec<u8>) {
+    let mut header =
+        format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", frame.height(), frame.width());
+    // magic (6) + version (2) + header length (2) + header, padded with spaces to a multiple of 64, ending in \n
+    let total = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - total % 64) % 64));
+    header.push('\n');
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for v in frame.pixels() {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+}
+
+/// Where a recording stands, as written to the manifest.
+#[derive(Debug, Clone, Serialize)]
+pub struct Progress {
+    /// `running`, `complete`, `interrupted` or `failed`.
+    pub status: String,
+    /// Frames asked for.
+    pub frames_requested: u64,
+    /// Frames written, with their labels: frames 0 … n−1.
+    pub frames_written: u64,
+    /// The error that stopped the run, if any.
+    pub error: Option<String>,
+}
+
+/// The recorder: worker threads, ordered commit, checkpoints.
+pub struct Recorder {
+    dir: PathBuf,
+    format: FrameFormat,
+    masks: bool,
+    jobs: Option<SyncSender<Job>>,
+    done: Receiver<Done>,
+    workers: Vec<JoinHandle<()>>,
+    pending: BTreeMap<u64, FrameLabels>,
+    committed: u64,
+    sent: u64,
+    labels_text: String,
+    mot_text: String,
+    last_checkpoint: Instant,
+    error: Option<RecordError>,
+    manifest: serde_json::Value,
+    frames_requested: u64,
+}
+
+impl Recorder {
+    /// Starts `threads` encoder workers writing into the prepared directory `dir`. `manifest` is the run's
+    /// description; the recorder adds `status`, `frames_requested`, `frames_written` and `error`.
+    pub fn new(
+        dir: &Path,
+        format: FrameFormat,
+        masks: bool,
+        max_level: u16,
+        threads: usize,
+        manifest: serde_json::Value,
+        frames_requested: u64,
+    ) -> Result<Self, RecordError> {
+        if masks {
+            std::fs::create_dir_all(dir.join("masks")).map_err(|e| io_err(dir, e))?;
+        }
+        let threads = threads.max(1);
+        let (job_tx, job_rx) = sync_channel::<Job>(threads * 2);
+        let (done_tx, done_rx) = sync_channel::<Done>(threads * 4 + 8);
+        let job_rx = Arc::new(Mutex::new(job_rx));
+        let workers = (0..threads)
+            .map(|_| {
+                let rx = Arc::clone(&job_rx);
+                let tx = done_tx.clone();
+                let dir = dir.to_path_buf();
+                std::thread::spawn(move || {
+                    loop {
+                        let job = match rx.lock() {
+                            Ok(guard) => match guard.recv() {
+                                Ok(j) => j,
+                                Err(_) => break,
+                            },
+                            Err(_) => break,
+                        };
+                        let name = format!("{:06}.{}", job.index, format.extension());
+                        let mut result =
+                            write_atomic(&dir.join("frames").join(&name), &encode(&job.frame, format, max_level));
+                        if let (Ok(()), Some(mask)) = (&result, &job.mask) {
+                            let m = Frame::from_pixels(
+                                job.frame.width(),
+                                job.frame.height(),
+                                mask.iter().map(|&v| f32::from(v)).collect(),
+                            );
+                            let mut bytes = Vec::new();
+                            m.write_png8(255.0, &mut bytes).expect("writing to memory");
+                            result = write_atomic(&dir.join("masks").join(format!("{:06}.png", job.index)), &bytes);
+                        }
+                        if tx.send(Done { index: job.index, result, labels: job.labels }).is_err() {
+                            break;
+                        }
+                    }
+                })
+            })
+            .collect();
+        let mut rec = Self {
+            dir: dir.to_path_buf(),
+            format,
+            masks,
+            jobs: Some(job_tx),
+            done: done_rx,
+            workers,
+            pending: BTreeMap::new(),
+            committed: 0,
+            sent: 0,
+            labels_text: String::new(),
+            mot_text: String::new(),
+            last_checkpoint: Instant::now(),
+            error: None,
+            manifest,
+            frames_requested,
+        };
+        rec.checkpoint("running")?;
+        Ok(rec)
+    }
+
+    /// Frames committed so far.
+    pub fn frames_written(&self) -> u64 {
+        self.committed
+    }
+
+    /// The first write error, if one happened; the caller should stop sending frames.
+    pub fn failed(&self) -> bool {
+        self.error.is_some()
+    }
+
+    /// Hands a frame to the workers (blocks while they are all busy).
+    pub fn push(&mut self, frame: Frame, mask: Option<Vec<u8>>, labels: FrameLabels) {
+        if self.error.is_some() {
+            return;
+        }
+        let job = Job { index: self.sent, frame, mask: if self.masks { mask } else { None }, labels };
+        self.sent += 1;
+        // collect finished work first so the done channel never fills
+        self.collect(false);
+        if let Some(tx) = &self.jobs
+            && tx.send(job).is_err()
+        {
+            self.error = Some(RecordError::Io {
+                path: self.dir.display().to_string(),
+                message: "encoder threads stopped".into(),
+            });
+        }
+        self.collect(false);
+        if self.last_checkpoint.elapsed().as_secs_f64() >= 1.0 {
+            if let Err(e) = self.checkpoint("running") {
+                self.error.get_or_insert(e);
+            }
+        }
+    }
+
+    /// Takes finished frames off the done channel and commits the contiguous ones.
+    fn collect(&mut self, block: bool) {
+        loop {
+            let done = if block { self.done.recv().ok() } else { self.done.try_recv().ok() };
+            let Some(done) = done else { break };
+            match done.result {
+                Ok(()) => {
+                    self.pending.insert(done.index, done.labels);
+                }
+                Err(e) => {
+                    self.error.get_or_insert(e);
+                }
+            }
+            if block && self.pending.len() as u64 + self.committed >= self.sent {
+                break;
+            }
+        }
+        while let Some(labels) = self.pending.remove(&self.committed) {
+            self.labels_text.push_str(&serde_json::to_string(&labels).expect("labels serialize"));
+            self.labels_text.push('\n');
+            for t in labels.targets.iter().filter(|t| t.visible) {
+                let [x0, y0, x1, y1] = t.bbox_px;
+                // MOTChallenge: frame (1-based), id, left, top, width, height, conf, class, visibility
+                self.mot_text.push_str(&format!(
+                    "{},{},{:.3},{:.3},{:.3},{:.3},1,1,1\n",
+                    labels.frame + 1,
+                    t.id,
+                    x0,
+                    y0,
+                    x1 - x0,
+                    y1 - y0
+                ));
+            }
+            self.committed += 1;
+        }
+    }
+
+    /// Rewrites labels, MOT file and manifest atomically.
+    fn checkpoint(&mut self, status: &str) -> Result<(), RecordError> {
+        write_atomic(&self.dir.join("labels.jsonl"), self.labels_text.as_bytes())?;
+        write_atomic(&self.dir.join("gt_mot.txt"), self.mot_text.as_bytes())?;
+        let progress = Progress {
+            status: status.to_owned(),
+            frames_requested: self.frames_requested,
+            frames_written: self.committed,
+            error: self.error.as_ref().map(ToString::to_string),
+        };
+        let mut m = self.manifest.clone();
+        if let (Some(obj), Ok(serde_json::Value::Object(p))) = (m.as_object_mut(), serde_json::to_value(&progress)) {
+            obj.extend(p);
+        }
+        let text = serde_json::to_string_pretty(&m).expect("manifest serializes");
+        write_atomic(&self.dir.join("manifest.json"), text.as_bytes())?;
+        self.last_checkpoint = Instant::now();
+        Ok(())
+    }
+
+    /// Adds or replaces a top-level manifest entry (e.g. timings) for the next checkpoint.
+    pub fn set_manifest(&mut self, key: &str, value: serde_json::Value) {
+        if let Some(obj) = self.manifest.as_object_mut() {
+            obj.insert(key.to_owned(), value);
+        }
+    }
+
+    /// Waits for the workers, commits what completed, removes frames beyond the committed ones, and writes
+    /// the final labels and manifest. `interrupted` marks a run stopped by the user.
+    ///
+    /// # Errors
+    /// The first write error of the run (the final files are still written if possible).
+    pub fn finish(mut self, interrupted: bool) -> Result<Progress, RecordError> {
+        self.jobs = None;
+        for w in std::mem::take(&mut self.workers) {
+            let _ = w.join();
+        }
+        self.collect(false);
+        // frames written after a gap (a failed frame) have no labels: remove them
+        let ext = self.format.extension();
+        for i in self.committed..self.sent {
+            let _ = std::fs::remove_file(self.dir.join("frames").join(format!("{i:06}.{ext}")));
+            let _ = std::fs::remove_file(self.dir.join("masks").join(format!("{i:06}.png")));
+        }
+        let status = if self.error.is_some() {
+            "failed"
+        } else if interrupted || self.committed < self.frames_requested {
+            "interrupted"
+        } else {
+            "complete"
+        };
+        let final_write = self.checkpoint(status);
+        let progress = Progress {
+            status: status.to_owned(),
+            frames_requested: self.frames_requested,
+            frames_written: self.committed,
+            error: self.error.as_ref().map(ToString::to_string),
+        };
+        match self.error.take() {
+            Some(e) => Err(e),
+            None => final_write.map(|()| progress),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn npy_header_is_aligned_and_parsable() {
+        let f = Frame::from_pixels(3, 2, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.5]);
+        let mut b = Vec::new();
+        write_npy_f32(&f, &mut b);
+        let header_len = u16::from_le_bytes([b[8], b[9]]) as usize;
+        assert_eq!((10 + header_len) % 64, 0);
+        assert!(std::str::from_utf8(&b[10..10 + header_len]).unwrap().contains("'shape': (2, 3)"));
+        assert_eq!(b.len(), 10 + header_len + 6 * 4);
+        assert_eq!(f32::from_le_bytes(b[b.len() - 4..].try_into().unwrap()), 6.5);
+    }
+
+    #[test]
+    fn refuses_a_non_empty_directory_without_force() {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("keep.txt"), "mine").unwrap();
+        assert!(matches!(prepare_dir(&dir, false), Err(RecordError::NotEmpty(_))));
+        prepare_dir(&dir, true).unwrap();
+        // --force removes only a run's outputs
+        assert_eq!(std::fs::read_to_string(dir.join("keep.txt")).unwrap(), "mine");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,527 @@
+//! The simulation as a Bevy ECS: entities, components, system sets, plugins.
+//!
+//! Aircraft, the observer, the sky plane and the sensor are entities whose components hold kinematics,
+//! material, geometry, sensor data and per-frame results. One fixed step is one sensor frame; its systems run
+//! in this order, declared once in [`IrSimPlugins`]:
+//!
+//! Motion → Vibration → Radiometry → Projection → RenderToTexture → Targets → Fusion → Noise → Output.
+//!
+//! Systems are thin: they gather components, call one function of [`crate::physics`] or [`crate::imaging`],
+//! and write the result back. [`build_app`] turns a checked scenario into a headless [`App`]; each
+//! `app.update()` after the first computes one frame (the first runs Startup only).
+
+mod camera;
+mod fusion;
+mod motion;
+mod noise;
+mod output;
+mod projection;
+mod radiometry;
+mod render;
+mod targets;
+
+use std::sync::Arc;
+
+use bevy::app::{App, Plugin, PluginGroup, PluginGroupBuilder};
+use bevy::ecs::prelude::*;
+use bevy::prelude::{FixedUpdate, MinimalPlugins};
+use bevy::time::{Fixed, Time, TimeUpdateStrategy};
+use glam::DVec3;
+
+use crate::imaging::camera::{Camera, Jitter};
+use crate::imaging::frame::Frame;
+use crate::imaging::fusion::PoissonFusion;
+use crate::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlane};
+use crate::imaging::target_blob::{GeneralizedGaussian, ImageEllipse, PixelRect};
+use crate::imaging::vibration::Vibration;
+use crate::physics::brdf::CookTorrance;
+use crate::physics::noise::NoiseModel;
+use crate::physics::planck::Band;
+use crate::physics::reflection::{ReflectionGeometry, SphereQuadrature, Sun};
+use crate::physics::sensor::{GrayMapping, Radiometer};
+use crate::physics::signal::TargetSignal;
+use crate::physics::skin::StagnationModel;
+use crate::physics::transmittance::Transmittance;
+use crate::scenario::trajectory::Trajectory;
+use crate::scenario::{BlobSpec, CheckedScenario, FusionSpec, Pointing};
+
+pub use output::{FrameLabels, TargetLabel};
+
+/// Motion of targets and observer.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct MotionSystems;
+/// Camera pointing and vibration.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct VibrationSystems;
+/// Target radiance and gray value.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct RadiometrySystems;
+/// Ellipsoid → image ellipse.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct ProjectionSystems;
+/// Sky plane ray cast into the sensor frame.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct RenderToTextureSystems;
+/// Target patches.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct TargetsSystems;
+/// Poisson fusion of the patches.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct FusionSystems;
+/// Sensor noise and quantization.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct NoiseSystems;
+/// Ground truth and frame hand-off.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct OutputSystems;
+
+// ---------------------------------------------------------------- components
+
+/// An aircraft: its index in the scenario (the label id is `index + 1`) and name.
+#[derive(Component, Debug, Clone)]
+pub struct Aircraft {
+    /// Label id, 1-based.
+    pub id: u32,
+    /// Name from the scenario.
+    pub name: String,
+}
+
+/// The camera's platform.
+#[derive(Component, Debug, Clone, Copy, Default)]
+pub struct Observer;
+
+/// A trajectory, evaluated analytically each frame.
+#[derive(Component, Debug, Clone)]
+pub struct FlightPath(pub Trajectory);
+
+/// Position and velocity at the current frame's time.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
+pub struct Kinematics {
+    /// Position, m (world: x east, y north, z up).
+    pub position_m: DVec3,
+    /// Velocity, m/s.
+    pub velocity_m_s: DVec3,
+}
+
+/// The target's ellipsoid: semi-axes along its velocity, across, up.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct Body {
+    /// Semi-axes, m.
+    pub semi_axes_m: DVec3,
+}
+
+/// Skin material and flight condition.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct Skin {
+    /// Emissivity.
+    pub emissivity: f64,
+    /// Reflectance.
+    pub brdf: CookTorrance,
+    /// Facet or ellipsoid-averaged reflection.
+    pub reflection: ReflectionGeometry,
+    /// Mach number if fixed; otherwise from speed and the local speed of sound.
+    pub mach: Option<f64>,
+}
+
+/// Radiometric result of a target, recomputed only when its inputs change.
+#[derive(Component, Debug, Clone, Default)]
+pub struct Signature {
+    /// The chain's values, if they could be computed (the altitude may leave the model's range).
+    pub signal: Option<TargetSignal>,
+    /// Mach number used.
+    pub mach: f64,
+    /// Gray per unit fill of the pixel above the black level (the target filling the pixel).
+    pub full_contrast_gray: f64,
+    /// Why `signal` is missing.
+    pub error: Option<String>,
+    /// Inputs of the last computation.
+    key: Option<[f64; 10]>,
+}
+
+/// Where a target falls in the image this frame.
+#[derive(Component, Debug, Clone, Default)]
+pub struct Footprint {
+    /// The exact image ellipse of its outline, if entirely in front of the camera.
+    pub ellipse: Option<ImageEllipse>,
+    /// The blob drawn for it.
+    pub blob: Option<GeneralizedGaussian>,
+    /// Its region of interest, clipped to the frame; `None` if off-frame.
+    pub roi: Option<PixelRect>,
+    /// Range from the camera, m.
+    pub range_m: f64,
+}
+
+/// Where the camera points.
+#[derive(Component, Debug, Clone)]
+pub struct Aim(pub Pointing);
+
+/// The observer's vibration.
+#[derive(Component, Debug, Clone)]
+pub struct Shake(pub Vibration);
+
+/// The camera this frame: before and after vibration.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct CameraPose {
+    /// Without vibration.
+    pub steady: Camera,
+    /// With this frame's jitter.
+    pub current: Camera,
+    /// The jitter.
+    pub jitter: Jitter,
+}
+
+/// The sky plane.
+#[derive(Component, Debug, Clone)]
+pub struct Sky {
+    /// The placed image.
+    pub plane: Arc<SkyPlane>,
+    /// Sampling.
+    pub sampling: Sampling,
+    /// Fill for rays that miss.
+    pub miss: MissFill,
+    /// Sensor gray = offset + gain · image value.
+    pub gain: f32,
+    /// See `gain`.
+    pub offset: f32,
+}
+
+/// The sensor: optics, electronics, noise.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct Sensor {
+    /// Band.
+    pub band: Band,
+    /// Optics and detector.
+    pub radiometer: Radiometer,
+    /// Gray mapping.
+    pub gray: GrayMapping,
+    /// Noise model.
+    pub noise: NoiseModel,
+}
+
+/// The sensor's frame and its cached sky background.
+#[derive(Component, Debug, Clone)]
+pub struct SensorFrame {
+    /// The frame being built; after the Noise set, quantized gray levels.
+    pub frame: Frame,
+    /// The frame before quantization (kept only when asked for).
+    pub float_frame: Option<Frame>,
+    /// The sky as last rendered, and the camera it was rendered for.
+    background: Frame,
+    background_camera: Option<Camera>,
+}
+
+// ---------------------------------------------------------------- resources
+
+/// Frame counter and time step.
+#[derive(Resource, Debug, Clone, Copy)]
+pub struct SimClock {
+    /// Index of the frame the current step computes.
+    pub frame: u64,
+    /// Time of frame 0, s.
+    pub start_s: f64,
+    /// Seconds per frame.
+    pub dt_s: f64,
+}
+
+impl SimClock {
+    /// Time of the current frame, s (analytic: start + frame · dt).
+    pub fn t_s(&self) -> f64 {
+        self.start_s + self.frame as f64 * self.dt_s
+    }
+}
+
+/// Run-wide settings.
+#[derive(Resource, Debug, Clone, Copy)]
+pub struct SimSettings {
+    /// Seed of every random stream.
+    pub seed: u64,
+    /// Add sensor noise.
+    pub noise: bool,
+    /// Apply camera vibration.
+    pub vibration: bool,
+    /// Keep the unquantized frame.
+    pub keep_float: bool,
+    /// Produce per-frame target masks.
+    pub masks: bool,
+    /// Fusion mode and solver.
+    pub fusion: FusionSpec,
+    /// How targets are drawn.
+    pub blob: BlobSpec,
+}
+
+/// The scene's physics.
+#[derive(Resource, Debug, Clone)]
+pub struct SceneParams {
+    /// Sea-level temperature, K.
+    pub t0_k: f64,
+    /// Stagnation constants.
+    pub stagnation: StagnationModel,
+    /// The sun.
+    pub sun: Sun,
+    /// Transmittance.
+    pub atmosphere: Transmittance,
+    /// Quadrature for ellipsoid-averaged reflection.
+    pub quadrature: SphereQuadrature,
+}
+
+/// Reusable buffers of target patches for the fusion stage.
+#[derive(Resource, Debug, Default)]
+pub struct TargetPatches {
+    /// `(rect, values)` per visible target; the vectors are reused.
+    pub patches: Vec<(PixelRect, Vec<f32>)>,
+    /// How many entries of `patches` are in use this frame.
+    pub used: usize,
+}
+
+/// The fusion engine (planned transforms, buffers).
+#[derive(Resource, Debug, Default)]
+pub struct Fusion(pub PoissonFusion);
+
+/// What the last completed step produced.
+#[derive(Resource, Debug, Default, Clone)]
+pub struct FrameOutput {
+    /// Ground truth.
+    pub labels: FrameLabels,
+    /// Per-pixel target id (0 = sky), when masks are on.
+    pub mask: Option<Vec<u8>>,
+    /// True once a frame has been completed since the last take.
+    pub ready: bool,
+}
+
+// ---------------------------------------------------------------- plugins
+
+/// Declares the pipeline order and the shared resources.
+pub struct PipelinePlugin;
+
+impl Plugin for PipelinePlugin {
+    fn build(&self, app: &mut App) {
+        app.configure_sets(
+            FixedUpdate,
+            (
+                MotionSystems,
+                VibrationSystems,
+                RadiometrySystems,
+                ProjectionSystems,
+                RenderToTextureSystems,
+                TargetsSystems,
+                FusionSystems,
+                NoiseSystems,
+                OutputSystems,
+            )
+                .chain(),
+        );
+        app.init_resource::<TargetPatches>().init_resource::<Fusion>().init_resource::<FrameOutput>();
+    }
+}
+
+/// All of irsim's simulation plugins, in pipeline order.
+pub struct IrSimPlugins;
+
+impl PluginGroup for IrSimPlugins {
+    fn build(self) -> PluginGroupBuilder {
+        PluginGroupBuilder::start::<Self>()
+            .add(PipelinePlugin)
+            .add(motion::MotionPlugin)
+            .add(camera::CameraPlugin)
+            .add(radiometry::RadiometryPlugin)
+            .add(projection::ProjectionPlugin)
+            .add(render::RenderPlugin)
+            .add(targets::TargetsPlugin)
+            .add(fusion::FusionPlugin)
+            .add(noise::NoisePlugin)
+            .add(output::OutputPlugin)
+    }
+}
+
+/// Wall-clock time spent in each stage, accumulated over the run (present only when timing is asked for).
+#[derive(Resource, Debug, Clone, Default)]
+pub struct StageTimings {
+    /// Seconds per stage, in pipeline order.
+    pub seconds: [f64; 9],
+    /// Steps timed.
+    pub steps: u64,
+    last: Option<std::time::Instant>,
+}
+
+impl StageTimings {
+    /// Stage names, in pipeline order.
+    pub const NAMES: [&'static str; 9] =
+        ["motion", "vibration", "radiometry", "projection", "render", "targets", "fusion", "noise", "output"];
+
+    /// Mean milliseconds per frame for each stage, by name.
+    pub fn mean_ms(&self) -> Vec<(&'static str, f64)> {
+        let n = self.steps.max(1) as f64;
+        Self::NAMES.iter().zip(self.seconds).map(|(name, s)| (*name, 1e3 * s / n)).collect()
+    }
+}
+
+/// Records the time since the previous stamp into stage `N − 1` (stamp 0 starts the step).
+fn stamp<const N: usize>(mut timings: ResMut<StageTimings>) {
+    let now = std::time::Instant::now();
+    if N > 0
+        && let Some(last) = timings.last
+    {
+        timings.seconds[N - 1] += (now - last).as_secs_f64();
+    }
+    if N == 9 {
+        timings.steps += 1;
+    }
+    timings.last = Some(now);
+}
+
+/// Adds [`StageTimings`] and the systems that fill it, between the stages.
+pub struct TimingPlugin;
+
+impl Plugin for TimingPlugin {
+    fn build(&self, app: &mut App) {
+        let on = resource_exists::<StageTimings>;
+        app.init_resource::<StageTimings>().add_systems(
+            FixedUpdate,
+            (
+                stamp::<0>.before(MotionSystems).run_if(on),
+                stamp::<1>.after(MotionSystems).before(VibrationSystems).run_if(on),
+                stamp::<2>.after(VibrationSystems).before(RadiometrySystems).run_if(on),
+                stamp::<3>.after(RadiometrySystems).before(ProjectionSystems).run_if(on),
+                stamp::<4>.after(ProjectionSystems).before(RenderToTextureSystems).run_if(on),
+                stamp::<5>.after(RenderToTextureSystems).before(TargetsSystems).run_if(on),
+                stamp::<6>.after(TargetsSystems).before(FusionSystems).run_if(on),
+                stamp::<7>.after(FusionSystems).before(NoiseSystems).run_if(on),
+                stamp::<8>.after(NoiseSystems).before(OutputSystems).run_if(on),
+                stamp::<9>.after(OutputSystems).run_if(on),
+            ),
+        );
+    }
+}
+
+/// Switches for a run.
+#[derive(Debug, Clone, Copy)]
+pub struct RunOptions {
+    /// Seed override.
+    pub seed: Option<u64>,
+    /// Add sensor noise (if the scenario enables it).
+    pub noise: bool,
+    /// Apply vibration.
+    pub vibration: bool,
+    /// Keep the unquantized frame.
+    pub keep_float: bool,
+    /// Produce masks.
+    pub masks: bool,
+    /// Time each stage ([`StageTimings`]).
+    pub timings: bool,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        Self { seed: None, noise: true, vibration: true, keep_float: false, masks: false, timings: false }
+    }
+}
+
+/// An error building the simulation from a checked scenario (the sky image cannot be read or placed).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct SetupError(pub String);
+
+/// A headless app for `scenario`: `MinimalPlugins`, [`IrSimPlugins`], one fixed step per `update()`.
+///
+/// # Errors
+/// [`SetupError`] if the sky image cannot be loaded or placed.
+pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App, SetupError> {
+    let spec = &scenario.spec;
+    let seed = options.seed.unwrap_or(spec.run.seed);
+    let dt = 1.0 / spec.run.frame_rate_hz;
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins);
+    app.insert_resource(Time::<Fixed>::from_seconds(dt));
+    app.insert_resource(TimeUpdateStrategy::FixedTimesteps(1));
+    app.add_plugins(IrSimPlugins);
+    if options.timings {
+        app.add_plugins(TimingPlugin);
+    }
+    app.insert_resource(SimClock { frame: 0, start_s: spec.run.start_time_s, dt_s: dt });
+    app.insert_resource(SimSettings {
+        seed,
+        noise: options.noise && spec.sensor.noise.enabled,
+        vibration: options.vibration,
+        keep_float: options.keep_float,
+        masks: options.masks,
+        fusion: spec.fusion,
+        blob: spec.sensor.blob,
+    });
+    app.insert_resource(SceneParams {
+        t0_k: spec.atmosphere.t0_k,
+        stagnation: spec.atmosphere.stagnation,
+        sun: spec.sun,
+        atmosphere: spec.atmosphere.transmittance,
+        quadrature: SphereQuadrature::default(),
+    });
+
+    let world = app.world_mut();
+    let intrinsics = spec.sensor.intrinsics();
+    let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    world.spawn((
+        Sensor {
+            band: spec.sensor.band_um,
+            radiometer: spec.sensor.radiometer(),
+            gray: spec.sensor.gray,
+            noise: spec.sensor.noise.model(),
+        },
+        SensorFrame {
+            frame: Frame::new(w, h),
+            float_frame: None,
+            background: Frame::new(w, h),
+            background_camera: None,
+        },
+    ));
+    let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
+    let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
+    let placeholder = Camera::new(intrinsics, p0, Default::default());
+    world.spawn((
+        Observer,
+        FlightPath(scenario.observer_trajectory.clone()),
+        Kinematics { position_m: p0, velocity_m_s: v0 },
+        Aim(spec.observer.pointing.clone()),
+        Shake(vibration),
+        CameraPose { steady: placeholder, current: placeholder, jitter: Jitter::default() },
+    ));
+    if let (Some(sky), Some(path)) = (&spec.sky, &scenario.sky_image) {
+        let image = SkyImage::load(path).map_err(|e| SetupError(e.to_string()))?;
+        let plane = SkyPlane::new(image, &sky.placement(), p0).map_err(|e| SetupError(e.to_string()))?;
+        world.spawn(Sky {
+            plane: Arc::new(plane),
+            sampling: sky.sampling,
+            miss: sky.miss,
+            gain: sky.gray_gain as f32,
+            offset: sky.gray_offset as f32,
+        });
+    }
+    for (i, (t, tr)) in spec.targets.iter().zip(&scenario.target_trajectories).enumerate() {
+        let (p, v) = tr.state(spec.run.start_time_s);
+        world.spawn((
+            Aircraft { id: i as u32 + 1, name: t.name.clone() },
+            FlightPath(tr.clone()),
+            Kinematics { position_m: p, velocity_m_s: v },
+            Body { semi_axes_m: t.semi_axes_m },
+            Skin { emissivity: t.emissivity, brdf: t.brdf, reflection: t.reflection, mach: t.mach },
+            Signature::default(),
+            Footprint::default(),
+        ));
+    }
+    // The first update runs Startup and no fixed step.
+    app.update();
+    Ok(app)
+}
+
+/// Runs one step (one frame) and returns its labels.
+pub fn step(app: &mut App) -> FrameLabels {
+    app.update();
+    let mut out = app.world_mut().resource_mut::<FrameOutput>();
+    out.ready = false;
+    out.labels.clone()
+}
+
+/// The sensor frame of the last completed step (quantized gray levels as f32).
+pub fn current_frame(app: &mut App) -> &Frame {
+    let world = app.world_mut();
+    let mut q = world.query::<&SensorFrame>();
+    &q.single(world).expect("one sensor").frame
+}

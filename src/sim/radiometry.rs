@@ -1,0 +1,83 @@
+//! Radiometry: skin temperature, radiance, transmittance, detector signal and gray value per target.
+
+use bevy::app::{App, Plugin};
+use bevy::ecs::prelude::*;
+use bevy::prelude::FixedUpdate;
+
+use super::{Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, Skin};
+use crate::imaging::target_blob::attitude_from_velocity;
+use crate::physics::atmosphere::ambient_temperature_k;
+use crate::physics::signal::{SignalContext, TargetState, target_signal};
+use crate::physics::skin::speed_of_sound_m_s;
+
+/// Computes each target's signature.
+pub struct RadiometryPlugin;
+
+impl Plugin for RadiometryPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_systems(FixedUpdate, update_signatures.in_set(RadiometrySystems));
+    }
+}
+
+/// Runs the radiometric chain for every target whose inputs changed since its last computation.
+pub fn update_signatures(
+    scene: Res<SceneParams>,
+    sensor: Query<&Sensor>,
+    observer: Query<&CameraPose, With<Observer>>,
+    mut targets: Query<(&Kinematics, &Body, &Skin, &mut Signature), Without<Observer>>,
+) {
+    let (Ok(sensor), Ok(pose)) = (sensor.single(), observer.single()) else { return };
+    let eye = pose.steady.position_m;
+    let ctx = SignalContext {
+        band: sensor.band,
+        t0_k: scene.t0_k,
+        stagnation: scene.stagnation,
+        sun: scene.sun,
+        atmosphere: &scene.atmosphere,
+        reflection: Default::default(),
+        quadrature: &scene.quadrature,
+        radiometer: sensor.radiometer,
+        gray: sensor.gray,
+        fill_factor: false,
+    };
+    for (kin, body, skin, mut sig) in &mut targets {
+        let p = kin.position_m;
+        let dir = kin.velocity_m_s.normalize_or_zero();
+        let key = [p.x, p.y, p.z, dir.x, dir.y, dir.z, kin.velocity_m_s.length(), eye.x, eye.y, eye.z];
+        if sig.key == Some(key) {
+            continue;
+        }
+        let mach = match skin.mach {
+            Some(m) => m,
+            None => match ambient_temperature_k(p.z, scene.t0_k) {
+                Ok(t) => kin.velocity_m_s.length() / speed_of_sound_m_s(t),
+                Err(_) => 0.0,
+            },
+        };
+        let state = TargetState {
+            position_m: p,
+            mach,
+            emissivity: skin.emissivity,
+            brdf: skin.brdf,
+            semi_axes_m: body.semi_axes_m,
+            attitude: attitude_from_velocity(kin.velocity_m_s),
+        };
+        let ctx = SignalContext { reflection: skin.reflection, ..ctx };
+        match target_signal(&state, eye, &ctx) {
+            Ok(signal) => {
+                // eq 13 without the fill factor, mapped by the gray gain: the gray a pixel filled by the target
+                // would show above the black level
+                sig.full_contrast_gray = signal.voltage_v * sensor.gray.gain_per_v();
+                sig.signal = Some(signal);
+                sig.error = None;
+            }
+            Err(e) => {
+                sig.signal = None;
+                sig.full_contrast_gray = 0.0;
+                sig.error = Some(e.to_string());
+            }
+        }
+        sig.mach = mach;
+        sig.key = Some(key);
+    }
+}
