@@ -283,10 +283,10 @@ impl Recorder {
             });
         }
         self.collect(false);
-        if self.last_checkpoint.elapsed().as_secs_f64() >= 1.0 {
-            if let Err(e) = self.checkpoint("running") {
-                self.error.get_or_insert(e);
-            }
+        if self.last_checkpoint.elapsed().as_secs_f64() >= 1.0
+            && let Err(e) = self.checkpoint("running")
+        {
+            self.error.get_or_insert(e);
         }
     }
 
@@ -406,6 +406,54 @@ mod tests {
         assert!(std::str::from_utf8(&b[10..10 + header_len]).unwrap().contains("'shape': (2, 3)"));
         assert_eq!(b.len(), 10 + header_len + 6 * 4);
         assert_eq!(f32::from_le_bytes(b[b.len() - 4..].try_into().unwrap()), 6.5);
+    }
+
+    fn labels(frame: u64) -> FrameLabels {
+        FrameLabels { frame, t_s: frame as f64 * 0.1, targets: Vec::new() }
+    }
+
+    #[test]
+    fn interruption_leaves_matching_frames_labels_and_manifest() {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-int-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        prepare_dir(&dir, false).unwrap();
+        let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
+        for k in 0..3 {
+            rec.push(Frame::new(8, 8), None, labels(k));
+        }
+        let p = rec.finish(true).unwrap();
+        assert_eq!((p.status.as_str(), p.frames_written), ("interrupted", 3));
+        assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap().lines().count(), 3);
+        assert_eq!(std::fs::read_dir(dir.join("frames")).unwrap().count(), 3);
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
+        assert_eq!(m["status"], "interrupted");
+        assert_eq!(m["frames_written"], 3);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_write_error_is_reported_and_recorded() {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-err-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        prepare_dir(&dir, false).unwrap();
+        let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
+        rec.push(Frame::new(8, 8), None, labels(0));
+        // make every later frame write fail, as a full disk would
+        std::fs::remove_dir_all(dir.join("frames")).unwrap();
+        std::fs::write(dir.join("frames"), b"not a directory").unwrap();
+        for k in 1..6 {
+            rec.push(Frame::new(8, 8), None, labels(k));
+        }
+        let err = rec.finish(false).unwrap_err().to_string();
+        assert!(err.contains("frames"), "{err}");
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
+        assert_eq!(m["status"], "failed");
+        let written = m["frames_written"].as_u64().unwrap();
+        assert!(written <= 1);
+        assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap().lines().count() as u64, written);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

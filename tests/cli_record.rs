@@ -1,0 +1,227 @@
+//! `irsim record` and `irsim validate` as a user runs them.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn irsim(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_irsim")).args(args).output().expect("run irsim");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("irsim-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn record_writes_frames_labels_mot_and_manifest() {
+    let out = temp_dir("record");
+    let scenario = root().join("scenarios/paper_clear_sky.toml");
+    let out_s = out.to_str().unwrap();
+    let (code, _, err) =
+        irsim(&["record", scenario.to_str().unwrap(), "--out", out_s, "--frames", "6", "--masks", "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    let frames: Vec<_> = std::fs::read_dir(out.join("frames")).unwrap().collect();
+    assert_eq!(frames.len(), 6);
+    let png = image::open(out.join("frames/000005.png")).unwrap();
+    assert_eq!(png.color(), image::ColorType::L16);
+    assert_eq!((png.width(), png.height()), (256, 256));
+    let labels = std::fs::read_to_string(out.join("labels.jsonl")).unwrap();
+    let lines: Vec<serde_json::Value> = labels.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 6);
+    let t = &lines[3]["targets"][0];
+    for key in ["id", "name", "center_px", "bbox_px", "ellipse_px", "range_m", "peak_gray", "snr", "visible"] {
+        assert!(!t[key].is_null(), "label lacks {key}: {t}");
+    }
+    assert_eq!(lines[3]["frame"], 3);
+    let mot = std::fs::read_to_string(out.join("gt_mot.txt")).unwrap();
+    assert_eq!(mot.lines().count(), 6);
+    assert!(mot.starts_with("1,1,"));
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["status"], "complete");
+    assert_eq!(manifest["frames_written"], 6);
+    assert_eq!(manifest["seed"], 9);
+    assert!(manifest["timings"]["stage_ms_per_frame"]["render"].is_number());
+    assert_eq!(std::fs::read_dir(out.join("masks")).unwrap().count(), 6);
+    let mask = image::open(out.join("masks/000000.png")).unwrap().into_luma8();
+    assert!(mask.pixels().any(|p| p.0[0] == 1));
+
+    // a second run into the same directory is refused, and nothing is touched
+    let before = std::fs::read(out.join("frames/000000.png")).unwrap();
+    let (code, _, err) = irsim(&["record", scenario.to_str().unwrap(), "--out", out_s, "--frames", "2", "--quiet"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--force"), "{err}");
+    assert_eq!(std::fs::read(out.join("frames/000000.png")).unwrap(), before);
+    // with --force the earlier outputs are replaced
+    let (code, _, err) = irsim(&[
+        "record",
+        scenario.to_str().unwrap(),
+        "--out",
+        out_s,
+        "--frames",
+        "2",
+        "--quiet",
+        "--force",
+        "--format",
+        "npy",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let names: Vec<String> =
+        std::fs::read_dir(out.join("frames")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    assert_eq!(names.len(), 2);
+    assert!(names.iter().all(|n| n.ends_with(".npy")));
+    assert_eq!(std::fs::read_to_string(out.join("labels.jsonl")).unwrap().lines().count(), 2);
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn no_noise_no_vibration_records_are_identical_across_seeds() {
+    let scenario = root().join("scenarios/paper_vibration.toml");
+    let mut frames = Vec::new();
+    for seed in ["1", "2"] {
+        let out = temp_dir(&format!("seed{seed}"));
+        let (code, _, err) = irsim(&[
+            "record",
+            scenario.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--frames",
+            "2",
+            "--seed",
+            seed,
+            "--no-noise",
+            "--no-vibration",
+            "--quiet",
+        ]);
+        assert_eq!(code, 0, "{err}");
+        frames.push(std::fs::read(out.join("frames/000001.png")).unwrap());
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+    assert_eq!(frames[0], frames[1]);
+}
+
+/// Writes `text` as a scenario next to the shipped ones' sky images and validates it.
+fn validate_text(name: &str, text: &str) -> (i32, String) {
+    let dir = temp_dir(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let ext = if text.trim_start().starts_with('{') { "json" } else { "toml" };
+    let path = dir.join(format!("s.{ext}"));
+    std::fs::write(&path, text).unwrap();
+    let (code, _, err) = irsim(&["validate", path.to_str().unwrap()]);
+    std::fs::remove_dir_all(&dir).unwrap();
+    (code, err)
+}
+
+fn base() -> String {
+    let sky = root().join("assets/skies/clear.png");
+    format!(
+        r#"[run]
+frames = 5
+[sensor]
+width = 64
+height = 48
+pixel_pitch_um = 17
+focal_length_mm = 50
+aperture_mm = 50
+band_um = [8, 12]
+[sensor.gray]
+v_low = 0.0
+v_high = 2.0
+[observer]
+trajectory = {{ kind = "constant_velocity", position_m = [0, 0, 8000] }}
+pointing = {{ mode = "look_at", target_m = [0, 30000, 8000] }}
+[sky]
+image = "{}"
+anchor_m = [0, 30000, 6000]
+width_m = 4000
+height_m = 4000
+[[targets]]
+name = "t"
+trajectory = {{ kind = "constant_velocity", position_m = [0, 5000, 8000], velocity_m_s = [100, 0, 0] }}
+semi_axes_m = [6, 1.5, 1.5]
+"#,
+        sky.display()
+    )
+}
+
+#[test]
+fn the_base_scenario_is_valid() {
+    let (code, err) = validate_text("base", &base());
+    assert_eq!(code, 0, "{err}");
+}
+
+#[test]
+fn malformed_scenarios_name_the_field_and_exit_2() {
+    let b = base();
+    let cases: Vec<(&str, String, &str, usize)> = vec![
+        ("wrong_type", b.replace("width = 64", "width = \"wide\""), "width", 4),
+        ("unknown_field", b.replace("aperture_mm = 50", "aperture_mm = 50\napperture = 1"), "apperture", 9),
+        ("nan", b.replace("pixel_pitch_um = 17", "pixel_pitch_um = nan"), "sensor.pixel_pitch_um", 6),
+        ("negative_range", b.replace("width_m = 4000", "width_m = -4000"), "sky.width_m", 0),
+        ("vh_below_vl", b.replace("v_high = 2.0", "v_high = -1.0"), "sensor.gray.v_high", 12),
+        ("empty_band", b.replace("band_um = [8, 12]", "band_um = [12, 8]"), "band_um", 9),
+        ("missing_image", b.replace("clear.png", "no_such_sky.png"), "sky.image", 0),
+        (
+            "bad_semi_axes",
+            b.replace("semi_axes_m = [6, 1.5, 1.5]", "semi_axes_m = [6, 0, 1.5]"),
+            "targets[0].semi_axes_m",
+            0,
+        ),
+        (
+            "unknown_track",
+            b.replace(
+                r#"pointing = { mode = "look_at", target_m = [0, 30000, 8000] }"#,
+                r#"pointing = { mode = "track", target = "nobody" }"#,
+            ),
+            "observer.pointing.target",
+            0,
+        ),
+    ];
+    for (name, text, field, line) in cases {
+        let (code, err) = validate_text(name, &text);
+        assert_eq!(code, 2, "{name}: {err}");
+        assert!(err.contains(&format!("field `{field}`")), "{name}: message does not name `{field}`: {err}");
+        assert!(err.contains("s.toml:"), "{name}: message does not name the file: {err}");
+        if line > 0 {
+            assert!(err.contains(&format!("s.toml:{line}:")), "{name}: expected line {line}: {err}");
+        }
+        assert!(!err.contains("panicked"), "{name}: {err}");
+    }
+}
+
+#[test]
+fn json_scenarios_work_and_their_errors_are_located() {
+    let sky = root().join("assets/skies/clear.png");
+    let json = format!(
+        r#"{{
+  "sensor": {{"width": 64, "height": 48, "pixel_pitch_um": 17, "focal_length_mm": 50, "aperture_mm": 50, "band_um": [8, 12]}},
+  "observer": {{
+    "trajectory": {{"kind": "constant_velocity", "position_m": [0, 0, 8000]}},
+    "pointing": {{"mode": "yaw_pitch_roll", "yaw_deg": 0}}
+  }},
+  "sky": {{"image": "{}", "anchor_m": [0, 30000, 6000], "width_m": 4000, "height_m": 4000}}
+}}"#,
+        sky.display()
+    );
+    assert_eq!(validate_text("json_ok", &json).0, 0);
+    let (code, err) = validate_text("json_bad", &json.replace("\"height_m\": 4000", "\"height_m\": 0"));
+    assert_eq!(code, 2);
+    assert!(err.contains("field `sky.height_m`") && err.contains("s.json:7:"), "{err}");
+}
+
+#[test]
+fn missing_scenario_file_is_reported() {
+    let (code, _, err) = irsim(&["validate", "/no/such/scenario.toml"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("/no/such/scenario.toml"), "{err}");
+}
