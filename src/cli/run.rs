@@ -342,15 +342,23 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             frames as f64 / t.elapsed().as_secs_f64()
         } else {
             let scenario = load_scenario(&path)?;
-            let mut app = build_app(&scenario, RunOptions::default()).map_err(|e| CliError::Failed(e.to_string()))?;
+            let options = RunOptions { timings: true, ..RunOptions::default() };
+            let mut app = build_app(&scenario, options).map_err(|e| CliError::Failed(e.to_string()))?;
             for _ in 0..10 {
                 step(&mut app);
             }
+            app.world_mut().insert_resource(StageTimings::default());
             let t = Instant::now();
             for _ in 0..frames {
                 step(&mut app);
             }
-            frames as f64 / t.elapsed().as_secs_f64()
+            let fps = frames as f64 / t.elapsed().as_secs_f64();
+            if let Some(timings) = app.world().get_resource::<StageTimings>() {
+                let stages: Vec<String> =
+                    timings.mean_ms().iter().map(|(name, ms)| format!("{name} {:.0}", ms * 1e3)).collect();
+                eprintln!("  stage µs per frame: {}", stages.join(", "));
+            }
+            fps
         };
         let case = format!(
             "{w}x{h}, {n} target{}{}",

@@ -116,8 +116,11 @@ impl Frame {
     }
 }
 
+/// Nearest level in `[0, max]` (`max` whole); NaN → 0. `⌊x + 0.5⌋` of the clamped value is its rounding and
+/// needs no libm call.
+#[inline]
 fn quantize(v: f32, max: f32) -> f32 {
-    if v.is_nan() { 0.0 } else { v.round().clamp(0.0, max) }
+    ((v.clamp(0.0, max) + 0.5) as u32) as f32
 }
 
 #[cfg(test)]

@@ -330,7 +330,9 @@ impl SkyPlane {
         let point_sampling = if n == 1 { sampling } else { Sampling::Bilinear };
         let geometry = RowGeometry::new(self, camera);
         let inv = 1.0 / (n * n) as f32;
-        frame.pixels_mut().par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+        // rows in batches: one row is too little work to be worth a task
+        let rows_per_task = (8_192 / (width * n * n)).max(1);
+        frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
             if n == 1 {
                 geometry.cast_row(self, j as f64 + 0.5, 0.5, 1.0, point_sampling, fill, row, false);
                 return;

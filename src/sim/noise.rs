@@ -5,6 +5,7 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{NoiseSystems, Sensor, SensorFrame, SimClock, SimSettings};
+use crate::physics::noise::quantize_row;
 
 /// Adds noise and quantizes.
 pub struct NoisePlugin;
@@ -24,17 +25,20 @@ pub fn add_noise_and_quantize(
     let Ok((sensor, mut sf)) = sensor.single_mut() else { return };
     let sf = &mut *sf;
     let width = sf.frame.width();
-    if settings.noise {
-        sensor.noise.apply(sf.frame.pixels_mut(), width, sensor.gray.g_min, settings.seed, clock.frame);
-    }
+    let top = sensor.gray.max_level() as f32;
+    let (seed, frame) = (settings.seed, clock.frame);
     if settings.keep_float {
+        if settings.noise {
+            sensor.noise.apply(sf.frame.pixels_mut(), width, sensor.gray.g_min, seed, frame);
+        }
         match &mut sf.float_frame {
             Some(f) => f.pixels_mut().copy_from_slice(sf.frame.pixels()),
             None => sf.float_frame = Some(sf.frame.clone()),
         }
-    }
-    let top = sensor.gray.max_level() as f32;
-    for p in sf.frame.pixels_mut() {
-        *p = if p.is_nan() { 0.0 } else { p.round().clamp(0.0, top) };
+        quantize_row(sf.frame.pixels_mut(), top);
+    } else if settings.noise {
+        sensor.noise.apply_and_quantize(sf.frame.pixels_mut(), width, sensor.gray.g_min, seed, frame, Some(top));
+    } else {
+        quantize_row(sf.frame.pixels_mut(), top);
     }
 }
