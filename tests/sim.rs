@@ -207,3 +207,25 @@ fn system_sets_have_no_ambiguities() {
     step(&mut app);
     step(&mut app);
 }
+
+#[test]
+fn frame_is_mirrored_into_a_bevy_image_when_asked() {
+    use irsim::sim::{FrameImage, MirrorFrame};
+    let s = scenario(CONSTANT_VELOCITY);
+    let mut app = build_app(&s, RunOptions::default()).unwrap();
+    step(&mut app);
+    {
+        let world = app.world_mut();
+        assert_eq!(world.query::<&FrameImage>().iter(world).count(), 0, "mirrored without being asked");
+        world.insert_resource(MirrorFrame);
+    }
+    step(&mut app);
+    step(&mut app);
+    let frame = current_frame(&mut app).clone();
+    let world = app.world_mut();
+    let image = world.query::<&FrameImage>().single(world).unwrap();
+    let data = image.0.data.as_ref().unwrap();
+    let mirrored: Vec<f32> = data.chunks_exact(4).map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]])).collect();
+    assert_eq!(mirrored, frame.pixels());
+    assert_eq!(image.0.width(), 128);
+}

@@ -45,7 +45,7 @@ use crate::physics::transmittance::Transmittance;
 use crate::scenario::trajectory::Trajectory;
 use crate::scenario::{BlobSpec, CheckedScenario, FusionSpec, Pointing};
 
-pub use output::{FrameLabels, TargetLabel};
+pub use output::{FrameImage, FrameLabels, MirrorFrame, TargetLabel};
 
 /// Motion of targets and observer.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]

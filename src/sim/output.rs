@@ -1,9 +1,12 @@
 //! Output: ground truth of the frame, masks, and the clock's advance to the next frame.
 
 use bevy::app::{App, Plugin};
+use bevy::asset::RenderAssetUsages;
 use bevy::ecs::prelude::*;
+use bevy::image::Image;
 use bevy::prelude::FixedUpdate;
 use serde::Serialize;
+use wgpu_types::{Extent3d, TextureDimension, TextureFormat};
 
 use super::{Aircraft, Footprint, FrameOutput, OutputSystems, Sensor, SensorFrame, Signature, SimClock, SimSettings};
 
@@ -12,7 +15,45 @@ pub struct OutputPlugin;
 
 impl Plugin for OutputPlugin {
     fn build(&self, app: &mut App) {
-        app.add_systems(FixedUpdate, (collect_labels, advance_clock).chain().in_set(OutputSystems));
+        app.add_systems(
+            FixedUpdate,
+            (collect_labels, mirror_frame.run_if(resource_exists::<MirrorFrame>), advance_clock)
+                .chain()
+                .in_set(OutputSystems),
+        );
+    }
+}
+
+/// Present when the frame should be mirrored into a Bevy [`Image`] each step (the viewer inserts it; headless
+/// runs skip the copy).
+#[derive(Resource, Debug, Clone, Copy, Default)]
+pub struct MirrorFrame;
+
+/// The sensor frame as a Bevy [`Image`] (`R32Float`, gray levels), on the sensor entity.
+#[derive(Component, Debug, Clone)]
+pub struct FrameImage(pub Image);
+
+/// Copies the quantized frame into the sensor's [`FrameImage`], creating it on first use.
+pub fn mirror_frame(mut commands: Commands, mut sensor: Query<(Entity, &SensorFrame, Option<&mut FrameImage>)>) {
+    let Ok((entity, sf, image)) = sensor.single_mut() else { return };
+    let bytes: &[u8] = bytemuck::cast_slice(sf.frame.pixels());
+    match image {
+        Some(mut img) => match &mut img.0.data {
+            Some(data) if data.len() == bytes.len() => data.copy_from_slice(bytes),
+            _ => img.0.data = Some(bytes.to_vec()),
+        },
+        None => {
+            let size =
+                Extent3d { width: sf.frame.width() as u32, height: sf.frame.height() as u32, depth_or_array_layers: 1 };
+            let image = Image::new(
+                size,
+                TextureDimension::D2,
+                bytes.to_vec(),
+                TextureFormat::R32Float,
+                RenderAssetUsages::default(),
+            );
+            commands.entity(entity).insert(FrameImage(image));
+        }
     }
 }
 
@@ -101,7 +142,7 @@ pub fn collect_labels(
             label.ellipse_px = EllipseLabel { a: e.a, b: e.b, angle_rad: e.angle_rad };
             label.peak_gray = blob.peak;
             label.fill_factor = e.fill_factor();
-            label.visible = fp.roi.is_some();
+            label.visible = fp.roi.is_some() && sig.signal.is_some();
             let (cx, cy) = (e.center.x.floor(), e.center.y.floor());
             let bg = if cx >= 0.0 && cy >= 0.0 && (cx as usize) < w && (cy as usize) < h {
                 f64::from(sf.background.get(cx as usize, cy as usize))
