@@ -334,7 +334,7 @@ impl SkyPlane {
         let rows_per_task = (8_192 / (width * n * n)).max(1);
         frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
             if n == 1 {
-                geometry.cast_row(self, j as f64 + 0.5, 0.5, 1.0, point_sampling, fill, row, false);
+                geometry.cast_row(self, j as f64 + 0.5, 0.5, point_sampling, fill, row, false);
                 return;
             }
             row.fill(0.0);
@@ -342,7 +342,7 @@ impl SkyPlane {
                 let v = j as f64 + (sy as f64 + 0.5) / n as f64;
                 for sx in 0..n {
                     let u0 = (sx as f64 + 0.5) / n as f64;
-                    geometry.cast_row(self, v, u0, 1.0, point_sampling, fill, row, true);
+                    geometry.cast_row(self, v, u0, point_sampling, fill, row, true);
                 }
             }
             for p in row.iter_mut() {
@@ -402,26 +402,44 @@ impl RowGeometry {
         plane: &SkyPlane,
         v: f64,
         u0: f64,
-        step: f64,
         sampling: Sampling,
         fill: MissFill,
         out: &mut [f32],
         accumulate: bool,
     ) {
         let mut d = self.base + self.dv * v + self.du * u0;
-        let inc = self.du * step;
+        let inc = self.du;
         let miss = match fill {
             MissFill::Constant { value } => value,
             _ => 0.0,
         };
+        let img = &plane.image;
+        let (w, h) = (img.width, img.height);
+        // bilinear samples whose four neighbours are all inside the image take the short path below
+        let (x_max, y_max) = (w as f64 - 1.0, h as f64 - 1.0);
+        let bilinear = !matches!(sampling, Sampling::Nearest);
         for o in out.iter_mut() {
-            // d = (d·n, d·right', d·down'); t = numerator / (d·n)
-            let value = if d.x.abs() < 1e-15 || !(self.numerator / d.x > 0.0) {
+            // d = (d·n, d·right', d·down'); the ray meets the plane at t = numerator / (d·n)
+            let t = self.numerator / d.x;
+            let value = if !(t > 0.0 && t.is_finite()) {
                 miss
             } else {
-                let t = self.numerator / d.x;
-                let p = DVec2::new(self.origin_px.x + t * d.y, self.origin_px.y + t * d.z);
-                plane.sample(p, sampling, fill)
+                let px = self.origin_px.x + t * d.y;
+                let py = self.origin_px.y + t * d.z;
+                let (x, y) = (px - 0.5, py - 0.5);
+                if bilinear && x >= 0.0 && y >= 0.0 && x < x_max && y < y_max {
+                    // non-negative: truncation is the floor
+                    let (xi, yi) = (x as usize, y as usize);
+                    let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
+                    let i = yi * w + xi;
+                    let (a, b) = (img.pixels[i], img.pixels[i + 1]);
+                    let (c, e) = (img.pixels[i + w], img.pixels[i + w + 1]);
+                    let top = a + (b - a) * fx;
+                    let bottom = c + (e - c) * fx;
+                    top + (bottom - top) * fy
+                } else {
+                    plane.sample(DVec2::new(px, py), sampling, fill)
+                }
             };
             if accumulate {
                 *o += value;

@@ -21,24 +21,14 @@
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
 
 use std::f64::consts::PI;
 
 /// Below this length of `v + l` the half vector is treated as undefined.
 const HALF_VECTOR_MIN: f64 = 1e-12;
 
-/// An invalid BRDF parameter.
-#[derive(Debug, Clone, PartialEq, Error)]
-#[error("BRDF parameter {name} = {value} is outside its allowed range {range}")]
-pub struct BrdfError {
-    /// Parameter name.
-    pub name: &'static str,
-    /// The value given.
-    pub value: f64,
-    /// Allowed range, in words.
-    pub range: &'static str,
-}
+/// An invalid BRDF parameter: its name, value and allowed range.
+pub type BrdfError = super::ParamError;
 
 /// Material parameters of the Cook–Torrance model.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -105,13 +95,13 @@ impl CookTorrance {
     /// [`BrdfError`] naming the first parameter out of range.
     pub fn validate(&self) -> Result<(), BrdfError> {
         let unit = |name, value: f64| {
-            if (0.0..=1.0).contains(&value) { Ok(()) } else { Err(BrdfError { name, value, range: "[0, 1]" }) }
+            if (0.0..=1.0).contains(&value) { Ok(()) } else { Err(BrdfError { name, value, range: "[0, 1]".into() }) }
         };
         unit("kd", self.kd)?;
         unit("ks", self.ks)?;
         unit("f0", self.f0)?;
         if !(1e-4..=10.0).contains(&self.roughness) {
-            return Err(BrdfError { name: "roughness", value: self.roughness, range: "[1e-4, 10]" });
+            return Err(BrdfError { name: "roughness", value: self.roughness, range: "[1e-4, 10]".into() });
         }
         Ok(())
     }

@@ -12,3 +12,15 @@ pub mod sensor;
 pub mod signal;
 pub mod skin;
 pub mod transmittance;
+
+/// A parameter outside its allowed range: the error of every `validate` in the physics layer.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("parameter {name} = {value} is outside its allowed range {range}")]
+pub struct ParamError {
+    /// Parameter name.
+    pub name: &'static str,
+    /// The value given.
+    pub value: f64,
+    /// The allowed range, in words.
+    pub range: String,
+}

@@ -16,7 +16,6 @@
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
 
 /// Identifiers of the stochastic stages; each keys its own random streams.
 pub mod stage {
@@ -42,17 +41,8 @@ pub fn stream_rng(seed: u64, stage: u64, frame: u64, substream: u64) -> ChaCha8R
     rng
 }
 
-/// An invalid noise parameter.
-#[derive(Debug, Clone, PartialEq, Error)]
-#[error("noise parameter {name} = {value} is outside its allowed range {range}")]
-pub struct NoiseError {
-    /// Parameter name.
-    pub name: &'static str,
-    /// The value given.
-    pub value: f64,
-    /// Allowed range, in words.
-    pub range: &'static str,
-}
+/// An invalid noise parameter: its name, value and allowed range.
+pub type NoiseError = super::ParamError;
 
 /// Shot and read noise of the sensor, in gray levels.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -80,15 +70,15 @@ impl NoiseModel {
     pub fn validate(&self) -> Result<(), NoiseError> {
         let e = self.electrons_per_gray;
         if !(e.is_finite() && e >= 0.0) {
-            return Err(NoiseError { name: "electrons_per_gray", value: e, range: "[0, ∞)" });
+            return Err(NoiseError { name: "electrons_per_gray", value: e, range: "[0, ∞)".into() });
         }
         let s = self.read_noise_gray;
         if !(s.is_finite() && s >= 0.0) {
-            return Err(NoiseError { name: "read_noise_gray", value: s, range: "[0, ∞)" });
+            return Err(NoiseError { name: "read_noise_gray", value: s, range: "[0, ∞)".into() });
         }
         let t = self.poisson_normal_threshold;
         if !(0.0..=500.0).contains(&t) {
-            return Err(NoiseError { name: "poisson_normal_threshold", value: t, range: "[0, 500]" });
+            return Err(NoiseError { name: "poisson_normal_threshold", value: t, range: "[0, 500]".into() });
         }
         Ok(())
     }
@@ -105,8 +95,9 @@ impl NoiseModel {
             let k = self.electrons_per_gray;
             let mean = (gray - black_level).max(0.0) * k;
             if mean >= self.poisson_normal_threshold {
-                let sd = (mean / (k * k) + read_var).sqrt();
-                return gray + sd * standard_normal(rng);
+                // f32 is ample for a noise amplitude and its square root is cheaper
+                let sd = ((mean / (k * k) + read_var) as f32).sqrt();
+                return gray + f64::from(sd) * standard_normal(rng);
             }
             let count = poisson(mean, self.poisson_normal_threshold, rng);
             let shot = black_level + count / k;

@@ -9,19 +9,9 @@
 //! (eq 15); [`GrayMapping::quantize`] rounds to the sensor's integer levels.
 
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
 
-/// An invalid sensor parameter.
-#[derive(Debug, Clone, PartialEq, Error)]
-#[error("sensor parameter {name} = {value} is outside its allowed range {range}")]
-pub struct SensorError {
-    /// Parameter name.
-    pub name: &'static str,
-    /// The value given.
-    pub value: f64,
-    /// Allowed range, in words.
-    pub range: String,
-}
+/// An invalid sensor parameter: its name, value and allowed range.
+pub type SensorError = super::ParamError;
 
 fn require(name: &'static str, value: f64, ok: bool, range: impl Into<String>) -> Result<(), SensorError> {
     if ok { Ok(()) } else { Err(SensorError { name, value, range: range.into() }) }

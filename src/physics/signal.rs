@@ -6,12 +6,13 @@ use glam::{DMat3, DVec3};
 use serde::Serialize;
 use thiserror::Error;
 
-use super::brdf::{BrdfError, CookTorrance};
+use super::ParamError;
+use super::brdf::CookTorrance;
 use super::planck::Band;
 use super::reflection::{ReflectionGeometry, ReflectionInput, SphereQuadrature, Sun, reflected_radiance};
-use super::sensor::{GrayMapping, Radiometer, SensorError};
+use super::sensor::{GrayMapping, Radiometer};
 use super::skin::{SkinError, StagnationModel, self_radiance, skin_temperatures};
-use super::transmittance::{PathTransmittance, Transmittance, TransmittanceError};
+use super::transmittance::{PathTransmittance, Transmittance};
 
 /// Any error of the radiometric chain.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -19,15 +20,9 @@ pub enum SignalError {
     /// Atmosphere or stagnation model.
     #[error(transparent)]
     Skin(#[from] SkinError),
-    /// Material.
+    /// A material, sensor or transmittance parameter out of range.
     #[error(transparent)]
-    Brdf(#[from] BrdfError),
-    /// Sensor.
-    #[error(transparent)]
-    Sensor(#[from] SensorError),
-    /// Transmittance.
-    #[error(transparent)]
-    Transmittance(#[from] TransmittanceError),
+    Param(#[from] ParamError),
     /// A geometric input.
     #[error("{0}")]
     Geometry(String),

@@ -9,7 +9,6 @@
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
 
 /// Transmittance of straight paths through the atmosphere.
 pub trait PathTransmittance {
@@ -19,17 +18,8 @@ pub trait PathTransmittance {
     fn to_space(&self, from_m: DVec3, direction: DVec3) -> f64;
 }
 
-/// An invalid transmittance parameter.
-#[derive(Debug, Clone, PartialEq, Error)]
-#[error("transmittance parameter {name} = {value} is outside its allowed range {range}")]
-pub struct TransmittanceError {
-    /// Parameter name.
-    pub name: &'static str,
-    /// The value given.
-    pub value: f64,
-    /// Allowed range, in words.
-    pub range: &'static str,
-}
+/// An invalid transmittance parameter: its name, value and allowed range.
+pub type TransmittanceError = super::ParamError;
 
 /// A band-averaged transmittance model.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -69,15 +59,17 @@ impl Transmittance {
     pub fn validate(&self) -> Result<(), TransmittanceError> {
         match *self {
             Transmittance::Fixed { tau } if !(0.0..=1.0).contains(&tau) => {
-                Err(TransmittanceError { name: "tau", value: tau, range: "[0, 1]" })
+                Err(TransmittanceError { name: "tau", value: tau, range: "[0, 1]".into() })
             }
             Transmittance::BeerLambert { extinction_per_km, .. }
                 if !(extinction_per_km.is_finite() && extinction_per_km >= 0.0) =>
             {
-                Err(TransmittanceError { name: "extinction_per_km", value: extinction_per_km, range: "[0, ∞)" })
+                Err(TransmittanceError {
+                    name: "extinction_per_km", value: extinction_per_km, range: "[0, ∞)".into()
+                })
             }
             Transmittance::BeerLambert { scale_height_km, .. } if !(scale_height_km > 0.0) => {
-                Err(TransmittanceError { name: "scale_height_km", value: scale_height_km, range: "(0, ∞]" })
+                Err(TransmittanceError { name: "scale_height_km", value: scale_height_km, range: "(0, ∞]".into() })
             }
             _ => Ok(()),
         }
