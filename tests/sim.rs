@@ -229,3 +229,22 @@ fn frame_is_mirrored_into_a_bevy_image_when_asked() {
     assert_eq!(mirrored, frame.pixels());
     assert_eq!(image.0.width(), 128);
 }
+
+#[test]
+fn fixed_attitude_orients_a_hovering_target() {
+    let f = 50e-3 / 17e-6;
+    for (yaw, want_a) in [(90.0, f * 20.0 / 5000.0), (0.0, f * 2.0 / 5000.0)] {
+        let text = CONSTANT_VELOCITY.replace("velocity_m_s = [150, 10, 0]", "velocity_m_s = [0, 0, 0]").replace(
+            "semi_axes_m = [0.5, 0.5, 0.5]",
+            &format!("semi_axes_m = [20, 2, 2]\nattitude = {{ yaw_deg = {yaw} }}"),
+        );
+        let s = scenario(&text);
+        let mut app = build_app(&s, RunOptions::default()).unwrap();
+        let l = step(&mut app);
+        let e = l.targets[0].ellipse_px;
+        assert!((e.a - want_a).abs() / want_a < 0.01, "yaw {yaw}: a = {} px, want {want_a}", e.a);
+        if yaw == 90.0 {
+            assert!(e.angle_rad.abs() < 1e-6, "long axis should be horizontal: {}", e.angle_rad);
+        }
+    }
+}

@@ -353,6 +353,9 @@ pub struct TargetSpec {
     /// Facet (paper) or ellipsoid-averaged reflection.
     #[serde(default)]
     pub reflection: ReflectionGeometry,
+    /// Fixed attitude of the ellipsoid's long axis (yaw, pitch, roll); default along the velocity.
+    #[serde(default)]
+    pub attitude: Option<YawPitchRoll>,
 }
 
 fn default_emissivity() -> f64 {

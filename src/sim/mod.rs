@@ -28,7 +28,7 @@ use bevy::prelude::{FixedUpdate, MinimalPlugins};
 use bevy::time::{Fixed, Time, TimeUpdateStrategy};
 use glam::DVec3;
 
-use crate::imaging::camera::{Camera, Jitter};
+use crate::imaging::camera::{Camera, Jitter, YawPitchRoll};
 use crate::imaging::frame::Frame;
 use crate::imaging::fusion::PoissonFusion;
 use crate::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlane};
@@ -103,11 +103,27 @@ pub struct Kinematics {
     pub velocity_m_s: DVec3,
 }
 
-/// The target's ellipsoid: semi-axes along its velocity, across, up.
+/// The target's ellipsoid: semi-axes along its long axis, across, up, and a fixed attitude if one is given.
 #[derive(Component, Debug, Clone, Copy)]
 pub struct Body {
     /// Semi-axes, m.
     pub semi_axes_m: DVec3,
+    /// Fixed attitude; `None` points the long axis along the velocity.
+    pub attitude: Option<YawPitchRoll>,
+}
+
+impl Body {
+    /// Body-to-world rotation for velocity `velocity_m_s` (x forward, y left, z up).
+    pub fn body_to_world(&self, velocity_m_s: DVec3) -> glam::DMat3 {
+        match self.attitude {
+            Some(a) => {
+                // camera axes are (right, down, forward); the body's are (forward, left, up)
+                let c = a.camera_to_world();
+                glam::DMat3::from_cols(c.z_axis, -c.x_axis, -c.y_axis)
+            }
+            None => crate::imaging::target_blob::attitude_from_velocity(velocity_m_s),
+        }
+    }
 }
 
 /// Skin material and flight condition.
@@ -500,7 +516,7 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
             Aircraft { id: i as u32 + 1, name: t.name.clone() },
             FlightPath(tr.clone()),
             Kinematics { position_m: p, velocity_m_s: v },
-            Body { semi_axes_m: t.semi_axes_m },
+            Body { semi_axes_m: t.semi_axes_m, attitude: t.attitude },
             Skin { emissivity: t.emissivity, brdf: t.brdf, reflection: t.reflection, mach: t.mach },
             Signature::default(),
             Footprint::default(),

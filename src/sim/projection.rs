@@ -5,9 +5,7 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{Body, CameraPose, Footprint, Kinematics, Observer, ProjectionSystems, Sensor, Signature, SimSettings};
-use crate::imaging::target_blob::{
-    Ellipsoid, EllipsoidProjection, GeneralizedGaussian, attitude_from_velocity, project_ellipsoid,
-};
+use crate::imaging::target_blob::{Ellipsoid, EllipsoidProjection, GeneralizedGaussian, project_ellipsoid};
 
 /// Projects the targets.
 pub struct ProjectionPlugin;
@@ -39,7 +37,7 @@ pub fn project_targets(
         let ellipsoid = Ellipsoid {
             center_m: kin.position_m,
             semi_axes_m: body.semi_axes_m,
-            body_to_world: attitude_from_velocity(kin.velocity_m_s),
+            body_to_world: body.body_to_world(kin.velocity_m_s),
         };
         fp.range_m = kin.position_m.distance(cam.position_m);
         fp.ellipse = match project_ellipsoid(&ellipsoid, &cam) {

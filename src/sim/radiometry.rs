@@ -5,7 +5,6 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, Skin};
-use crate::imaging::target_blob::attitude_from_velocity;
 use crate::physics::atmosphere::ambient_temperature_k;
 use crate::physics::signal::{SignalContext, TargetState, target_signal};
 use crate::physics::skin::speed_of_sound_m_s;
@@ -60,7 +59,7 @@ pub fn update_signatures(
             emissivity: skin.emissivity,
             brdf: skin.brdf,
             semi_axes_m: body.semi_axes_m,
-            attitude: attitude_from_velocity(kin.velocity_m_s),
+            attitude: body.body_to_world(kin.velocity_m_s),
         };
         let ctx = SignalContext { reflection: skin.reflection, ..ctx };
         match target_signal(&state, eye, &ctx) {
