@@ -297,10 +297,12 @@ gray_gain = 0.5
 "#
     );
     for i in 0..targets {
-        let dx = (i as f64 - targets as f64 / 2.0) * 60.0;
+        // each target circles a point in the field of view, so it stays visible however long the run
+        let dx = (i as f64 - (targets as f64 - 1.0) / 2.0) * 120.0;
         s.push_str(&format!(
-            "[[targets]]\nname = \"t{i}\"\ntrajectory = {{ kind = \"constant_velocity\", position_m = [{dx}, 20000, {}], velocity_m_s = [200, 0, 0] }}\nsemi_axes_m = [6, 1.5, 1.5]\n",
-            7000.0 + 15.0 * i as f64
+            "[[targets]]\nname = \"t{i}\"\ntrajectory = {{ kind = \"coordinated_turn\", center_m = [{dx}, 20000, {}], radius_m = 40, speed_m_s = 60, start_bearing_deg = {} }}\nsemi_axes_m = [6, 1.5, 1.5]\n",
+            7330.0 + 15.0 * i as f64,
+            45 * i
         ));
     }
     s

@@ -283,8 +283,10 @@ impl GeneralizedGaussian {
         let d = p - self.center;
         let xr = d.x * c + d.y * s;
         let yr = -d.x * s + d.y * c;
-        let ex = (xr.abs() / self.alpha_x).powf(self.beta_x);
-        let ey = (yr.abs() / self.alpha_y).powf(self.beta_y);
+        let (sx, sy) = (xr / self.alpha_x, yr / self.alpha_y);
+        // β = 2 (a Gaussian, the default) needs no powf
+        let ex = if self.beta_x == 2.0 { sx * sx } else { sx.abs().powf(self.beta_x) };
+        let ey = if self.beta_y == 2.0 { sy * sy } else { sy.abs().powf(self.beta_y) };
         self.peak * (-(ex + ey)).exp()
     }
 
