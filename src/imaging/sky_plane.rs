@@ -407,8 +407,7 @@ impl RowGeometry {
         out: &mut [f32],
         accumulate: bool,
     ) {
-        let mut d = self.base + self.dv * v + self.du * u0;
-        let inc = self.du;
+        let d0 = self.base + self.dv * v + self.du * u0;
         let miss = match fill {
             MissFill::Constant { value } => value,
             _ => 0.0,
@@ -418,38 +417,66 @@ impl RowGeometry {
         // bilinear samples whose four neighbours are all inside the image take the short path below
         let (x_max, y_max) = (w as f64 - 1.0, h as f64 - 1.0);
         let bilinear = !matches!(sampling, Sampling::Nearest);
-        for o in out.iter_mut() {
-            // d = (d·n, d·right', d·down'); the ray meets the plane at t = numerator / (d·n)
+        // Image coordinates of the ray through pixel i (None: parallel to the plane, or behind the camera).
+        let exact = |i: f64| -> Option<DVec2> {
+            let d = d0 + self.du * i;
             let t = self.numerator / d.x;
-            let value = if !(t > 0.0 && t.is_finite()) {
-                miss
+            (t > 0.0 && t.is_finite()).then(|| DVec2::new(self.origin_px.x + t * d.y, self.origin_px.y + t * d.z))
+        };
+        let sample = |p: DVec2| -> f32 {
+            let (x, y) = (p.x - 0.5, p.y - 0.5);
+            if bilinear && x >= 0.0 && y >= 0.0 && x < x_max && y < y_max {
+                // non-negative: truncation is the floor
+                let (xi, yi) = (x as usize, y as usize);
+                let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
+                let i = yi * w + xi;
+                let (a, b) = (img.pixels[i], img.pixels[i + 1]);
+                let (c, e) = (img.pixels[i + w], img.pixels[i + w + 1]);
+                let top = a + (b - a) * fx;
+                let bottom = c + (e - c) * fx;
+                top + (bottom - top) * fy
             } else {
-                let px = self.origin_px.x + t * d.y;
-                let py = self.origin_px.y + t * d.z;
-                let (x, y) = (px - 0.5, py - 0.5);
-                if bilinear && x >= 0.0 && y >= 0.0 && x < x_max && y < y_max {
-                    // non-negative: truncation is the floor
-                    let (xi, yi) = (x as usize, y as usize);
-                    let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
-                    let i = yi * w + xi;
-                    let (a, b) = (img.pixels[i], img.pixels[i + 1]);
-                    let (c, e) = (img.pixels[i + w], img.pixels[i + w + 1]);
-                    let top = a + (b - a) * fx;
-                    let bottom = c + (e - c) * fx;
-                    top + (bottom - top) * fy
-                } else {
-                    plane.sample(DVec2::new(px, py), sampling, fill)
-                }
-            };
-            if accumulate {
-                *o += value;
-            } else {
-                *o = value;
+                plane.sample(p, sampling, fill)
             }
-            d += inc;
+        };
+        // The coordinates are a ratio of linear functions of i. Over a span of SPAN pixels they are
+        // interpolated linearly from exact values at its ends when the exact value at its middle is within
+        // SPAN_TOLERANCE_PX of the interpolation (for a smooth ratio the middle is where the error peaks);
+        // otherwise every pixel of the span is exact. This saves a division per pixel.
+        const SPAN: usize = 16;
+        let mut i0 = 0;
+        let mut p0 = exact(0.0);
+        while i0 < out.len() {
+            let len = SPAN.min(out.len() - i0);
+            let p1 = exact((i0 + len) as f64);
+            let linear = match (p0, p1) {
+                (Some(a), Some(b)) => {
+                    let mid = exact(i0 as f64 + len as f64 / 2.0);
+                    mid.filter(|m| (*m - (a + b) * 0.5).length_squared() <= SPAN_TOLERANCE_PX * SPAN_TOLERANCE_PX)
+                        .map(|_| (a, (b - a) / len as f64))
+                }
+                _ => None,
+            };
+            for (k, o) in out[i0..i0 + len].iter_mut().enumerate() {
+                let p = match linear {
+                    Some((a, step)) => Some(a + step * k as f64),
+                    None => exact((i0 + k) as f64),
+                };
+                let value = p.map_or(miss, sample);
+                if accumulate {
+                    *o += value;
+                } else {
+                    *o = value;
+                }
+            }
+            i0 += len;
+            p0 = p1;
         }
     }
 }
+
+/// Largest departure of a linearly interpolated ray-cast coordinate from the exact one, px of the sky image.
+pub const SPAN_TOLERANCE_PX: f64 = 1e-4;
 
 #[cfg(test)]
 mod tests {
