@@ -435,6 +435,8 @@ impl RowGeometry {
                 let top = a + (b - a) * fx;
                 let bottom = c + (e - c) * fx;
                 top + (bottom - top) * fy
+            } else if !bilinear && p.x >= 0.0 && p.y >= 0.0 && p.x < w as f64 && p.y < h as f64 {
+                img.pixels[p.y as usize * w + p.x as usize]
             } else {
                 plane.sample(p, sampling, fill)
             }
