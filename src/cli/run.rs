@@ -321,7 +321,6 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
     std::fs::write(dir.join("clear.png"), bytes).map_err(|e| CliError::Failed(e.to_string()))?;
     let frames = a.frames.max(10);
-    let mut results = Vec::new();
     for (w, h, n, recording) in [(256, 256, 1, false), (640, 512, 8, false), (256, 256, 1, true)] {
         let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
         std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;
@@ -368,7 +367,6 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             if recording { ", png16 recording" } else { ", no disk" }
         );
         println!("{case:<40} {fps:>9.1} frames/s");
-        results.push(json!({ "case": case, "frames": frames, "frames_per_s": fps }));
     }
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())

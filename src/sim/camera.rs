@@ -4,7 +4,7 @@ use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
-use super::{Aim, Aircraft, CameraPose, Kinematics, Observer, SensorFrame, Shake, SimClock, VibrationSystems};
+use super::{Aim, Aircraft, CameraPose, Kinematics, Observer, Shake, SimClock, VibrationSystems};
 use crate::imaging::camera::{Camera, Intrinsics, YawPitchRoll};
 use crate::scenario::Pointing;
 
@@ -22,11 +22,9 @@ pub fn shake_camera(
     clock: Res<SimClock>,
     mut observer: Query<(&Kinematics, &Aim, &Shake, &mut CameraPose), With<Observer>>,
     targets: Query<(&Aircraft, &Kinematics), Without<Observer>>,
-    sensor: Query<&SensorFrame>,
 ) {
     let Ok((kin, aim, shake, mut pose)) = observer.single_mut() else { return };
     let intrinsics: Intrinsics = pose.steady.intrinsics;
-    debug_assert!(sensor.iter().all(|s| s.frame.width() as u32 == intrinsics.width));
     let eye = kin.position_m;
     let look_at = |target: glam::DVec3, roll: f64| {
         Camera::look_at(intrinsics, eye, target, roll)
