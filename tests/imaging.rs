@@ -138,6 +138,19 @@ fn sixteen_bit_sky_keeps_full_precision() {
     image::ImageBuffer::<image::Luma<u16>, _>::from_raw(8, 8, data.clone()).unwrap().save(&path).unwrap();
     let sky = SkyImage::load(&path).unwrap();
     assert_eq!(sky.pixels().iter().map(|&v| v as u16).collect::<Vec<_>>(), data);
+    // 16-bit TIFF and PGM as well
+    for ext in ["tiff", "pgm"] {
+        let other = dir.join(format!("sky.{ext}"));
+        image::ImageBuffer::<image::Luma<u16>, _>::from_raw(8, 8, data.clone()).unwrap().save(&other).unwrap();
+        let sky = SkyImage::load(&other).unwrap();
+        assert_eq!(sky.pixels().iter().map(|&v| v as u16).collect::<Vec<_>>(), data, "{ext}");
+    }
+    // float data keeps its fractions
+    let float = dir.join("sky_f32.tiff");
+    let rgb: Vec<f32> = (0..64).flat_map(|i| [i as f32 * 0.25; 3]).collect();
+    image::DynamicImage::ImageRgb32F(image::ImageBuffer::from_raw(8, 8, rgb).unwrap()).save(&float).unwrap();
+    let sky = SkyImage::load(&float).unwrap();
+    assert!((sky.pixels()[5] - 1.25).abs() < 1e-6, "{}", sky.pixels()[5]);
     let err = SkyImage::load(&dir.join("missing.png")).unwrap_err().to_string();
     assert!(err.contains("missing.png"), "{err}");
     std::fs::remove_dir_all(&dir).ok();

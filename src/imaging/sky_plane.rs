@@ -70,7 +70,8 @@ impl SkyImage {
         Ok(Self { width, height, pixels })
     }
 
-    /// Reads any image the `image` crate decodes (PNG here). Gray images keep their integer values; colour
+    /// Reads any image the `image` crate decodes (PNG, TIFF, PNM here). Gray images keep their integer values,
+    /// float images their floats; colour
     /// images are converted to luma at their bit depth.
     ///
     /// # Errors
