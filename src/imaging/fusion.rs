@@ -357,12 +357,7 @@ impl PoissonFusion {
         for y in 1..h - 1 {
             for x in 1..w - 1 {
                 let p = y * w + x;
-                let mut b = 0.0;
-                for q in [p - 1, p + 1, p - w, p + w] {
-                    let gu = u[p] - u[q];
-                    let gb = bg[p] - bg[q];
-                    b += if mixed && gb.abs() > gu.abs() { gb } else { gu };
-                }
+                let b = guidance_sum(u, bg, p, w, mixed);
                 // known boundary neighbours move to the right-hand side
                 let mut ring = 0.0;
                 if x == 1 {
@@ -528,6 +523,19 @@ fn transpose(src: &[f64], dst: &mut [f64], cols: usize, rows: usize) {
     }
 }
 
+/// `Σ_q v_pq` over the 4-neighbours `q` of region-layout index `p` (row width `w`): the patch's differences
+/// `u_p − u_q`, or with `mixed` per edge whichever of those and the background's is larger in magnitude.
+#[inline]
+fn guidance_sum(u: &[f64], bg: &[f64], p: usize, w: usize, mixed: bool) -> f64 {
+    let mut sum = 0.0;
+    for q in [p - 1, p + 1, p - w, p + w] {
+        let gu = u[p] - u[q];
+        let gb = bg[p] - bg[q];
+        sum += if mixed && gb.abs() > gu.abs() { gb } else { gu };
+    }
+    sum
+}
+
 /// Largest residual `|4f_p − Σ_q f_q − Σ_q v_pq|` of the fused equation on the interior of `rect`, for
 /// `guidance` (not additive), with patch `u` and the background `bg` (both region layout, f64).
 pub fn max_residual(fused: &Frame, rect: PixelRect, u: &[f64], bg: &[f64], guidance: Guidance) -> f64 {
@@ -537,12 +545,7 @@ pub fn max_residual(fused: &Frame, rect: PixelRect, u: &[f64], bg: &[f64], guida
     for y in 1..rect.height() - 1 {
         for x in 1..w - 1 {
             let p = y * w + x;
-            let mut v = 0.0;
-            for q in [p - 1, p + 1, p - w, p + w] {
-                let gu = u[p] - u[q];
-                let gb = bg[p] - bg[q];
-                v += if guidance == Guidance::Mixed && gb.abs() > gu.abs() { gb } else { gu };
-            }
+            let v = guidance_sum(u, bg, p, w, guidance == Guidance::Mixed);
             let lap = 4.0 * at(x, y) - at(x - 1, y) - at(x + 1, y) - at(x, y - 1) - at(x, y + 1);
             worst = worst.max((lap - v).abs());
         }
