@@ -20,14 +20,7 @@ fn sky_setup() -> (SkyPlane, Camera) {
     let n = 512;
     let px = (0..n * n).map(|_| 1000.0 + 100.0 * rng.random::<f32>()).collect();
     let image = SkyImage::from_f32(n, n, px).unwrap();
-    let placement = SkyPlacement {
-        anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
-        anchor_px: None,
-        width_m: 4000.0,
-        height_m: 4000.0,
-        normal: None,
-        up: None,
-    };
+    let placement = SkyPlacement::paper_fig8();
     let cam_pos = DVec3::new(0.0, 0.0, 8000.0);
     let plane = SkyPlane::new(image, &placement, cam_pos).unwrap();
     let intr = Intrinsics::try_new(256, 256, 0.1, 17e-6).unwrap();

@@ -107,14 +107,7 @@ fn checkerboard_edges_follow_the_plane_homography() {
 
 #[test]
 fn sky_rendering_does_not_depend_on_thread_count() {
-    let placement = SkyPlacement {
-        anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
-        anchor_px: None,
-        width_m: 4000.0,
-        height_m: 4000.0,
-        normal: None,
-        up: None,
-    };
+    let placement = SkyPlacement::paper_fig8();
     let cam_pos = DVec3::new(0.0, 0.0, 8000.0);
     let plane = SkyPlane::new(checkerboard(64), &placement, cam_pos).unwrap();
     let cam =

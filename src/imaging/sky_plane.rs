@@ -178,6 +178,21 @@ pub struct SkyPlacement {
     pub up: Option<DVec3>,
 }
 
+impl SkyPlacement {
+    /// The paper's Fig. 8 placement: P at [0, 30, 6] km at the image centre, 4 km × 4 km, vertical, facing the
+    /// camera (which the paper puts at [0, 0, 8] km).
+    pub fn paper_fig8() -> Self {
+        Self {
+            anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
+            anchor_px: None,
+            width_m: 4000.0,
+            height_m: 4000.0,
+            normal: None,
+            up: None,
+        }
+    }
+}
+
 /// The sky plane, ready to be ray cast.
 #[derive(Debug, Clone)]
 pub struct SkyPlane {
@@ -487,14 +502,7 @@ mod tests {
     use crate::imaging::camera::{Intrinsics, YawPitchRoll};
 
     fn plane(image: SkyImage) -> SkyPlane {
-        let placement = SkyPlacement {
-            anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
-            anchor_px: None,
-            width_m: 4000.0,
-            height_m: 4000.0,
-            normal: None,
-            up: None,
-        };
+        let placement = SkyPlacement::paper_fig8();
         SkyPlane::new(image, &placement, DVec3::new(0.0, 0.0, 8000.0)).unwrap()
     }
 
