@@ -1,4 +1,5 @@
-//! Image-formation kernels: sky ray casting per sampling mode, and Poisson fusion per solver and patch size.
+//! Per-pixel kernels: sky ray casting per sampling mode, sensor noise with quantization, and Poisson fusion per
+//! solver and patch size.
 //!
 //! Before timing, prints each solver's largest difference from the exact direct solution on the same patch.
 //! Run: `cargo bench --bench imaging`.
@@ -12,6 +13,7 @@ use irsim::imaging::frame::Frame;
 use irsim::imaging::fusion::{Guidance, Patch, PoissonFusion, Solver};
 use irsim::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlacement, SkyPlane};
 use irsim::imaging::target_blob::{BlobSampling, GeneralizedGaussian, PixelRect};
+use irsim::physics::noise::NoiseModel;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -41,6 +43,32 @@ fn raycast(c: &mut Criterion) {
     ] {
         group.bench_function(name, |b| b.iter(|| plane.render(&cam, sampling, MissFill::Zero, black_box(&mut frame))));
     }
+    group.finish();
+}
+
+fn noise(c: &mut Criterion) {
+    let mut group = c.benchmark_group("noise_256x256");
+    group.throughput(Throughput::Elements(256 * 256));
+    let base: Vec<f32> = (0..256 * 256).map(|i| 13_000.0 + (i % 11) as f32).collect();
+    let mut frame = base.clone();
+    let model = NoiseModel::default();
+    // 13 000 gray over a black level of 0: 52 000 electrons, every pixel on the normal path
+    let mut frame_number = 0;
+    group.bench_function("normal_path", |b| {
+        b.iter(|| {
+            frame.copy_from_slice(&base);
+            frame_number += 1;
+            model.apply_and_quantize(black_box(&mut frame), 256, 0.0, 1, frame_number, Some(65_535.0));
+        })
+    });
+    // 10 … 20 gray over the black level: 40 … 80 electrons, every pixel an exact Poisson count
+    group.bench_function("poisson_path", |b| {
+        b.iter(|| {
+            frame.copy_from_slice(&base);
+            frame_number += 1;
+            model.apply_and_quantize(black_box(&mut frame), 256, 12_990.0, 1, frame_number, Some(65_535.0));
+        })
+    });
     group.finish();
 }
 
@@ -111,5 +139,5 @@ fn fusion(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, raycast, fusion);
+criterion_group!(benches, raycast, noise, fusion);
 criterion_main!(benches);

@@ -7,6 +7,7 @@ pub mod atmosphere;
 pub mod brdf;
 pub mod noise;
 pub mod planck;
+pub mod random;
 pub mod reflection;
 pub mod sensor;
 pub mod signal;

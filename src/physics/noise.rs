@@ -1,20 +1,24 @@
 //! Sensor noise: Poisson (shot) noise plus Gaussian (read, thermal) noise, from seeded, seekable streams.
 //!
 //! Randomness never comes from a global generator. Every stochastic stage draws from its own ChaCha8 stream
-//! keyed by `(seed, stage, frame)` with a 64-bit sub-stream (a frame row, say), so output is identical across
-//! runs, thread counts and frame order, and any frame can be produced without the ones before it.
+//! keyed by `(seed, stage, frame)` with a 64-bit sub-stream, so output is identical across runs, thread counts
+//! and frame order, and any frame can be produced without the ones before it. Per-pixel sensor noise takes a
+//! 64-bit key from its frame's stream and gives each row its own fast generator hashed from that key and the row
+//! ([`super::random`]).
 //!
 //! A gray value `g` above the black level `g₀` stands for `N = (g − g₀)·k` photo-electrons (`k` electrons per
 //! gray level). The noisy value is `g₀ + Poisson(N)/k + σ·Z`. Poisson samples are exact (sequential-search
-//! inversion) for `N` below a threshold and drawn from the rounded normal `N(N, N)` above it (per pixel, where
-//! read noise is added too, one combined normal draw; see [`NoiseModel::sample`]). That
-//! approximation matches the mean exactly and the variance to `1/12` (the rounding); its total-variation
-//! distance from the Poisson law, computed exactly by [`normal_approximation_tv`] (test
-//! `normal_approximation_error_table`), is 0.040 at a mean of 10, 0.0126 at 100 (the default threshold),
-//! 0.0040 at 1000: about `0.126/√N`.
+//! inversion) for `N` below a threshold; above it the shot noise is drawn from the normal `N(N, N)`, and since
+//! the sum of two independent normals is normal, one draw of `N(0, N/k² + σ²)` gives shot and read noise
+//! together (the rounding to whole electrons, 1/12 electron² of variance, is dropped). That approximation
+//! matches the mean exactly; its total-variation distance from the Poisson law (with rounding), computed
+//! exactly by [`normal_approximation_tv`] (test `normal_approximation_error_table`), is 0.040 at a mean of 10,
+//! 0.0126 at 100 (the default threshold), 0.0040 at 1000: about `0.126/√N`.
 
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
+use super::random::{SplitMix64, Ziggurat};
 use serde::{Deserialize, Serialize};
 
 /// Identifiers of the stochastic stages; each keys its own random streams.
@@ -83,29 +87,6 @@ impl NoiseModel {
         Ok(())
     }
 
-    /// One noisy sample of gray value `gray` over black level `black_level`.
-    ///
-    /// Above the threshold the shot noise is normal, and the sum of two independent normals is normal, so one
-    /// draw of `N(0, N/k² + σ²)` gives both (the rounding to whole electrons, 1/12 electron² of variance, is
-    /// dropped there).
-    #[inline]
-    pub fn sample<R: Rng + ?Sized>(&self, gray: f64, black_level: f64, rng: &mut R) -> f64 {
-        let read_var = self.read_noise_gray * self.read_noise_gray;
-        if self.electrons_per_gray > 0.0 {
-            let k = self.electrons_per_gray;
-            let mean = (gray - black_level).max(0.0) * k;
-            if mean >= self.poisson_normal_threshold {
-                // f32 is ample for a noise amplitude and its square root is cheaper
-                let sd = ((mean / (k * k) + read_var) as f32).sqrt();
-                return gray + f64::from(sd) * standard_normal(rng);
-            }
-            let count = poisson(mean, self.poisson_normal_threshold, rng);
-            let shot = black_level + count / k;
-            return if read_var > 0.0 { shot + self.read_noise_gray * standard_normal(rng) } else { shot };
-        }
-        if read_var > 0.0 { gray + self.read_noise_gray * standard_normal(rng) } else { gray }
-    }
-
     /// Adds noise to a row-major f32 frame of width `width`; row `r` draws from sub-stream `r` of
     /// `(seed, SENSOR_NOISE, frame)`, so the result does not depend on how rows are scheduled.
     pub fn apply(&self, pixels: &mut [f32], width: usize, black_level: f64, seed: u64, frame: u64) {
@@ -114,6 +95,10 @@ impl NoiseModel {
 
     /// As [`NoiseModel::apply`], then, if `max_level` is given, rounds each value to the nearest level in
     /// `[0, max_level]` (NaN → 0) in the same pass.
+    ///
+    /// Each row draws its normal deviates from a [`SplitMix64`] generator keyed by the frame's ChaCha8 stream
+    /// and the row (the 32-bit [`Ziggurat`], two deviates per 64-bit draw), and its exact Poisson counts from a
+    /// second such generator.
     pub fn apply_and_quantize(
         &self,
         pixels: &mut [f32],
@@ -127,32 +112,99 @@ impl NoiseModel {
         if width == 0 {
             return;
         }
+        let key = stream_rng(seed, stage::SENSOR_NOISE, frame, 0).next_u64();
         // rows in batches: one row is too little work to be worth a task
         let rows_per_task = (16_384 / width).max(1);
         pixels.par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(row, line)| {
-            let mut rng = stream_rng(seed, stage::SENSOR_NOISE, frame, row as u64);
-            for p in line.iter_mut() {
-                *p = self.sample(f64::from(*p), black_level, &mut rng) as f32;
-            }
+            self.apply_row(line, black_level, key, row as u64, max_level);
+        });
+    }
+
+    /// Noise for one row, then quantization if `max_level` is given: the normal deviates first, in blocks,
+    /// then a branch-free pass for the pixels on the normal path; blocks holding a pixel below the Poisson
+    /// threshold take the per-pixel path.
+    fn apply_row(&self, line: &mut [f32], black_level: f64, key: u64, row: u64, max_level: Option<f32>) {
+        const BLOCK: usize = 64;
+        let k = self.electrons_per_gray;
+        let read_var = self.read_noise_gray * self.read_noise_gray;
+        if k == 0.0 && read_var == 0.0 {
             if let Some(top) = max_level {
                 quantize_row(line, top);
             }
-        });
+            return;
+        }
+        let zig = Ziggurat::get();
+        let mut normals = SplitMix64::substream(key, 2 * row);
+        let mut uniforms = SplitMix64::substream(key, 2 * row + 1);
+        let mut z = [0f32; BLOCK];
+        let black = black_level as f32;
+        // variance in gray² = max(g − g₀, 0)/k + σ²; the mean electron count is max(g − g₀, 0)·k
+        let inv_k = if k > 0.0 { (1.0 / k) as f32 } else { 0.0 };
+        let (kf, read_var_f) = (k as f32, read_var as f32);
+        // f32 electron counts are exact to 2⁻²⁴ relative, ample against the threshold test
+        let threshold = if k > 0.0 { self.poisson_normal_threshold as f32 } else { f32::NEG_INFINITY };
+        for block in line.chunks_mut(BLOCK) {
+            let z = &mut z[..block.len()];
+            zig.fill(&mut normals, z);
+            let all_normal = block.iter().fold(true, |all, &g| all & ((g - black).max(0.0) * kf >= threshold));
+            if all_normal {
+                for (g, &z) in block.iter_mut().zip(z.iter()) {
+                    let variance = (*g - black).max(0.0) * inv_k + read_var_f;
+                    *g += variance.sqrt() * z;
+                }
+            } else {
+                self.apply_mixed(block, z, black_level, &mut uniforms);
+            }
+            if let Some(top) = max_level {
+                quantize_row(block, top);
+            }
+        }
+    }
+
+    /// The per-pixel path of [`NoiseModel::apply_and_quantize`] (`k > 0`): pixels below the Poisson threshold
+    /// get an exact count, the others the same normal draw as on the fast path.
+    fn apply_mixed(&self, block: &mut [f32], z: &[f32], black_level: f64, uniforms: &mut SplitMix64) {
+        let k = self.electrons_per_gray;
+        let (black, inv_k) = (black_level as f32, (1.0 / k) as f32);
+        let read_var = (self.read_noise_gray * self.read_noise_gray) as f32;
+        let sd_read = self.read_noise_gray as f32;
+        let threshold = self.poisson_normal_threshold as f32;
+        for (g, &z) in block.iter_mut().zip(z.iter()) {
+            let above = (*g - black).max(0.0);
+            if above * k as f32 >= threshold {
+                *g += (above * inv_k + read_var).sqrt() * z;
+            } else {
+                // exact Poisson shot noise, and the pixel's normal deviate for the read noise
+                let count = poisson(f64::from(above) * k, self.poisson_normal_threshold, uniforms);
+                *g = (black_level + count / k) as f32 + sd_read * z;
+            }
+        }
     }
 }
 
-/// Rounds to the nearest level in `[0, top]` (`top` a whole number); NaN becomes 0.
+/// Rounds to the nearest level in `[0, top]` (`top` a whole number ≤ 2²²), halves up; NaN becomes 0.
 ///
-/// For clamped, non-negative values `⌊x + 0.5⌋` is `round(x)`; the cast avoids a libm call per pixel on the
-/// baseline x86-64 target, and maps NaN to 0.
+/// `⌊y⌋` for `y = x + ½` in `[0, 2²²]`: adding and subtracting 2²³ rounds `y` to a whole number `t` (f32
+/// arithmetic, exact here), and `t − [t > y]` is the floor. Written this way the loop vectorizes on the
+/// baseline x86-64 target, which has neither a rounding instruction nor a vector float-to-int conversion with
+/// Rust's saturating semantics.
 #[inline]
 pub fn quantize_row(line: &mut [f32], top: f32) {
+    const SHIFT: f32 = 8_388_608.0; // 2²³
     for p in line {
-        *p = ((p.clamp(0.0, top) + 0.5) as u32) as f32;
+        // max first: NaN.max(0) is 0
+        let y = p.max(0.0).min(top) + 0.5;
+        let t = (y + SHIFT) - SHIFT;
+        *p = if t > y { t - 1.0 } else { t };
     }
 }
 
 /// A Poisson sample of mean `mean`: exact below `threshold`, rounded normal above.
+///
+/// Exact samples come from sequential-search inversion for means below 10 and from Hörmann's transformed
+/// rejection with squeeze, PTRS ("The transformed rejection method for generating Poisson random variables",
+/// Insurance: Mathematics and Economics 12, 1993) from 10 up: about 1.1 tries per sample, most of them accepted
+/// by the squeeze without a logarithm, where inversion would take `mean` steps.
 pub fn poisson<R: Rng + ?Sized>(mean: f64, threshold: f64, rng: &mut R) -> f64 {
     if !(mean > 0.0) {
         return 0.0;
@@ -160,7 +212,10 @@ pub fn poisson<R: Rng + ?Sized>(mean: f64, threshold: f64, rng: &mut R) -> f64 {
     if mean >= threshold {
         return (mean + mean.sqrt() * standard_normal(rng)).round().max(0.0);
     }
-    // Sequential-search inversion; e^{-mean} cannot underflow since mean < threshold ≤ 500.
+    if mean >= 10.0 {
+        return poisson_ptrs(mean, rng);
+    }
+    // Sequential-search inversion.
     let u: f64 = rng.random();
     let mut k = 0.0;
     let mut p = (-mean).exp();
@@ -173,7 +228,49 @@ pub fn poisson<R: Rng + ?Sized>(mean: f64, threshold: f64, rng: &mut R) -> f64 {
     k
 }
 
-/// A standard normal sample (ziggurat).
+/// Hörmann's PTRS for `mean ≥ 10` (the constants are his, tuned for that range).
+fn poisson_ptrs<R: Rng + ?Sized>(mean: f64, rng: &mut R) -> f64 {
+    let b = 0.931 + 2.53 * mean.sqrt();
+    let a = -0.059 + 0.024_83 * b;
+    let ln_inv_alpha = (1.123_9 + 1.132_8 / (b - 3.4)).ln();
+    let v_r = 0.927_7 - 3.622_4 / (b - 2.0);
+    let ln_mean = mean.ln();
+    loop {
+        let u = rng.random::<f64>() - 0.5;
+        let v: f64 = rng.random();
+        let us = 0.5 - u.abs();
+        let k = ((2.0 * a / us + b) * u + mean + 0.43).floor();
+        if us >= 0.07 && v <= v_r {
+            return k;
+        }
+        if k < 0.0 || (us < 0.013 && v > us) {
+            continue;
+        }
+        // the exact acceptance test, in logarithms
+        if v.ln() + ln_inv_alpha - (a / (us * us) + b).ln() <= -mean + k * ln_mean - ln_factorial(k) {
+            return k;
+        }
+    }
+}
+
+/// `ln k!` for a whole `k ≥ 0`: a table to 1023, Stirling's series beyond (relative error below 1e-16 there).
+fn ln_factorial(k: f64) -> f64 {
+    static TABLE: std::sync::LazyLock<Vec<f64>> = std::sync::LazyLock::new(|| {
+        let mut t = vec![0.0; 1024];
+        for i in 1..t.len() {
+            t[i] = t[i - 1] + (i as f64).ln();
+        }
+        t
+    });
+    if k < 1024.0 {
+        return TABLE[k as usize];
+    }
+    // ln k! = (k + ½) ln(k + 1) − (k + 1) + ½ ln 2π + 1/(12(k+1)) − 1/(360(k+1)³)
+    let n = k + 1.0;
+    (n - 0.5) * n.ln() - n + 0.5 * (2.0 * std::f64::consts::PI).ln() + 1.0 / (12.0 * n) - 1.0 / (360.0 * n * n * n)
+}
+
+/// A standard normal sample (rand_distr's 64-bit ziggurat).
 #[inline]
 pub fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
     use rand_distr::Distribution;
@@ -267,6 +364,73 @@ mod tests {
         let e: u64 = stream_rng(7, stage::SENSOR_NOISE, 3, 1).random();
         assert_eq!(a, b);
         assert!(a != c && a != d && a != e && c != d);
+    }
+
+    #[test]
+    fn quantization_rounds_halves_up_and_clamps() {
+        let top = 65_535.0f32;
+        let mut values = vec![f32::NAN, f32::NEG_INFINITY, f32::INFINITY, -0.7, 0.0, 0.49, 0.5, 1.5, 2.5, 65_534.5];
+        values.extend([65_535.4, 65_535.6, 1e9, 4_194_303.5, 12_345.499, 12_345.5]);
+        // every representable value between 1000 and 1003, and a spread of others
+        let mut x = 1000.0f32;
+        while x < 1003.0 {
+            values.push(x);
+            x = f32::from_bits(x.to_bits() + 1);
+        }
+        values.extend((0..10_000).map(|i| i as f32 * 6.553_7 - 10.0));
+        let mut out = values.clone();
+        quantize_row(&mut out, top);
+        for (&v, &q) in values.iter().zip(&out) {
+            let want = if v.is_nan() { 0.0 } else { (f64::from(v).clamp(0.0, f64::from(top)) + 0.5).floor() };
+            assert_eq!(f64::from(q), want, "{v}");
+        }
+    }
+
+    #[test]
+    fn exact_poisson_samples_fit_the_law() {
+        // χ² goodness of fit on 200 000 samples per mean, classes merged until each expects ≥ 20
+        for mean in [0.3f64, 3.0, 9.99, 10.0, 12.0, 60.0, 250.0, 499.0] {
+            let mut rng = crate::physics::random::SplitMix64::substream(5, mean.to_bits());
+            let n = 200_000usize;
+            let top = (mean + 12.0 * mean.sqrt() + 20.0) as usize;
+            let mut counts = vec![0f64; top + 1];
+            for _ in 0..n {
+                let k = poisson(mean, 500.0, &mut rng);
+                counts[(k as usize).min(top)] += 1.0;
+            }
+            let mut ln_p = -mean;
+            let mut pmf = Vec::with_capacity(top + 1);
+            for k in 0..=top {
+                if k > 0 {
+                    ln_p += mean.ln() - (k as f64).ln();
+                }
+                pmf.push(ln_p.exp());
+            }
+            let (mut chi2, mut classes, mut expected, mut observed) = (0.0, 0usize, 0.0, 0.0);
+            for k in 0..=top {
+                expected += pmf[k] * n as f64;
+                observed += counts[k];
+                if expected >= 20.0 {
+                    chi2 += (observed - expected).powi(2) / expected;
+                    classes += 1;
+                    (expected, observed) = (0.0, 0.0);
+                }
+            }
+            let df = classes as f64 - 1.0;
+            // far beyond the 1e-6 tail of χ²(df)
+            let limit = df + 7.0 * (2.0 * df).sqrt() + 10.0;
+            assert!(chi2 < limit, "mean {mean}: χ² = {chi2} with {df} degrees of freedom");
+        }
+    }
+
+    #[test]
+    fn ln_factorial_matches_the_direct_sum() {
+        let mut direct = 0.0;
+        for k in 1..3000u32 {
+            direct += f64::from(k).ln();
+            let got = ln_factorial(f64::from(k));
+            assert!((got - direct).abs() <= 1e-12 * direct.max(1.0), "{k}: {got} vs {direct}");
+        }
     }
 
     #[test]
