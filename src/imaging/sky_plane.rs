@@ -333,9 +333,26 @@ impl SkyPlane {
     /// Ray casts the sky into `frame` as seen by `camera` (the frame's size must match the camera's).
     ///
     /// Along a row of sensor pixels the ray direction is linear in `u`, so its dot products with the plane's
-    /// normal and in-plane axes are too: each pixel costs three additions and one division (the plane-to-image
-    /// homography, evaluated incrementally), then the sample.
+    /// normal and in-plane axes are too: the image coordinates are a ratio of linear functions of `u` (the
+    /// plane-to-image homography). They are evaluated exactly at the ends and the middle of spans short enough
+    /// that the quadratic through those values is within [`SPAN_TOLERANCE_PX`] of them (a bound from the
+    /// ratio's third derivative, not a test), and stepped by forward differences in 32.32 fixed point inside a
+    /// span, so a pixel costs integer additions and the sample.
     pub fn render(&self, camera: &Camera, sampling: Sampling, fill: MissFill, frame: &mut Frame) {
+        self.render_mapped(camera, sampling, fill, 1.0, 0.0, frame);
+    }
+
+    /// As [`SkyPlane::render`], then maps each value `x` (misses included) to `offset + gain·x` in the same
+    /// pass.
+    pub fn render_mapped(
+        &self,
+        camera: &Camera,
+        sampling: Sampling,
+        fill: MissFill,
+        gain: f32,
+        offset: f32,
+        frame: &mut Frame,
+    ) {
         use rayon::prelude::*;
         let width = frame.width();
         debug_assert_eq!(width as u32, camera.intrinsics.width);
@@ -346,23 +363,29 @@ impl SkyPlane {
         let point_sampling = if n == 1 { sampling } else { Sampling::Bilinear };
         let geometry = RowGeometry::new(self, camera);
         let inv = 1.0 / (n * n) as f32;
+        let mapped = gain != 1.0 || offset != 0.0;
         // rows in batches: one row is too little work to be worth a task
         let rows_per_task = (8_192 / (width * n * n)).max(1);
         frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
             if n == 1 {
                 geometry.cast_row(self, j as f64 + 0.5, 0.5, point_sampling, fill, row, false);
-                return;
-            }
-            row.fill(0.0);
-            for sy in 0..n {
-                let v = j as f64 + (sy as f64 + 0.5) / n as f64;
-                for sx in 0..n {
-                    let u0 = (sx as f64 + 0.5) / n as f64;
-                    geometry.cast_row(self, v, u0, point_sampling, fill, row, true);
+            } else {
+                row.fill(0.0);
+                for sy in 0..n {
+                    let v = j as f64 + (sy as f64 + 0.5) / n as f64;
+                    for sx in 0..n {
+                        let u0 = (sx as f64 + 0.5) / n as f64;
+                        geometry.cast_row(self, v, u0, point_sampling, fill, row, true);
+                    }
+                }
+                for p in row.iter_mut() {
+                    *p *= inv;
                 }
             }
-            for p in row.iter_mut() {
-                *p *= inv;
+            if mapped {
+                for p in row.iter_mut() {
+                    *p = offset + gain * *p;
+                }
             }
         });
     }
@@ -423,6 +446,7 @@ impl RowGeometry {
         out: &mut [f32],
         accumulate: bool,
     ) {
+        // (D, Nx, Ny)(i) = d0 + i·du: image coordinates are origin_px + numerator·(Nx, Ny)/D
         let d0 = self.base + self.dv * v + self.du * u0;
         let miss = match fill {
             MissFill::Constant { value } => value,
@@ -430,18 +454,11 @@ impl RowGeometry {
         };
         let img = &plane.image;
         let (w, h) = (img.width, img.height);
-        // bilinear samples whose four neighbours are all inside the image take the short path below
-        let (x_max, y_max) = (w as f64 - 1.0, h as f64 - 1.0);
         let bilinear = !matches!(sampling, Sampling::Nearest);
-        // Image coordinates of the ray through pixel i (None: parallel to the plane, or behind the camera).
-        let exact = |i: f64| -> Option<DVec2> {
-            let d = d0 + self.du * i;
-            let t = self.numerator / d.x;
-            (t > 0.0 && t.is_finite()).then(|| DVec2::new(self.origin_px.x + t * d.y, self.origin_px.y + t * d.z))
-        };
+        let exact = |i: f64| self.coordinates(d0, i);
         let sample = |p: DVec2| -> f32 {
             let (x, y) = (p.x - 0.5, p.y - 0.5);
-            if bilinear && x >= 0.0 && y >= 0.0 && x < x_max && y < y_max {
+            if bilinear && x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64 {
                 // non-negative: truncation is the floor
                 let (xi, yi) = (x as usize, y as usize);
                 let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
@@ -457,44 +474,147 @@ impl RowGeometry {
                 plane.sample(p, sampling, fill)
             }
         };
-        // The coordinates are a ratio of linear functions of i. Over a span of SPAN pixels they are
-        // interpolated linearly from exact values at its ends when the exact value at its middle is within
-        // SPAN_TOLERANCE_PX of the interpolation (for a smooth ratio the middle is where the error peaks);
-        // otherwise every pixel of the span is exact. This saves a division per pixel.
-        const SPAN: usize = 16;
+        let span = self.span_length(d0, out.len());
         let mut i0 = 0;
         let mut p0 = exact(0.0);
         while i0 < out.len() {
-            let len = SPAN.min(out.len() - i0);
+            let len = span.min(out.len() - i0);
             let p1 = exact((i0 + len) as f64);
-            let linear = match (p0, p1) {
-                (Some(a), Some(b)) => {
-                    let mid = exact(i0 as f64 + len as f64 / 2.0);
-                    mid.filter(|m| (*m - (a + b) * 0.5).length_squared() <= SPAN_TOLERANCE_PX * SPAN_TOLERANCE_PX)
-                        .map(|_| (a, (b - a) / len as f64))
+            let block = &mut out[i0..i0 + len];
+            let mid = if len > 2 { exact(i0 as f64 + len as f64 / 2.0) } else { None };
+            match (p0, mid, p1) {
+                (Some(a), Some(m), Some(b)) => {
+                    let span = Quadratic::through(a, m, b, len as f64);
+                    if !self.fast_span(img, &span, bilinear, block, accumulate) {
+                        for (k, o) in block.iter_mut().enumerate() {
+                            let value = sample(span.at(k as f64));
+                            *o = if accumulate { *o + value } else { value };
+                        }
+                    }
                 }
-                _ => None,
-            };
-            for (k, o) in out[i0..i0 + len].iter_mut().enumerate() {
-                let p = match linear {
-                    Some((a, step)) => Some(a + step * k as f64),
-                    None => exact((i0 + k) as f64),
-                };
-                let value = p.map_or(miss, sample);
-                if accumulate {
-                    *o += value;
-                } else {
-                    *o = value;
+                _ => {
+                    for (k, o) in block.iter_mut().enumerate() {
+                        let value = exact((i0 + k) as f64).map_or(miss, sample);
+                        *o = if accumulate { *o + value } else { value };
+                    }
                 }
             }
             i0 += len;
             p0 = p1;
         }
     }
+
+    /// Image coordinates of the ray through pixel `i` of the row whose pixel 0 has dot products `d0` (None:
+    /// parallel to the plane, or behind the camera).
+    #[inline]
+    fn coordinates(&self, d0: DVec3, i: f64) -> Option<DVec2> {
+        let d = d0 + self.du * i;
+        let t = self.numerator / d.x;
+        (t > 0.0 && t.is_finite()).then(|| DVec2::new(self.origin_px.x + t * d.y, self.origin_px.y + t * d.z))
+    }
+
+    /// How many pixels a span of this row may hold so that the image coordinates, interpolated by the quadratic
+    /// through exact values at the span's ends and middle, stay within [`SPAN_TOLERANCE_PX`] of the exact ones
+    /// (in sensor pixels, and in image pixels where the image is magnified less than 1:1); 1 if some ray of the
+    /// row misses the plane.
+    ///
+    /// A coordinate is `f(i) = c + m·N(i)/D(i)` with `N`, `D` linear in `i`, so `f′(i) = m·C/D(i)²` and
+    /// `f‴(i) = 6·m·D′²·C/D(i)⁴`, where `C = N′·D − N·D′` is the same for every `i`. The quadratic through
+    /// `0, L/2, L` errs by at most `max|f‴|/6 · max|t(t − L/2)(t − L)| = max|f‴| · L³·√3/216`; `|D|` is linear
+    /// and keeps its sign along the row, so it is smallest and largest at the row's ends.
+    fn span_length(&self, d0: DVec3, pixels: usize) -> usize {
+        const MAX_SPAN: usize = 64;
+        let d_end = d0 + self.du * pixels as f64;
+        let (t0, t1) = (self.numerator / d0.x, self.numerator / d_end.x);
+        if !(t0 > 0.0 && t1 > 0.0 && t0.is_finite() && t1.is_finite()) {
+            return 1;
+        }
+        let (min_d, max_d) = (d0.x.abs().min(d_end.x.abs()), d0.x.abs().max(d_end.x.abs()));
+        let slope = self.du;
+        let (cx, cy) = (slope.y * d0.x - slope.x * d0.y, slope.z * d0.x - slope.x * d0.z);
+        let m = self.numerator.abs();
+        // image pixels per sensor pixel along the row, at its smallest
+        let scale = m * cx.hypot(cy) / (max_d * max_d);
+        let tolerance = SPAN_TOLERANCE_PX * scale.min(1.0);
+        let third = 6.0 * m * slope.x * slope.x * cx.abs().max(cy.abs()) / min_d.powi(4);
+        let span = (tolerance * 216.0 / (3f64.sqrt() * third)).cbrt();
+        if span.is_nan() || span >= MAX_SPAN as f64 { MAX_SPAN } else { (span as usize).max(1) }
+    }
+
+    /// Samples the span's pixels in 32.32 fixed point, stepping the quadratic by forward differences, when
+    /// every sample (with its bilinear neighbours) lies inside the image, so no pixel needs a bounds test or a
+    /// float-to-int conversion; returns false, touching nothing, otherwise.
+    fn fast_span(&self, img: &SkyImage, span: &Quadratic, bilinear: bool, out: &mut [f32], accumulate: bool) -> bool {
+        const ONE: f64 = 4_294_967_296.0; // 2³²
+        let (w, h) = (img.width, img.height);
+        // bilinear samples sit at p − ½ and need the next pixel right and down; nearest ones at p
+        let (shift, limit) = if bilinear {
+            (0.5, DVec2::new((w - 1) as f64, (h - 1) as f64))
+        } else {
+            (0.0, DVec2::new(w as f64, h as f64))
+        };
+        // The exact coordinates are monotonic along the row and the quadratic is within the tolerance of them;
+        // the margin also covers the fixed-point rounding (below 1e-6 px over a span).
+        const MARGIN: f64 = 1e-3;
+        let (first, last) = (span.at(0.0) - shift, span.at((out.len() - 1) as f64) - shift);
+        let (lo, hi) = (first.min(last), first.max(last));
+        if !(lo.x >= MARGIN && lo.y >= MARGIN && hi.x < limit.x - MARGIN && hi.y < limit.y - MARGIN) {
+            return false;
+        }
+        let fixed = |v: f64| (v * ONE) as i64;
+        let (mut x, mut y) = (fixed(first.x), fixed(first.y));
+        // first and second differences: q(k+1) − q(k) = b + c(2k + 1), and 2c
+        let (mut dx, mut dy) = (fixed(span.b.x + span.c.x), fixed(span.b.y + span.c.y));
+        let (ddx, ddy) = (fixed(2.0 * span.c.x), fixed(2.0 * span.c.y));
+        let px = &img.pixels;
+        const FRACTION: f32 = 1.0 / 16_777_216.0; // 2⁻²⁴
+        for o in out.iter_mut() {
+            let (xi, yi) = ((x >> 32) as usize, (y >> 32) as usize);
+            let value = if bilinear {
+                // the top 24 bits of the fraction, exact in f32
+                let fx = ((x as u32) >> 8) as f32 * FRACTION;
+                let fy = ((y as u32) >> 8) as f32 * FRACTION;
+                let i = yi * w + xi;
+                let (p00, p01, p10, p11) = (px[i], px[i + 1], px[i + w], px[i + w + 1]);
+                let top = p00 + (p01 - p00) * fx;
+                let bottom = p10 + (p11 - p10) * fx;
+                top + (bottom - top) * fy
+            } else {
+                px[yi * w + xi]
+            };
+            *o = if accumulate { *o + value } else { value };
+            x += dx;
+            y += dy;
+            dx += ddx;
+            dy += ddy;
+        }
+        true
+    }
 }
 
-/// Largest departure of a linearly interpolated ray-cast coordinate from the exact one, px of the sky image.
-pub const SPAN_TOLERANCE_PX: f64 = 1e-4;
+/// `q(k) = a + b·k + c·k²`: image coordinates along a span, `k` in sensor pixels from its start.
+struct Quadratic {
+    a: DVec2,
+    b: DVec2,
+    c: DVec2,
+}
+
+impl Quadratic {
+    /// The quadratic with values `start`, `mid` and `end` at `0`, `len/2` and `len`.
+    fn through(start: DVec2, mid: DVec2, end: DVec2, len: f64) -> Self {
+        let c = (start + end - mid * 2.0) * (2.0 / (len * len));
+        let b = (end - start) / len - c * len;
+        Self { a: start, b, c }
+    }
+
+    fn at(&self, k: f64) -> DVec2 {
+        self.a + (self.b + self.c * k) * k
+    }
+}
+
+/// Largest departure of an interpolated ray-cast coordinate from the exact one, in sensor pixels (and in
+/// sky-image pixels where the image is magnified less than 1:1).
+pub const SPAN_TOLERANCE_PX: f64 = 1e-5;
 
 #[cfg(test)]
 mod tests {
@@ -531,6 +651,58 @@ mod tests {
         let cam = Camera::look_at(intr, DVec3::new(0.0, 0.0, 8000.0), DVec3::new(0.0, 30_000.0, 6000.0), 0.0).unwrap();
         p.render(&cam, Sampling::Nearest, MissFill::Zero, &mut f);
         assert!(f.pixels().iter().all(|&v| v == 5.0));
+    }
+
+    #[test]
+    fn interpolated_coordinates_stay_within_the_tolerance() {
+        // oblique planes, rolled and tilted cameras, magnified and minified images, views near grazing
+        let intr = Intrinsics::try_new(320, 240, 0.1, 17e-6).unwrap();
+        let mut checked = 0;
+        for (normal, camera_x, roll, look_px) in [
+            (-DVec3::Y, 0.0, 0.0, 256.0),
+            (-DVec3::Y, 3000.0, 17.0, 100.0),
+            (DVec3::new(0.5, -1.0, 0.2), -8000.0, -40.0, 400.0),
+            (DVec3::new(0.99, -0.1, 0.0), 12_000.0, 5.0, 30.0),
+            (DVec3::new(0.0, -0.2, -1.0), 500.0, 70.0, 256.0),
+        ] {
+            for size_m in [100.0, 4000.0, 200_000.0] {
+                let placement = SkyPlacement {
+                    anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
+                    anchor_px: None,
+                    width_m: size_m,
+                    height_m: size_m,
+                    normal: Some(normal),
+                    up: None,
+                };
+                let cam_pos = DVec3::new(camera_x, 0.0, 8000.0);
+                let p = SkyPlane::new(SkyImage::from_f32(512, 512, vec![0.0; 512 * 512]).unwrap(), &placement, cam_pos)
+                    .unwrap();
+                let Ok(cam) = Camera::look_at(intr, cam_pos, p.world_point(DVec2::splat(look_px)), roll) else {
+                    continue;
+                };
+                let g = RowGeometry::new(&p, &cam);
+                for row in (0..240).step_by(7) {
+                    let d0 = g.base + g.dv * (row as f64 + 0.5) + g.du * 0.5;
+                    let span = g.span_length(d0, 320);
+                    let mut i0 = 0;
+                    while i0 + span <= 320 && span > 2 {
+                        let at = |k: usize| g.coordinates(d0, (i0 + k) as f64).unwrap();
+                        let mid = g.coordinates(d0, i0 as f64 + span as f64 / 2.0).unwrap();
+                        let q = Quadratic::through(at(0), mid, at(span), span as f64);
+                        for k in 0..span {
+                            let err = (q.at(k as f64) - at(k)).abs().max_element();
+                            // local image pixels per sensor pixel
+                            let scale = (at(k + 1) - at(k)).length();
+                            let allowed = SPAN_TOLERANCE_PX * scale.min(1.0) * 1.05 + 1e-9 * at(k).length();
+                            assert!(err <= allowed, "row {row} pixel {}: error {err:e} > {allowed:e}", i0 + k);
+                            checked += 1;
+                        }
+                        i0 += span;
+                    }
+                }
+            }
+        }
+        assert!(checked > 10_000, "{checked}");
     }
 
     #[test]

@@ -26,12 +26,14 @@ pub fn render_sky(
     if sf.background_camera != Some(pose.current) {
         match sky.single() {
             Ok(sky) => {
-                sky.plane.render(&pose.current, sky.sampling, sky.miss, &mut sf.background);
-                if sky.gain != 1.0 || sky.offset != 0.0 {
-                    for p in sf.background.pixels_mut() {
-                        *p = sky.offset + sky.gain * *p;
-                    }
-                }
+                sky.plane.render_mapped(
+                    &pose.current,
+                    sky.sampling,
+                    sky.miss,
+                    sky.gain,
+                    sky.offset,
+                    &mut sf.background,
+                );
             }
             Err(_) => sf.background.fill(sensor.gray.g_min as f32),
         }
