@@ -225,3 +225,82 @@ fn missing_scenario_file_is_reported() {
     assert_eq!(code, 2);
     assert!(err.contains("/no/such/scenario.toml"), "{err}");
 }
+
+/// Ctrl-C during a recording: the process stops with exit code 130, and what it leaves is consistent — frames
+/// 0 … N−1 complete, N lines of labels, MOT rows only for those frames, no temporary files, and a manifest with
+/// status "interrupted" and `frames_written` N.
+#[cfg(unix)]
+#[test]
+fn sigint_leaves_complete_frames_matching_labels_and_a_manifest() {
+    use std::time::{Duration, Instant};
+    let out = temp_dir("sigint");
+    let scenario = root().join("scenarios/paper_clear_sky.toml");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_irsim"))
+        .args(["record", scenario.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "1000000"])
+        .arg("--quiet")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start irsim");
+    // wait until frames are being written (the recorder checkpoints labels and manifest as it goes)
+    let started = Instant::now();
+    while std::fs::read_dir(out.join("frames")).map_or(0, |d| d.count()) < 5 {
+        assert!(started.elapsed() < Duration::from_secs(120), "no frames after two minutes");
+        assert!(child.try_wait().unwrap().is_none(), "irsim exited before it was interrupted");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // SAFETY: kill(2) with a child's pid and a valid signal number has no memory-safety preconditions.
+    let sent = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
+    assert_eq!(sent, 0, "could not send SIGINT");
+    let output = child.wait_with_output().expect("wait for irsim");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(130), "{stderr}");
+    assert!(stderr.contains("interrupted"), "{stderr}");
+
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["status"], "interrupted");
+    let written = manifest["frames_written"].as_u64().unwrap() as usize;
+    assert!((5..1_000_000).contains(&written), "{written} frames written");
+
+    let mut names: Vec<String> =
+        std::fs::read_dir(out.join("frames")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    names.sort();
+    let want: Vec<String> = (0..written).map(|i| format!("{i:06}.png")).collect();
+    assert_eq!(names, want, "frame files");
+    for name in &names {
+        // each frame decodes completely
+        let img = image::open(out.join("frames").join(name)).unwrap();
+        assert_eq!((img.width(), img.height()), (256, 256));
+    }
+
+    let labels = std::fs::read_to_string(out.join("labels.jsonl")).unwrap();
+    let frames: Vec<u64> = labels
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["frame"].as_u64().unwrap())
+        .collect();
+    assert_eq!(frames, (0..written as u64).collect::<Vec<_>>(), "label lines");
+    let mot = std::fs::read_to_string(out.join("gt_mot.txt")).unwrap();
+    for line in mot.lines() {
+        // MOT frames count from 1
+        let frame: usize = line.split(',').next().unwrap().parse().unwrap();
+        assert!((1..=written).contains(&frame), "MOT row for frame {frame}: {line}");
+    }
+    let leftovers: Vec<_> = walk(&out).into_iter().filter(|p| p.to_string_lossy().ends_with(".tmp")).collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Every file under `dir`.
+#[cfg(unix)]
+fn walk(dir: &std::path::Path) -> Vec<PathBuf> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            files.extend(walk(&path));
+        } else {
+            files.push(path);
+        }
+    }
+    files
+}

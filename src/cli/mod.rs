@@ -20,6 +20,10 @@ pub enum CliError {
     /// A failure while running: exit code 1.
     #[error("{0}")]
     Failed(String),
+    /// Stopped by Ctrl-C (SIGINT) after writing what was complete: exit code 130, as a shell reports a
+    /// process killed by SIGINT.
+    #[error("interrupted")]
+    Interrupted,
 }
 
 impl CliError {
@@ -28,6 +32,7 @@ impl CliError {
         match self {
             CliError::Invalid(_) => 2,
             CliError::Failed(_) => 1,
+            CliError::Interrupted => 130,
         }
     }
 }

@@ -226,7 +226,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         progress.frames_written as f64 / elapsed.max(1e-9)
     );
     if interrupted {
-        return Err(CliError::Failed("interrupted".into()));
+        return Err(CliError::Interrupted);
     }
     Ok(())
 }
