@@ -304,3 +304,16 @@ fn walk(dir: &std::path::Path) -> Vec<PathBuf> {
     }
     files
 }
+
+#[test]
+fn bench_times_a_given_scenario() {
+    let scenario = root().join("scenarios/head_on.toml");
+    let (code, out, err) = irsim(&["bench", scenario.to_str().unwrap(), "--frames", "10"]);
+    assert_eq!(code, 0, "{err}");
+    let line = out.lines().find(|l| l.contains("head_on.toml")).expect("a line for the scenario");
+    let fps: f64 = line.split_whitespace().rev().nth(1).unwrap().parse().unwrap();
+    assert!(fps > 0.0, "{line}");
+    assert!(err.contains("stage µs per frame: motion"), "{err}");
+    let (code, _, err) = irsim(&["bench", "no/such/scenario.toml"]);
+    assert_eq!(code, 2, "{err}");
+}

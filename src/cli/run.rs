@@ -100,6 +100,8 @@ pub struct SkyArgs {
 /// Flags of `irsim bench`.
 #[derive(Debug, Args)]
 pub struct BenchArgs {
+    /// Scenario files to time (headless, no disk) instead of the built-in cases.
+    pub scenarios: Vec<PathBuf>,
     /// Frames per case.
     #[arg(long, default_value_t = 2000)]
     pub frames: u64,
@@ -308,11 +310,43 @@ gray_gain = 0.5
     s
 }
 
-/// `irsim bench`: frames per second of the whole pipeline without disk writes, and with 16-bit PNG recording.
+/// Frames per second of `scenario` run headless without disk writes, over `frames` frames after 10 warm-up
+/// frames; prints the time per stage to standard error.
+fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliError> {
+    let options = RunOptions { timings: true, ..RunOptions::default() };
+    let mut app = build_app(scenario, options).map_err(|e| CliError::Failed(e.to_string()))?;
+    for _ in 0..10 {
+        step(&mut app);
+    }
+    app.world_mut().insert_resource(StageTimings::default());
+    let t = Instant::now();
+    for _ in 0..frames {
+        step(&mut app);
+    }
+    let fps = frames as f64 / t.elapsed().as_secs_f64();
+    if let Some(timings) = app.world().get_resource::<StageTimings>() {
+        let stages: Vec<String> =
+            timings.mean_ms().iter().map(|(name, ms)| format!("{name} {:.0}", ms * 1e3)).collect();
+        eprintln!("  stage µs per frame: {}", stages.join(", "));
+    }
+    Ok(fps)
+}
+
+/// `irsim bench`: frames per second of the whole pipeline without disk writes, and with 16-bit PNG recording,
+/// on built-in cases or on the scenarios given.
 ///
 /// # Errors
 /// [`CliError::Failed`] if the temporary scenario cannot be written or run.
 pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
+    let frames = a.frames.max(10);
+    if !a.scenarios.is_empty() {
+        for path in &a.scenarios {
+            let scenario = load_scenario(path)?;
+            let fps = time_headless(&scenario, frames)?;
+            println!("{:<40} {fps:>9.1} frames/s", path.display());
+        }
+        return Ok(());
+    }
     let dir = std::env::temp_dir().join(format!("irsim-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| CliError::Failed(e.to_string()))?;
     let sky = SkyGenSpec { width: 512, height: 512, ..SkyGenSpec::new(SkyKind::Clear) };
@@ -320,7 +354,6 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     let mut bytes = Vec::new();
     frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
     std::fs::write(dir.join("clear.png"), bytes).map_err(|e| CliError::Failed(e.to_string()))?;
-    let frames = a.frames.max(10);
     for (w, h, n, recording) in [(256, 256, 1, false), (640, 512, 8, false), (256, 256, 1, true)] {
         let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
         std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;
@@ -342,24 +375,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             record(&args)?;
             frames as f64 / t.elapsed().as_secs_f64()
         } else {
-            let scenario = load_scenario(&path)?;
-            let options = RunOptions { timings: true, ..RunOptions::default() };
-            let mut app = build_app(&scenario, options).map_err(|e| CliError::Failed(e.to_string()))?;
-            for _ in 0..10 {
-                step(&mut app);
-            }
-            app.world_mut().insert_resource(StageTimings::default());
-            let t = Instant::now();
-            for _ in 0..frames {
-                step(&mut app);
-            }
-            let fps = frames as f64 / t.elapsed().as_secs_f64();
-            if let Some(timings) = app.world().get_resource::<StageTimings>() {
-                let stages: Vec<String> =
-                    timings.mean_ms().iter().map(|(name, ms)| format!("{name} {:.0}", ms * 1e3)).collect();
-                eprintln!("  stage µs per frame: {}", stages.join(", "));
-            }
-            fps
+            time_headless(&load_scenario(&path)?, frames)?
         };
         let case = format!(
             "{w}x{h}, {n} target{}{}",
