@@ -232,20 +232,28 @@ pub fn poisson<R: Rng + ?Sized>(mean: f64, threshold: f64, rng: &mut R) -> f64 {
 fn poisson_ptrs<R: Rng + ?Sized>(mean: f64, rng: &mut R) -> f64 {
     let b = 0.931 + 2.53 * mean.sqrt();
     let a = -0.059 + 0.024_83 * b;
-    let ln_inv_alpha = (1.123_9 + 1.132_8 / (b - 3.4)).ln();
     let v_r = 0.927_7 - 3.622_4 / (b - 2.0);
-    let ln_mean = mean.ln();
+    // the logarithms are needed only when the squeeze fails (about one try in seven)
+    let mut logs: Option<(f64, f64)> = None;
     loop {
         let u = rng.random::<f64>() - 0.5;
         let v: f64 = rng.random();
         let us = 0.5 - u.abs();
-        let k = ((2.0 * a / us + b) * u + mean + 0.43).floor();
+        let x = (2.0 * a / us + b) * u + mean + 0.43;
+        // k = ⌊x⌋; for x ≥ 0 truncation is the floor (no libm call); x < 0 (or NaN, us = 0) is a rejection.
+        // For mean ≥ 10 the squeeze region (us ≥ 0.07) always has x > 0, so testing the sign first changes
+        // nothing.
+        if !(x >= 0.0) {
+            continue;
+        }
+        let k = (x as u64) as f64;
         if us >= 0.07 && v <= v_r {
             return k;
         }
-        if k < 0.0 || (us < 0.013 && v > us) {
+        if us < 0.013 && v > us {
             continue;
         }
+        let (ln_inv_alpha, ln_mean) = *logs.get_or_insert_with(|| ((1.123_9 + 1.132_8 / (b - 3.4)).ln(), mean.ln()));
         // the exact acceptance test, in logarithms
         if v.ln() + ln_inv_alpha - (a / (us * us) + b).ln() <= -mean + k * ln_mean - ln_factorial(k) {
             return k;
