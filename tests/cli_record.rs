@@ -226,14 +226,26 @@ fn missing_scenario_file_is_reported() {
     assert!(err.contains("/no/such/scenario.toml"), "{err}");
 }
 
-/// Ctrl-C during a recording: the process stops with exit code 130, and what it leaves is consistent — frames
-/// 0 … N−1 complete, N lines of labels, MOT rows only for those frames, no temporary files, and a manifest with
-/// status "interrupted" and `frames_written` N.
+/// Ctrl-C (SIGINT) during a recording: the process stops with exit code 130, and what it leaves is consistent —
+/// frames 0 … N−1 complete, N lines of labels, MOT rows only for those frames, no temporary files, and a
+/// manifest with status "interrupted" and `frames_written` N.
 #[cfg(unix)]
 #[test]
 fn sigint_leaves_complete_frames_matching_labels_and_a_manifest() {
+    interrupt_recording(libc::SIGINT, "sigint");
+}
+
+/// SIGTERM (a batch system or `docker stop` ending the job) is handled like Ctrl-C.
+#[cfg(unix)]
+#[test]
+fn sigterm_leaves_complete_frames_matching_labels_and_a_manifest() {
+    interrupt_recording(libc::SIGTERM, "sigterm");
+}
+
+#[cfg(unix)]
+fn interrupt_recording(signal: libc::c_int, name: &str) {
     use std::time::{Duration, Instant};
-    let out = temp_dir("sigint");
+    let out = temp_dir(name);
     let scenario = root().join("scenarios/paper_clear_sky.toml");
     let mut child = Command::new(env!("CARGO_BIN_EXE_irsim"))
         .args(["record", scenario.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "1000000"])
@@ -249,8 +261,8 @@ fn sigint_leaves_complete_frames_matching_labels_and_a_manifest() {
         std::thread::sleep(Duration::from_millis(20));
     }
     // SAFETY: kill(2) with a child's pid and a valid signal number has no memory-safety preconditions.
-    let sent = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
-    assert_eq!(sent, 0, "could not send SIGINT");
+    let sent = unsafe { libc::kill(child.id() as libc::pid_t, signal) };
+    assert_eq!(sent, 0, "could not send signal {signal}");
     let output = child.wait_with_output().expect("wait for irsim");
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert_eq!(output.status.code(), Some(130), "{stderr}");

@@ -20,8 +20,8 @@ pub enum CliError {
     /// A failure while running: exit code 1.
     #[error("{0}")]
     Failed(String),
-    /// Stopped by Ctrl-C (SIGINT) after writing what was complete: exit code 130, as a shell reports a
-    /// process killed by SIGINT.
+    /// Stopped by Ctrl-C (SIGINT), SIGTERM or SIGHUP after writing what was complete: exit code 130, as a
+    /// shell reports a process killed by SIGINT.
     #[error("interrupted")]
     Interrupted,
 }

@@ -3,7 +3,7 @@
 //!
 //! Frames are committed in order: the labels on disk always describe exactly the frames on disk. Labels,
 //! the MOT file and the manifest are rewritten at checkpoints (every second) and at the end, so an
-//! interruption (Ctrl-C) or a write error (disk full) leaves complete frames, matching labels, and a manifest
+//! interruption (Ctrl-C, SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest
 //! whose `status` and `frames_written` say where the run stopped.
 
 use std::collections::BTreeMap;
