@@ -1,6 +1,6 @@
 //! Scenarios: what a run simulates, as a serde schema (TOML or JSON) with validation.
 //!
-//! Pure: no Bevy. [`load`] reads a file and returns a [`Scenario`] whose every value has been checked, or a
+//! Pure: no Bevy. [`load()`] reads a file and returns a [`Scenario`] whose every value has been checked, or a
 //! [`ScenarioError`] that names the file, line, column and field. The schema is documented field by field in
 //! `docs/scenarios.md`.
 
