@@ -9,10 +9,11 @@
 //!   row, so the result does not depend on how rows are scheduled.
 //! - [`Ziggurat`]: Marsaglia & Tsang's ziggurat ("The Ziggurat Method for Generating Random Variables", J.
 //!   Stat. Softw. 5(8), 2000) with 128 layers, on 32 random bits per deviate, two deviates per 64-bit draw. The
-//!   layer index (bits 0–6) and the signed magnitude (bits 8–31) come from disjoint bits (the original draws the
-//!   index from bits of the magnitude, a known weakness, Leong et al. 2005). Layers are exact; the magnitude is
-//!   quantized to 2⁻²³ of its layer's width, so the deviates take about 2²⁴ distinct values per layer — far
-//!   finer than any gray level. The tail beyond r = 3.4426 is sampled exactly (Marsaglia's exponential rejection).
+//!   layer index (bits 0–6) and the signed magnitude (bits 8–31) come from disjoint bits (the original takes the
+//!   index from bits of the magnitude, a correlation Doornik pointed out in "An Improved Ziggurat Method to
+//!   Generate Normal Random Samples", 2005). Layers are exact; the magnitude is quantized to 2⁻²³ of its layer's
+//!   width, so the deviates take about 2²⁴ distinct values per layer — far finer than any gray level. The tail
+//!   beyond r = 3.4426 is sampled exactly (Marsaglia's exponential rejection).
 
 use std::convert::Infallible;
 use std::sync::LazyLock;
