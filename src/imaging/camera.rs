@@ -73,11 +73,6 @@ impl Intrinsics {
     pub fn principal_point(&self) -> DVec2 {
         DVec2::new(self.width as f64 / 2.0, self.height as f64 / 2.0)
     }
-
-    /// Horizontal field of view, degrees.
-    pub fn horizontal_fov_deg(&self) -> f64 {
-        2.0 * (self.width as f64 / 2.0 / self.focal_px()).atan().to_degrees()
-    }
 }
 
 /// Yaw, pitch and roll of the optical axis, degrees.

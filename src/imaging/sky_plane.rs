@@ -274,22 +274,6 @@ impl SkyPlane {
         self.anchor_m + self.du_m * d.x + self.dv_m * d.y
     }
 
-    /// Image coordinates (px) where the ray from `origin` along `dir` meets the plane, or `None` if it is
-    /// parallel to the plane or the plane is behind the origin.
-    #[inline]
-    pub fn intersect(&self, origin: DVec3, dir: DVec3) -> Option<DVec2> {
-        let denom = dir.dot(self.normal);
-        if denom.abs() < 1e-15 {
-            return None;
-        }
-        let t = (self.anchor_m - origin).dot(self.normal) / denom;
-        if !(t > 0.0) {
-            return None;
-        }
-        let rel = origin + dir * t - self.anchor_m;
-        Some(self.anchor_px + DVec2::new(rel.dot(self.right) * self.px_per_m.x, rel.dot(self.down) * self.px_per_m.y))
-    }
-
     /// Samples the image at image coordinates `p` (px).
     #[inline]
     fn sample(&self, p: DVec2, sampling: Sampling, fill: MissFill) -> f32 {
@@ -323,9 +307,7 @@ impl SkyPlane {
                         self.image.at_clamped(x0 + 1, y0 + 1),
                     )
                 };
-                let top = a + (b - a) * fx;
-                let bottom = c + (d - c) * fx;
-                top + (bottom - top) * fy
+                bilinear_mix(a, b, c, d, fx, fy)
             }
         }
     }
@@ -391,6 +373,15 @@ impl SkyPlane {
     }
 }
 
+/// Bilinear interpolation between `top_left`, `top_right` (the next pixel along the row), `bottom_left` and
+/// `bottom_right` at fractions `fx` along the row and `fy` down.
+#[inline]
+fn bilinear_mix(top_left: f32, top_right: f32, bottom_left: f32, bottom_right: f32, fx: f32, fy: f32) -> f32 {
+    let top = top_left + (top_right - top_left) * fx;
+    let bottom = bottom_left + (bottom_right - bottom_left) * fx;
+    top + (bottom - top) * fy
+}
+
 /// `⌊x⌋` as an integer without a libm call (the baseline x86-64 target has no rounding instruction);
 /// saturates for values beyond `isize`.
 #[inline]
@@ -452,28 +443,9 @@ impl RowGeometry {
             MissFill::Constant { value } => value,
             _ => 0.0,
         };
-        let img = &plane.image;
-        let (w, h) = (img.width, img.height);
         let bilinear = !matches!(sampling, Sampling::Nearest);
         let exact = |i: f64| self.coordinates(d0, i);
-        let sample = |p: DVec2| -> f32 {
-            let (x, y) = (p.x - 0.5, p.y - 0.5);
-            if bilinear && x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64 {
-                // non-negative: truncation is the floor
-                let (xi, yi) = (x as usize, y as usize);
-                let (fx, fy) = ((x - xi as f64) as f32, (y - yi as f64) as f32);
-                let i = yi * w + xi;
-                let (a, b) = (img.pixels[i], img.pixels[i + 1]);
-                let (c, e) = (img.pixels[i + w], img.pixels[i + w + 1]);
-                let top = a + (b - a) * fx;
-                let bottom = c + (e - c) * fx;
-                top + (bottom - top) * fy
-            } else if !bilinear && p.x >= 0.0 && p.y >= 0.0 && p.x < w as f64 && p.y < h as f64 {
-                img.pixels[p.y as usize * w + p.x as usize]
-            } else {
-                plane.sample(p, sampling, fill)
-            }
-        };
+        let sample = |p: DVec2| plane.sample(p, sampling, fill);
         let span = self.span_length(d0, out.len());
         let mut i0 = 0;
         let mut p0 = exact(0.0);
@@ -485,7 +457,7 @@ impl RowGeometry {
             match (p0, mid, p1) {
                 (Some(a), Some(m), Some(b)) => {
                     let span = Quadratic::through(a, m, b, len as f64);
-                    if !self.fast_span(img, &span, bilinear, block, accumulate) {
+                    if !self.fast_span(&plane.image, &span, bilinear, block, accumulate) {
                         for (k, o) in block.iter_mut().enumerate() {
                             let value = sample(span.at(k as f64));
                             *o = if accumulate { *o + value } else { value };
@@ -575,10 +547,7 @@ impl RowGeometry {
                 let fx = ((x as u32) >> 8) as f32 * FRACTION;
                 let fy = ((y as u32) >> 8) as f32 * FRACTION;
                 let i = yi * w + xi;
-                let (p00, p01, p10, p11) = (px[i], px[i + 1], px[i + w], px[i + w + 1]);
-                let top = p00 + (p01 - p00) * fx;
-                let bottom = p10 + (p11 - p10) * fx;
-                top + (bottom - top) * fy
+                bilinear_mix(px[i], px[i + 1], px[i + w], px[i + w + 1], fx, fy)
             } else {
                 px[yi * w + xi]
             };

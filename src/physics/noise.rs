@@ -125,9 +125,7 @@ impl NoiseModel {
     /// threshold take the per-pixel path.
     fn apply_row(&self, line: &mut [f32], black_level: f64, key: u64, row: u64, max_level: Option<f32>) {
         const BLOCK: usize = 64;
-        let k = self.electrons_per_gray;
-        let read_var = self.read_noise_gray * self.read_noise_gray;
-        if k == 0.0 && read_var == 0.0 {
+        if self.electrons_per_gray == 0.0 && self.read_noise_gray == 0.0 {
             if let Some(top) = max_level {
                 quantize_row(line, top);
             }
@@ -137,23 +135,16 @@ impl NoiseModel {
         let mut normals = SplitMix64::substream(key, 2 * row);
         let mut uniforms = SplitMix64::substream(key, 2 * row + 1);
         let mut z = [0f32; BLOCK];
-        let black = black_level as f32;
-        // variance in gray² = max(g − g₀, 0)/k + σ²; the mean electron count is max(g − g₀, 0)·k
-        let inv_k = if k > 0.0 { (1.0 / k) as f32 } else { 0.0 };
-        let (kf, read_var_f) = (k as f32, read_var as f32);
-        // f32 electron counts are exact to 2⁻²⁴ relative, ample against the threshold test
-        let threshold = if k > 0.0 { self.poisson_normal_threshold as f32 } else { f32::NEG_INFINITY };
+        let rule = PixelNoise::new(self, black_level);
         for block in line.chunks_mut(BLOCK) {
             let z = &mut z[..block.len()];
             zig.fill(&mut normals, z);
-            let all_normal = block.iter().fold(true, |all, &g| all & ((g - black).max(0.0) * kf >= threshold));
-            if all_normal {
+            if block.iter().fold(true, |all, &g| all & rule.on_normal_path(g)) {
                 for (g, &z) in block.iter_mut().zip(z.iter()) {
-                    let variance = (*g - black).max(0.0) * inv_k + read_var_f;
-                    *g += variance.sqrt() * z;
+                    *g = rule.normal(*g, z);
                 }
             } else {
-                self.apply_mixed(block, z, black_level, &mut uniforms);
+                self.apply_mixed(&rule, block, z, black_level, &mut uniforms);
             }
             if let Some(top) = max_level {
                 quantize_row(block, top);
@@ -163,22 +154,66 @@ impl NoiseModel {
 
     /// The per-pixel path of [`NoiseModel::apply_and_quantize`] (`k > 0`): pixels below the Poisson threshold
     /// get an exact count, the others the same normal draw as on the fast path.
-    fn apply_mixed(&self, block: &mut [f32], z: &[f32], black_level: f64, uniforms: &mut SplitMix64) {
+    fn apply_mixed(
+        &self,
+        rule: &PixelNoise,
+        block: &mut [f32],
+        z: &[f32],
+        black_level: f64,
+        uniforms: &mut SplitMix64,
+    ) {
         let k = self.electrons_per_gray;
-        let (black, inv_k) = (black_level as f32, (1.0 / k) as f32);
-        let read_var = (self.read_noise_gray * self.read_noise_gray) as f32;
         let sd_read = self.read_noise_gray as f32;
-        let threshold = self.poisson_normal_threshold as f32;
         for (g, &z) in block.iter_mut().zip(z.iter()) {
-            let above = (*g - black).max(0.0);
-            if above * k as f32 >= threshold {
-                *g += (above * inv_k + read_var).sqrt() * z;
+            if rule.on_normal_path(*g) {
+                *g = rule.normal(*g, z);
             } else {
                 // exact Poisson shot noise, and the pixel's normal deviate for the read noise
+                let above = (*g - rule.black).max(0.0);
                 let count = poisson(f64::from(above) * k, self.poisson_normal_threshold, uniforms);
                 *g = (black_level + count / k) as f32 + sd_read * z;
             }
         }
+    }
+}
+
+/// A noise model's constants for one frame in f32, and its rule for pixels on the normal path.
+struct PixelNoise {
+    /// Black level `g₀`.
+    black: f32,
+    /// Electrons per gray `k`.
+    k: f32,
+    /// `1/k`, 0 without shot noise.
+    inv_k: f32,
+    /// Read-noise variance `σ²`.
+    read_var: f32,
+    /// Mean electron count from which shot noise is normal; −∞ without shot noise (f32 counts are exact to
+    /// 2⁻²⁴ relative, ample for this test).
+    threshold: f32,
+}
+
+impl PixelNoise {
+    fn new(model: &NoiseModel, black_level: f64) -> Self {
+        let k = model.electrons_per_gray;
+        Self {
+            black: black_level as f32,
+            k: k as f32,
+            inv_k: if k > 0.0 { (1.0 / k) as f32 } else { 0.0 },
+            read_var: (model.read_noise_gray * model.read_noise_gray) as f32,
+            threshold: if k > 0.0 { model.poisson_normal_threshold as f32 } else { f32::NEG_INFINITY },
+        }
+    }
+
+    /// Whether the mean electron count `max(g − g₀, 0)·k` reaches the threshold.
+    #[inline]
+    fn on_normal_path(&self, g: f32) -> bool {
+        (g - self.black).max(0.0) * self.k >= self.threshold
+    }
+
+    /// `g` plus shot and read noise as one normal draw `z`: variance `max(g − g₀, 0)/k + σ²` gray².
+    #[inline]
+    fn normal(&self, g: f32, z: f32) -> f32 {
+        g + ((g - self.black).max(0.0) * self.inv_k + self.read_var).sqrt() * z
     }
 }
 

@@ -255,6 +255,9 @@ pub struct ObserverSpec {
 }
 
 /// The sky image and its placement (paper III.B).
+///
+/// The placement fields repeat [`SkyPlacement`]'s ([`SkySpec::placement`] converts): serde's `flatten` cannot be
+/// combined with `deny_unknown_fields`, which every scenario table uses.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SkySpec {
