@@ -6,6 +6,7 @@
 pub mod camera;
 pub mod frame;
 pub mod fusion;
+pub mod psf;
 pub mod sky_gen;
 pub mod sky_plane;
 pub mod target_blob;

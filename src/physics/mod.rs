@@ -5,6 +5,7 @@
 
 pub mod atmosphere;
 pub mod brdf;
+pub mod detector;
 pub mod noise;
 pub mod planck;
 pub mod random;

@@ -1,0 +1,815 @@
+//! The optics' point spread function: diffraction, the pixel's aperture, aberrations and line-of-sight motion.
+//!
+//! The PSF is built from its optical transfer function (OTF), the product of
+//! - the diffraction-limited OTF of a circular pupil, `(2/π)(acos ν − ν√(1 − ν²))` with `ν = f·λN`, averaged
+//!   over the band with the weights of the detector's spectral signal at a reference scene temperature
+//!   (`B_λ` for thermal detectors, `B_λ·λ/(hc)` for photon detectors): the band-averaged Airy pattern;
+//! - the pixel's photosensitive aperture, a square of side `√fill · pitch`: `sinc(a f_x)·sinc(a f_y)`;
+//! - a Gaussian `exp(−2π²σ²f²)` for aberrations and defocus, and another for line-of-sight motion during the
+//!   integration time (their variances add).
+//!
+//! One inverse FFT on a 32 px periodic grid gives the PSF; its tails beyond 16 px wrap around (at F/1 in the
+//! LWIR they hold about 1 % of the energy). At F/1 in the LWIR with 12 µm pixels, a 3 % cut gives a 5 px
+//! radius, a 1 % cut 11 px. The PSF is cut where the energy outside a square of radius `R`
+//! falls below [`PsfSpec::energy_cutoff`] and renormalised to unit integral, so a target's flux is conserved.
+//!
+//! Three products are kept:
+//! - a fine table of the PSF (1/32 px spacing, bilinear lookups) for targets, which are rendered analytically
+//!   at their sub-pixel position ([`Psf::value`]);
+//! - a pixel kernel for a frame of point samples (the bilinear or nearest sky): the PSF convolved with the
+//!   linear interpolant's tent, sampled at integer offsets — exact for the piecewise-linear interpolant of the
+//!   samples ([`Psf::point_kernel`]);
+//! - a pixel kernel for a frame of pixel-area averages (the supersampled sky), without the pixel aperture
+//!   (already applied by the averaging) ([`Psf::area_kernel`]).
+//!
+//! A [`Kernel`] is applied to a frame separably (its symmetric eigen-decomposition, cut at the rank where the
+//! largest error is below 1e-4 of its peak), directly in 2D, or by FFT; edges are replicated.
+
+use rayon::prelude::*;
+use rustfft::FftPlanner;
+use rustfft::num_complex::Complex;
+use serde::{Deserialize, Serialize};
+
+use super::frame::Frame;
+use crate::physics::ParamError;
+use crate::physics::planck::{Band, Measure, spectral_radiance};
+
+/// Period of the grid the PSF is computed on, px.
+const PERIOD_PX: usize = 32;
+/// Fine-table samples per pixel.
+const FINE_PER_PX: usize = 32;
+/// Samples per pixel of the grid the pixel kernels are computed on.
+const KERNEL_GRID_PER_PX: usize = 16;
+/// Largest kernel radius, px.
+pub const MAX_RADIUS_PX: usize = 12;
+/// Wavelengths averaged over the band.
+const BAND_SAMPLES: usize = 24;
+
+/// What the PSF holds, and where it is cut.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PsfSpec {
+    /// Diffraction by the circular pupil (band-averaged Airy pattern).
+    pub diffraction: bool,
+    /// The pixel's photosensitive aperture.
+    pub pixel_aperture: bool,
+    /// Standard deviation of a Gaussian for aberrations and defocus, px.
+    pub aberration_sigma_px: f64,
+    /// Standard deviation of a Gaussian for line-of-sight motion during the integration time, px.
+    pub motion_sigma_px: f64,
+    /// The kernel ends where the energy outside it falls below this fraction.
+    pub energy_cutoff: f64,
+}
+
+impl Default for PsfSpec {
+    fn default() -> Self {
+        Self {
+            diffraction: true,
+            pixel_aperture: true,
+            aberration_sigma_px: 0.3,
+            motion_sigma_px: 0.0,
+            energy_cutoff: 0.03,
+        }
+    }
+}
+
+impl PsfSpec {
+    /// Checks the parameters.
+    ///
+    /// # Errors
+    /// [`ParamError`] naming the first parameter out of range.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        for (name, v) in [("aberration_sigma_px", self.aberration_sigma_px), ("motion_sigma_px", self.motion_sigma_px)]
+        {
+            if !(v.is_finite() && (0.0..=4.0).contains(&v)) {
+                return Err(ParamError { name, value: v, range: "[0, 4] px".into() });
+            }
+        }
+        let c = self.energy_cutoff;
+        if !(c.is_finite() && (1e-6..=0.2).contains(&c)) {
+            return Err(ParamError { name: "energy_cutoff", value: c, range: "[1e-6, 0.2]".into() });
+        }
+        Ok(())
+    }
+}
+
+/// The optical set-up the PSF depends on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PsfOptics {
+    /// F-number `f/D`.
+    pub f_number: f64,
+    /// Pixel pitch, m.
+    pub pixel_pitch_m: f64,
+    /// Photosensitive fraction of the pixel's area.
+    pub fill_factor: f64,
+    /// Spectral band.
+    pub band: Band,
+    /// The detector's measure (weights of the band average).
+    pub measure: Measure,
+    /// Scene temperature of the band-average weights, K.
+    pub reference_temp_k: f64,
+}
+
+/// How a pixel kernel is applied to a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConvolutionMethod {
+    /// Sum of rank-one separable passes (the kernel's eigen-decomposition).
+    #[default]
+    Separable,
+    /// The full 2D kernel at every pixel.
+    Direct,
+    /// FFT of the edge-padded frame.
+    Fft,
+}
+
+/// A square pixel kernel of radius `R`, summing to 1, with its separable decomposition.
+#[derive(Debug, Clone)]
+pub struct Kernel {
+    radius: usize,
+    /// Row-major `(2R+1)²` values.
+    values: Vec<f32>,
+    /// `K ≈ Σ λ vvᵀ`.
+    terms: Vec<(f32, Vec<f32>)>,
+    /// `Σ K[d]·|d|²`, px².
+    second_moment_px2: f64,
+}
+
+/// The PSF of a camera.
+#[derive(Debug, Clone)]
+pub struct Psf {
+    radius: usize,
+    /// Fine table over offsets `[−R−½, R+½]²` (per px², integrating to 1), row-major, `fine_side` wide.
+    fine: Vec<f32>,
+    fine_side: usize,
+    point: Kernel,
+    area: Kernel,
+    fwhm_px: f64,
+}
+
+impl Psf {
+    /// Builds the PSF.
+    ///
+    /// # Errors
+    /// [`ParamError`] for an invalid spec or optics.
+    pub fn new(spec: &PsfSpec, optics: &PsfOptics) -> Result<Self, ParamError> {
+        spec.validate()?;
+        let n_f = optics.f_number;
+        if !(n_f.is_finite() && n_f > 0.0) {
+            return Err(ParamError { name: "f_number", value: n_f, range: "(0, ∞)".into() });
+        }
+        let otf = Otf::new(spec, optics);
+        // pixel kernels: the PSF times the tent of linear interpolation, with and without the pixel aperture
+        let point_grid = otf.spatial(KERNEL_GRID_PER_PX, true, true);
+        let area_grid = otf.spatial(KERNEL_GRID_PER_PX, false, true);
+        let radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.energy_cutoff);
+        let point = Kernel::from_grid(&point_grid, KERNEL_GRID_PER_PX, radius);
+        let area = Kernel::from_grid(&area_grid, KERNEL_GRID_PER_PX, radius);
+        // the fine table of the PSF itself, over [−R−½, R+½]², renormalised to unit integral
+        let grid = otf.spatial(FINE_PER_PX, true, false);
+        let n = PERIOD_PX * FINE_PER_PX;
+        let half = (radius * FINE_PER_PX + FINE_PER_PX / 2) as isize;
+        let side = (2 * half + 1) as usize;
+        let mut fine = Vec::with_capacity(side * side);
+        for dy in -half..=half {
+            for dx in -half..=half {
+                let (x, y) = (dx.rem_euclid(n as isize) as usize, dy.rem_euclid(n as isize) as usize);
+                fine.push(grid[y * n + x]);
+            }
+        }
+        let h2 = 1.0 / (FINE_PER_PX * FINE_PER_PX) as f64;
+        let total: f64 = fine.iter().map(|&v| f64::from(v) * h2).sum();
+        for v in &mut fine {
+            *v = (f64::from(*v) / total) as f32;
+        }
+        let fwhm_px = fwhm(&fine, side, FINE_PER_PX);
+        Ok(Self { radius, fine, fine_side: side, point, area, fwhm_px })
+    }
+
+    /// Kernel radius `R`, px: the PSF is taken as 0 beyond `R + ½` px on either axis.
+    pub fn radius_px(&self) -> usize {
+        self.radius
+    }
+
+    /// Full width at half maximum along the image x axis, px.
+    pub fn fwhm_px(&self) -> f64 {
+        self.fwhm_px
+    }
+
+    /// The PSF at offset `(dx, dy)` px from a point source, per px² (bilinear in the fine table; 0 outside).
+    #[inline]
+    pub fn value(&self, dx: f64, dy: f64) -> f32 {
+        let half = (self.fine_side / 2) as f64;
+        let fx = dx * FINE_PER_PX as f64 + half;
+        let fy = dy * FINE_PER_PX as f64 + half;
+        let limit = (self.fine_side - 1) as f64;
+        if !(fx >= 0.0 && fy >= 0.0 && fx < limit && fy < limit) {
+            return 0.0;
+        }
+        let (x0, y0) = (fx as usize, fy as usize);
+        let (tx, ty) = ((fx - x0 as f64) as f32, (fy - y0 as f64) as f32);
+        let i = y0 * self.fine_side + x0;
+        let f = &self.fine;
+        let top = f[i] + (f[i + 1] - f[i]) * tx;
+        let bottom = f[i + self.fine_side] + (f[i + self.fine_side + 1] - f[i + self.fine_side]) * tx;
+        top + (bottom - top) * ty
+    }
+
+    /// Kernel for a frame of point samples (nearest or bilinear sky).
+    pub fn point_kernel(&self) -> &Kernel {
+        &self.point
+    }
+
+    /// Kernel for a frame of pixel-area averages (supersampled sky).
+    pub fn area_kernel(&self) -> &Kernel {
+        &self.area
+    }
+
+    /// Integral of the fine table, px² (1 up to f32 rounding).
+    pub fn integral(&self) -> f64 {
+        let h2 = 1.0 / (FINE_PER_PX * FINE_PER_PX) as f64;
+        self.fine.iter().map(|&v| f64::from(v) * h2).sum()
+    }
+}
+
+/// The OTF as a function of spatial frequency (cycles/px).
+struct Otf {
+    /// `(weight, λN/pitch)` per wavelength; empty without diffraction.
+    diffraction: Vec<(f64, f64)>,
+    /// Side of the pixel aperture, px; 0 without it.
+    aperture_px: f64,
+    /// Total Gaussian variance, px² (at least a fine sample's, which keeps a bare box free of ringing).
+    sigma2: f64,
+}
+
+impl Otf {
+    fn new(spec: &PsfSpec, o: &PsfOptics) -> Self {
+        let mut diffraction = Vec::new();
+        if spec.diffraction {
+            let (lo, hi) = (o.band.lo_um(), o.band.hi_um());
+            let mut total = 0.0;
+            for i in 0..BAND_SAMPLES {
+                let lambda_um = lo + (hi - lo) * (i as f64 + 0.5) / BAND_SAMPLES as f64;
+                let mut w = spectral_radiance(lambda_um, o.reference_temp_k);
+                if o.measure == Measure::Photon {
+                    w *= lambda_um;
+                }
+                total += w;
+                diffraction.push((w, lambda_um * 1e-6 * o.f_number / o.pixel_pitch_m));
+            }
+            if total > 0.0 {
+                for d in &mut diffraction {
+                    d.0 /= total;
+                }
+            } else {
+                // no signal weights (a band far in the Wien tail): weigh wavelengths equally
+                for d in &mut diffraction {
+                    d.0 = 1.0 / BAND_SAMPLES as f64;
+                }
+            }
+        }
+        let fine = 1.0 / FINE_PER_PX as f64;
+        let sigma2 = (spec.aberration_sigma_px.powi(2) + spec.motion_sigma_px.powi(2)).max(fine * fine);
+        Self { diffraction, aperture_px: if spec.pixel_aperture { o.fill_factor.sqrt() } else { 0.0 }, sigma2 }
+    }
+
+    /// The OTF at `(fx, fy)`; `aperture` includes the pixel aperture, `tent` the linear interpolant's `sinc²`.
+    fn at(&self, fx: f64, fy: f64, aperture: bool, tent: bool) -> f64 {
+        let f = fx.hypot(fy);
+        let mut v = (-2.0 * std::f64::consts::PI.powi(2) * self.sigma2 * f * f).exp();
+        if !self.diffraction.is_empty() {
+            let mut d = 0.0;
+            for &(w, scale) in &self.diffraction {
+                let nu = f * scale;
+                if nu < 1.0 {
+                    d += w * (2.0 / std::f64::consts::PI) * (nu.acos() - nu * (1.0 - nu * nu).sqrt());
+                }
+            }
+            v *= d;
+        }
+        if aperture && self.aperture_px > 0.0 {
+            v *= sinc(self.aperture_px * fx) * sinc(self.aperture_px * fy);
+        }
+        if tent {
+            v *= (sinc(fx) * sinc(fy)).powi(2);
+        }
+        v
+    }
+
+    /// The PSF on the periodic grid of `per_px` samples per pixel (`PERIOD_PX·per_px` square, row-major, index 0
+    /// at offset 0), per px².
+    fn spatial(&self, per_px: usize, aperture: bool, tent: bool) -> Vec<f32> {
+        let n = PERIOD_PX * per_px;
+        let freq = |k: usize| if k < n / 2 { k as f64 } else { k as f64 - n as f64 } / PERIOD_PX as f64;
+        let mut data: Vec<Complex<f64>> = Vec::with_capacity(n * n);
+        for ky in 0..n {
+            for kx in 0..n {
+                data.push(Complex::new(self.at(freq(kx), freq(ky), aperture, tent), 0.0));
+            }
+        }
+        fft2(&mut data, n, rustfft::FftDirection::Inverse);
+        let scale = 1.0 / (PERIOD_PX * PERIOD_PX) as f64;
+        data.iter().map(|c| (c.re * scale) as f32).collect()
+    }
+}
+
+fn sinc(x: f64) -> f64 {
+    if x.abs() < 1e-8 {
+        1.0
+    } else {
+        let px = std::f64::consts::PI * x;
+        px.sin() / px
+    }
+}
+
+/// In-place 2D FFT of an `n × n` row-major array.
+fn fft2(data: &mut [Complex<f64>], n: usize, direction: rustfft::FftDirection) {
+    let fft = FftPlanner::new().plan_fft(n, direction);
+    for _ in 0..2 {
+        data.par_chunks_mut(n).for_each(|row| fft.process(row));
+        transpose(data, n);
+    }
+}
+
+fn transpose<T: Copy>(data: &mut [T], n: usize) {
+    for y in 0..n {
+        for x in y + 1..n {
+            data.swap(y * n + x, x * n + y);
+        }
+    }
+}
+
+/// The smallest radius (px) whose square of integer offsets holds `1 − cutoff` of the grid's energy.
+fn cut_radius(grid: &[f32], per_px: usize, cutoff: f64) -> usize {
+    let n = PERIOD_PX * per_px;
+    let at = |dx: isize, dy: isize| {
+        let (x, y) = ((dx * per_px as isize).rem_euclid(n as isize), (dy * per_px as isize).rem_euclid(n as isize));
+        f64::from(grid[y as usize * n + x as usize])
+    };
+    let total: f64 = (-(PERIOD_PX as isize) / 2..PERIOD_PX as isize / 2)
+        .flat_map(|dy| (-(PERIOD_PX as isize) / 2..PERIOD_PX as isize / 2).map(move |dx| (dx, dy)))
+        .map(|(dx, dy)| at(dx, dy))
+        .sum();
+    for r in 0..=MAX_RADIUS_PX as isize {
+        let inside: f64 = (-r..=r).flat_map(|dy| (-r..=r).map(move |dx| (dx, dy))).map(|(dx, dy)| at(dx, dy)).sum();
+        if inside >= (1.0 - cutoff) * total {
+            return r as usize;
+        }
+    }
+    MAX_RADIUS_PX
+}
+
+/// Full width at half maximum along x through the centre of a fine table.
+fn fwhm(fine: &[f32], side: usize, per_px: usize) -> f64 {
+    let c = side / 2;
+    let row = &fine[c * side..(c + 1) * side];
+    let half = row[c] * 0.5;
+    let mut x = c;
+    while x + 1 < side && row[x + 1] > half {
+        x += 1;
+    }
+    if x + 1 >= side {
+        return (side / per_px) as f64;
+    }
+    // linear interpolation of the crossing between x and x + 1
+    let t = f64::from((row[x] - half) / (row[x] - row[x + 1]));
+    2.0 * ((x - c) as f64 + t) / per_px as f64
+}
+
+impl Kernel {
+    /// Integer-offset samples of a periodic grid, normalised to sum 1, with the separable decomposition.
+    fn from_grid(grid: &[f32], per_px: usize, radius: usize) -> Self {
+        let n = PERIOD_PX * per_px;
+        let r = radius as isize;
+        let side = 2 * radius + 1;
+        let mut values = Vec::with_capacity(side * side);
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (x, y) =
+                    ((dx * per_px as isize).rem_euclid(n as isize), (dy * per_px as isize).rem_euclid(n as isize));
+                values.push(f64::from(grid[y as usize * n + x as usize]));
+            }
+        }
+        let sum: f64 = values.iter().sum();
+        let values: Vec<f64> = values.iter().map(|v| v / sum).collect();
+        Self::from_values(radius, &values)
+    }
+
+    /// A kernel from row-major `(2R+1)²` values (symmetric under transposition for the decomposition to be
+    /// exact at full rank).
+    ///
+    /// # Panics
+    /// If `values.len()` is not `(2·radius + 1)²`.
+    pub fn from_values(radius: usize, values: &[f64]) -> Self {
+        let side = 2 * radius + 1;
+        assert_eq!(values.len(), side * side, "kernel size");
+        let r = radius as f64;
+        let second_moment_px2 = values
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                let (x, y) = ((i % side) as f64 - r, (i / side) as f64 - r);
+                v * (x * x + y * y)
+            })
+            .sum();
+        // symmetric part, eigen-decomposed; keep the largest terms until the worst error is 1e-4 of the peak
+        let sym: Vec<f64> =
+            (0..side * side).map(|i| 0.5 * (values[i] + values[(i % side) * side + i / side])).collect();
+        let (eigenvalues, vectors) = jacobi_eigen(&sym, side);
+        let mut order: Vec<usize> = (0..side).collect();
+        order.sort_by(|&a, &b| eigenvalues[b].abs().total_cmp(&eigenvalues[a].abs()));
+        let peak = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let mut approx = vec![0.0; side * side];
+        let mut terms = Vec::new();
+        for &k in &order {
+            let v: Vec<f64> = (0..side).map(|i| vectors[i * side + k]).collect();
+            for y in 0..side {
+                for x in 0..side {
+                    approx[y * side + x] += eigenvalues[k] * v[y] * v[x];
+                }
+            }
+            terms.push((eigenvalues[k] as f32, v.iter().map(|&x| x as f32).collect()));
+            let worst = approx.iter().zip(values).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            if worst <= 1e-4 * peak {
+                break;
+            }
+        }
+        // the truncated sum keeps the kernel's total exactly, so flat regions stay flat
+        let (want, got): (f64, f64) = (values.iter().sum(), approx.iter().sum());
+        if got != 0.0 {
+            for t in &mut terms {
+                t.0 = (f64::from(t.0) * want / got) as f32;
+            }
+        }
+        Self { radius, values: values.iter().map(|&v| v as f32).collect(), terms, second_moment_px2 }
+    }
+
+    /// Radius, px.
+    pub fn radius(&self) -> usize {
+        self.radius
+    }
+
+    /// Row-major values.
+    pub fn values(&self) -> &[f32] {
+        &self.values
+    }
+
+    /// Rank of the separable decomposition.
+    pub fn rank(&self) -> usize {
+        self.terms.len()
+    }
+
+    /// `Σ K[d]·|d|²`, px²: a frame `S` changes by at most `½·M₂·max|∂²S|` under the kernel (second-order Taylor
+    /// bound for a symmetric kernel), which is how a smooth sky is recognised as not needing it.
+    pub fn second_moment_px2(&self) -> f64 {
+        self.second_moment_px2
+    }
+}
+
+/// Eigen-decomposition of a symmetric `n × n` matrix by cyclic Jacobi rotations: eigenvalues and the
+/// eigenvectors as the columns of a row-major matrix.
+fn jacobi_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut a = a.to_vec();
+    let mut v = vec![0.0; n * n];
+    for i in 0..n {
+        v[i * n + i] = 1.0;
+    }
+    for _sweep in 0..100 {
+        let off: f64 = (0..n)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .filter(|(i, j)| i != j)
+            .map(|(i, j)| a[i * n + j].powi(2))
+            .sum();
+        if off < 1e-30 {
+            break;
+        }
+        for p in 0..n {
+            for q in p + 1..n {
+                let apq = a[p * n + q];
+                if apq.abs() < 1e-300 {
+                    continue;
+                }
+                let theta = (a[q * n + q] - a[p * n + p]) / (2.0 * apq);
+                let sign = if theta >= 0.0 { 1.0 } else { -1.0 };
+                let t = sign / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let s = t * c;
+                for k in 0..n {
+                    let (akp, akq) = (a[k * n + p], a[k * n + q]);
+                    a[k * n + p] = c * akp - s * akq;
+                    a[k * n + q] = s * akp + c * akq;
+                }
+                for k in 0..n {
+                    let (apk, aqk) = (a[p * n + k], a[q * n + k]);
+                    a[p * n + k] = c * apk - s * aqk;
+                    a[q * n + k] = s * apk + c * aqk;
+                }
+                for k in 0..n {
+                    let (vkp, vkq) = (v[k * n + p], v[k * n + q]);
+                    v[k * n + p] = c * vkp - s * vkq;
+                    v[k * n + q] = s * vkp + c * vkq;
+                }
+            }
+        }
+    }
+    ((0..n).map(|i| a[i * n + i]).collect(), v)
+}
+
+/// Reusable buffers for applying kernels to frames of one size.
+#[derive(Debug, Default)]
+pub struct Convolver {
+    tmp: Vec<f32>,
+    acc: Vec<f32>,
+    padded: Vec<f32>,
+    fft: Option<FftConvolution>,
+}
+
+struct FftConvolution {
+    width: usize,
+    height: usize,
+    radius: usize,
+    /// The kernel's transform on the padded grid.
+    kernel: Vec<Complex<f32>>,
+    kernel_values: Vec<f32>,
+    buf: Vec<Complex<f32>>,
+}
+
+impl std::fmt::Debug for FftConvolution {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "FftConvolution({}×{}, radius {})", self.width, self.height, self.radius)
+    }
+}
+
+impl Convolver {
+    /// A convolver with no buffers yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Replaces `frame` by its convolution with `kernel` (edges replicated).
+    pub fn apply(&mut self, kernel: &Kernel, frame: &mut Frame, method: ConvolutionMethod) {
+        if kernel.radius == 0 {
+            let k = kernel.values[0];
+            if k != 1.0 {
+                frame.pixels_mut().iter_mut().for_each(|p| *p *= k);
+            }
+            return;
+        }
+        match method {
+            ConvolutionMethod::Separable => self.separable(kernel, frame),
+            ConvolutionMethod::Direct => self.direct(kernel, frame),
+            ConvolutionMethod::Fft => self.fft(kernel, frame),
+        }
+    }
+
+    fn separable(&mut self, kernel: &Kernel, frame: &mut Frame) {
+        let (w, h) = (frame.width(), frame.height());
+        let r = kernel.radius;
+        self.tmp.resize(w * h, 0.0);
+        self.acc.clear();
+        self.acc.resize(w * h, 0.0);
+        let rows_per_task = (8192 / w).max(1);
+        for (lambda, v) in &kernel.terms {
+            // horizontal pass into tmp
+            let src = frame.pixels();
+            self.tmp.par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each(|(y, out)| {
+                let row = &src[y * w..(y + 1) * w];
+                let mut pad = vec![0.0f32; w + 2 * r];
+                pad[..r].fill(row[0]);
+                pad[r..r + w].copy_from_slice(row);
+                pad[r + w..].fill(row[w - 1]);
+                out.fill(0.0);
+                for (k, &c) in v.iter().enumerate() {
+                    for (o, &p) in out.iter_mut().zip(&pad[k..k + w]) {
+                        *o += c * p;
+                    }
+                }
+            });
+            // vertical pass, scaled by λ, accumulated
+            let tmp = &self.tmp;
+            self.acc.par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each(|(y, out)| {
+                for (k, &c) in v.iter().enumerate() {
+                    let sy = (y + k).saturating_sub(r).min(h - 1);
+                    let c = c * lambda;
+                    for (o, &p) in out.iter_mut().zip(&tmp[sy * w..(sy + 1) * w]) {
+                        *o += c * p;
+                    }
+                }
+            });
+        }
+        frame.pixels_mut().copy_from_slice(&self.acc);
+    }
+
+    /// Copies `frame` into `self.padded` with `r` replicated pixels on every side.
+    fn pad(&mut self, frame: &Frame, r: usize) -> usize {
+        let (w, h) = (frame.width(), frame.height());
+        let pw = w + 2 * r;
+        self.padded.resize(pw * (h + 2 * r), 0.0);
+        let src = frame.pixels();
+        for py in 0..h + 2 * r {
+            let y = py.saturating_sub(r).min(h - 1);
+            let row = &src[y * w..(y + 1) * w];
+            let out = &mut self.padded[py * pw..(py + 1) * pw];
+            out[..r].fill(row[0]);
+            out[r..r + w].copy_from_slice(row);
+            out[r + w..].fill(row[w - 1]);
+        }
+        pw
+    }
+
+    fn direct(&mut self, kernel: &Kernel, frame: &mut Frame) {
+        let (w, r) = (frame.width(), kernel.radius);
+        let pw = self.pad(frame, r);
+        let side = 2 * r + 1;
+        let padded = &self.padded;
+        let rows_per_task = (8192 / w).max(1);
+        frame.pixels_mut().par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each(|(y, out)| {
+            out.fill(0.0);
+            for dy in 0..side {
+                let row = &padded[(y + dy) * pw..(y + dy + 1) * pw];
+                for dx in 0..side {
+                    let c = kernel.values[dy * side + dx];
+                    for (o, &p) in out.iter_mut().zip(&row[dx..dx + w]) {
+                        *o += c * p;
+                    }
+                }
+            }
+        });
+    }
+
+    fn fft(&mut self, kernel: &Kernel, frame: &mut Frame) {
+        let (w, h, r) = (frame.width(), frame.height(), kernel.radius);
+        let (pw, ph) = (fast_len(w + 2 * r), fast_len(h + 2 * r));
+        let stale = match &self.fft {
+            Some(f) => f.width != w || f.height != h || f.radius != r || f.kernel_values != kernel.values,
+            None => true,
+        };
+        if stale {
+            // the kernel, centred at the origin of the padded grid
+            let mut k = vec![Complex::new(0.0f32, 0.0); pw * ph];
+            let side = 2 * r + 1;
+            for dy in 0..side {
+                for dx in 0..side {
+                    let x = (dx as isize - r as isize).rem_euclid(pw as isize) as usize;
+                    let y = (dy as isize - r as isize).rem_euclid(ph as isize) as usize;
+                    k[y * pw + x] = Complex::new(kernel.values[dy * side + dx], 0.0);
+                }
+            }
+            fft2_rect(&mut k, pw, ph, rustfft::FftDirection::Forward);
+            self.fft = Some(FftConvolution {
+                width: w,
+                height: h,
+                radius: r,
+                kernel: k,
+                kernel_values: kernel.values.clone(),
+                buf: vec![Complex::new(0.0, 0.0); pw * ph],
+            });
+        }
+        let f = self.fft.as_mut().expect("set above");
+        // the frame padded by replication to the transform size (the extra columns and rows replicate too)
+        let src = frame.pixels();
+        for py in 0..ph {
+            let y = py.saturating_sub(r).min(h - 1);
+            for px in 0..pw {
+                let x = px.saturating_sub(r).min(w - 1);
+                f.buf[py * pw + px] = Complex::new(src[y * w + x], 0.0);
+            }
+        }
+        fft2_rect(&mut f.buf, pw, ph, rustfft::FftDirection::Forward);
+        for (b, k) in f.buf.iter_mut().zip(&f.kernel) {
+            *b *= k;
+        }
+        fft2_rect(&mut f.buf, pw, ph, rustfft::FftDirection::Inverse);
+        let scale = 1.0 / (pw * ph) as f32;
+        let out = frame.pixels_mut();
+        for y in 0..h {
+            for x in 0..w {
+                out[y * w + x] = f.buf[(y + r) * pw + x + r].re * scale;
+            }
+        }
+    }
+}
+
+/// The smallest `2^a·3^b·5^c` not below `n`.
+fn fast_len(n: usize) -> usize {
+    let mut m = n.max(1);
+    loop {
+        let mut k = m;
+        for p in [2, 3, 5] {
+            while k % p == 0 {
+                k /= p;
+            }
+        }
+        if k == 1 {
+            return m;
+        }
+        m += 1;
+    }
+}
+
+/// 2D FFT of a `w × h` row-major array (rows, then columns through a transpose).
+fn fft2_rect(data: &mut [Complex<f32>], w: usize, h: usize, direction: rustfft::FftDirection) {
+    let mut planner = FftPlanner::new();
+    let row_fft = planner.plan_fft(w, direction);
+    data.par_chunks_mut(w).for_each(|row| row_fft.process(row));
+    let mut t = vec![Complex::new(0.0f32, 0.0); w * h];
+    for y in 0..h {
+        for x in 0..w {
+            t[x * h + y] = data[y * w + x];
+        }
+    }
+    let col_fft = planner.plan_fft(h, direction);
+    t.par_chunks_mut(h).for_each(|col| col_fft.process(col));
+    for x in 0..w {
+        for y in 0..h {
+            data[y * w + x] = t[x * h + y];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn optics(f_number: f64, band: Band) -> PsfOptics {
+        PsfOptics {
+            f_number,
+            pixel_pitch_m: 12e-6,
+            fill_factor: 1.0,
+            band,
+            measure: Measure::Energy,
+            reference_temp_k: 300.0,
+        }
+    }
+
+    #[test]
+    fn psf_integrates_to_one() {
+        let psf = Psf::new(&PsfSpec::default(), &optics(1.0, Band::LWIR_8_12)).unwrap();
+        assert!((psf.integral() - 1.0).abs() < 1e-5, "{}", psf.integral());
+        for k in [psf.point_kernel(), psf.area_kernel()] {
+            let s: f64 = k.values().iter().map(|&v| f64::from(v)).sum();
+            assert!((s - 1.0).abs() < 1e-6, "{s}");
+        }
+    }
+
+    #[test]
+    fn airy_fwhm_matches_the_formula() {
+        // diffraction only, a narrow band at 10 µm: FWHM = 1.029 λN
+        let spec = PsfSpec { pixel_aperture: false, aberration_sigma_px: 0.0, ..PsfSpec::default() };
+        for n in [2.0, 4.0] {
+            let band = Band::try_new(10.0, 10.001).unwrap();
+            let psf = Psf::new(&spec, &optics(n, band)).unwrap();
+            let want = 1.029 * 10e-6 * n / 12e-6;
+            let got = psf.fwhm_px();
+            assert!(((got - want) / want).abs() < 0.01, "F/{n}: FWHM {got} px, Airy {want} px");
+        }
+    }
+
+    #[test]
+    fn separable_direct_and_fft_agree() {
+        let psf = Psf::new(&PsfSpec::default(), &optics(1.5, Band::LWIR_8_12)).unwrap();
+        let (w, h) = (70, 45);
+        let base = Frame::from_pixels(
+            w,
+            h,
+            (0..w * h).map(|i| ((i * 7919) % 1000) as f32 + if (i % w) > 30 { 500.0 } else { 0.0 }).collect(),
+        );
+        let mut c = Convolver::new();
+        let mut out = Vec::new();
+        for m in [ConvolutionMethod::Direct, ConvolutionMethod::Separable, ConvolutionMethod::Fft] {
+            let mut f = base.clone();
+            c.apply(psf.point_kernel(), &mut f, m);
+            out.push(f);
+        }
+        for f in &out[1..] {
+            let worst = f.pixels().iter().zip(out[0].pixels()).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            assert!(worst < 0.2, "worst difference {worst} on values up to 1500");
+        }
+        // a constant frame stays constant (edges replicated, kernel sums to 1)
+        let mut flat = Frame::from_pixels(w, h, vec![123.0; w * h]);
+        c.apply(psf.point_kernel(), &mut flat, ConvolutionMethod::Separable);
+        assert!(flat.pixels().iter().all(|v| (v - 123.0).abs() < 1e-3));
+    }
+
+    #[test]
+    fn photon_weights_shift_toward_long_waves() {
+        let mut o = optics(2.0, Band::MWIR_3_5);
+        let spec = PsfSpec { pixel_aperture: false, aberration_sigma_px: 0.0, ..PsfSpec::default() };
+        let energy = Psf::new(&spec, &o).unwrap().fwhm_px();
+        o.measure = Measure::Photon;
+        let photon = Psf::new(&spec, &o).unwrap().fwhm_px();
+        assert!(photon > energy, "{photon} vs {energy}");
+    }
+
+    #[test]
+    fn jacobi_diagonalises() {
+        let a = [4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 1.0];
+        let (l, v) = jacobi_eigen(&a, 3);
+        for k in 0..3 {
+            for i in 0..3 {
+                let av: f64 = (0..3).map(|j| a[i * 3 + j] * v[j * 3 + k]).sum();
+                assert!((av - l[k] * v[i * 3 + k]).abs() < 1e-12);
+            }
+        }
+    }
+}
