@@ -13,7 +13,7 @@ use irsim::imaging::frame::Frame;
 use irsim::imaging::fusion::{Guidance, Patch, PoissonFusion, Solver};
 use irsim::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlacement, SkyPlane};
 use irsim::imaging::target_blob::{BlobSampling, GeneralizedGaussian, PixelRect};
-use irsim::physics::noise::NoiseModel;
+use irsim::physics::noise::{Readout, ReadoutMaps};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -49,24 +49,35 @@ fn raycast(c: &mut Criterion) {
 fn noise(c: &mut Criterion) {
     let mut group = c.benchmark_group("noise_256x256");
     group.throughput(Throughput::Elements(256 * 256));
-    let base: Vec<f32> = (0..256 * 256).map(|i| 13_000.0 + (i % 11) as f32).collect();
+    // a photon detector: 1 electron per radiance unit, 300 e⁻ read noise, 430 e⁻ per DN, a 1000 DN offset
+    let model = Readout {
+        signal_per_radiance: 1.0,
+        dark_signal: 0.0,
+        shot_noise: true,
+        read_variance: 300.0 * 300.0,
+        full_well: 7e6,
+        dn_per_signal: 1.0 / 430.0,
+        offset_dn: 1000.0,
+        poisson_normal_threshold: 100.0,
+    };
+    // 2e6 … 2.00001e6 electrons: every pixel on the normal path
+    let base: Vec<f32> = (0..256 * 256).map(|i| 2e6 + (i % 11) as f32).collect();
     let mut frame = base.clone();
-    let model = NoiseModel::default();
-    // 13 000 gray over a black level of 0: 52 000 electrons, every pixel on the normal path
     let mut frame_number = 0;
     group.bench_function("normal_path", |b| {
         b.iter(|| {
             frame.copy_from_slice(&base);
             frame_number += 1;
-            model.apply_and_quantize(black_box(&mut frame), 256, 0.0, 1, frame_number, Some(65_535.0));
+            model.apply(black_box(&mut frame), 256, ReadoutMaps::default(), true, 1, frame_number, Some(16_383.0));
         })
     });
-    // 10 … 20 gray over the black level: 40 … 80 electrons, every pixel an exact Poisson count
+    // 40 … 80 electrons, every pixel an exact Poisson count
+    let low: Vec<f32> = (0..256 * 256).map(|i| 40.0 + (i % 41) as f32).collect();
     group.bench_function("poisson_path", |b| {
         b.iter(|| {
-            frame.copy_from_slice(&base);
+            frame.copy_from_slice(&low);
             frame_number += 1;
-            model.apply_and_quantize(black_box(&mut frame), 256, 12_990.0, 1, frame_number, Some(65_535.0));
+            model.apply(black_box(&mut frame), 256, ReadoutMaps::default(), true, 1, frame_number, Some(16_383.0));
         })
     });
     group.finish();

@@ -2,7 +2,7 @@
 
 use glam::DVec3;
 use irsim::physics::brdf::CookTorrance;
-use irsim::physics::noise::{NoiseModel, poisson, stream_rng};
+use irsim::physics::noise::{Readout, ReadoutMaps, poisson, stream_rng};
 use irsim::physics::planck::{Band, band_radiance, spectral_radiance};
 use proptest::prelude::*;
 
@@ -106,11 +106,26 @@ fn poisson_sampler_mean_and_variance() {
     }
 }
 
+/// A readout with unit radiance-to-signal and DN scales, no offset.
+fn readout(shot_noise: bool, read_sigma: f32, dn_per_signal: f32) -> Readout {
+    Readout {
+        signal_per_radiance: 1.0,
+        dark_signal: 0.0,
+        shot_noise,
+        read_variance: read_sigma * read_sigma,
+        full_well: f32::INFINITY,
+        dn_per_signal,
+        offset_dn: 0.0,
+        poisson_normal_threshold: 100.0,
+    }
+}
+
 #[test]
 fn gaussian_noise_mean_and_variance() {
-    let model = NoiseModel { electrons_per_gray: 0.0, read_noise_gray: 3.0, poisson_normal_threshold: 100.0 };
+    // a thermal detector: read noise only
+    let model = readout(false, 3.0, 1.0);
     let mut frame = vec![1000.0f32; 256 * 256];
-    model.apply(&mut frame, 256, 0.0, 1, 0);
+    model.apply(&mut frame, 256, ReadoutMaps::default(), true, 1, 0, None);
     let n = frame.len() as f64;
     let m = frame.iter().map(|&p| p as f64).sum::<f64>() / n;
     let v = frame.iter().map(|&p| (p as f64 - m).powi(2)).sum::<f64>() / (n - 1.0);
@@ -120,10 +135,10 @@ fn gaussian_noise_mean_and_variance() {
 
 #[test]
 fn shot_noise_variance_follows_the_conversion_gain() {
-    // 4 electrons per gray at 500 gray: 2000 electrons, variance 2000/16 = 125 gray²
-    let model = NoiseModel { electrons_per_gray: 4.0, read_noise_gray: 0.0, poisson_normal_threshold: 100.0 };
-    let mut frame = vec![500.0f32; 256 * 256];
-    model.apply(&mut frame, 256, 0.0, 2, 0);
+    // 2000 electrons at 4 electrons per DN: 500 DN, variance 2000/16 = 125 DN²
+    let model = readout(true, 0.0, 0.25);
+    let mut frame = vec![2000.0f32; 256 * 256];
+    model.apply(&mut frame, 256, ReadoutMaps::default(), true, 2, 0, None);
     let n = frame.len() as f64;
     let m = frame.iter().map(|&p| p as f64).sum::<f64>() / n;
     let v = frame.iter().map(|&p| (p as f64 - m).powi(2)).sum::<f64>() / (n - 1.0);

@@ -25,6 +25,23 @@ pub enum CalcCommand {
     Brdf(BrdfArgs),
     /// The whole chain for one target: T∞, T_s, L_self, L_re, τ, V_s, gray.
     Signal(Box<SignalArgs>),
+    /// A camera's figures of merit at a scene temperature: NETD, noise-equivalent radiance, electrons per DN,
+    /// well fill, saturation temperature.
+    Sensor(SensorArgs),
+}
+
+/// Flags of `calc sensor`.
+#[derive(Debug, Args)]
+pub struct SensorArgs {
+    /// A camera preset: cooled_mwir_insb, uncooled_lwir_microbolometer, paper_lwir_256.
+    #[arg(long, conflicts_with = "scenario")]
+    pub preset: Option<String>,
+    /// Or the `[sensor]` of a scenario file.
+    #[arg(long)]
+    pub scenario: Option<std::path::PathBuf>,
+    /// Scene temperature (a blackbody filling the view), K.
+    #[arg(long, default_value_t = 300.0, allow_negative_numbers = true)]
+    pub scene_temp_k: f64,
 }
 
 /// Flags of `calc band-radiance`.
@@ -206,6 +223,7 @@ pub struct SignalArgs {
 /// [`CliError::Invalid`] for an input out of range.
 pub fn run(cmd: &CalcCommand) -> Result<Value, CliError> {
     match cmd {
+        CalcCommand::Sensor(a) => sensor(a),
         CalcCommand::BandRadiance(a) => {
             let band = band_from(&a.band_um)?;
             finite("temp_k", a.temp_k, a.temp_k >= 0.0 && a.temp_k <= 1e6, "[0, 1e6]")?;
@@ -332,4 +350,43 @@ fn finite(name: &str, value: f64, ok: bool, range: &str) -> Result<(), CliError>
 
 fn invalid(e: impl std::fmt::Display) -> CliError {
     CliError::Invalid(e.to_string())
+}
+
+/// `calc sensor`: the resolved camera and its [`crate::physics::detector::SensorReport`].
+fn sensor(a: &SensorArgs) -> Result<Value, CliError> {
+    use crate::physics::detector::Preset;
+    finite("scene_temp_k", a.scene_temp_k, (100.0..=2000.0).contains(&a.scene_temp_k), "[100, 2000]")?;
+    let resolved = match (&a.preset, &a.scenario) {
+        (Some(name), None) => {
+            let Some(preset) = Preset::ALL.iter().copied().find(|p| p.name() == name) else {
+                let names: Vec<_> = Preset::ALL.iter().map(|p| p.name()).collect();
+                return Err(CliError::Invalid(format!("--preset `{name}` is not one of {}", names.join(", "))));
+            };
+            crate::scenario::SensorSpec { preset: Some(preset), ..Default::default() }
+                .resolve()
+                .map_err(|e| CliError::Invalid(format!("{}: {}", e.path, e.message)))?
+        }
+        (None, Some(path)) => crate::scenario::load(path).map_err(|e| CliError::Invalid(e.to_string()))?.sensor,
+        _ => return Err(CliError::Invalid("give --preset NAME or --scenario FILE".into())),
+    };
+    let m = &resolved.model;
+    let report = m.report(a.scene_temp_k);
+    Ok(json!({
+        "width": resolved.intrinsics.width,
+        "height": resolved.intrinsics.height,
+        "pixel_pitch_um": m.detector.pixel_pitch_m * 1e6,
+        "focal_length_mm": m.optics.focal_length_m * 1e3,
+        "aperture_mm": m.optics.aperture_m * 1e3,
+        "ifov_urad": resolved.intrinsics.pixel_pitch_m / resolved.intrinsics.focal_length_m * 1e6,
+        "band_um": [m.band.lo_um(), m.band.hi_um()],
+        "detector": format!("{:?}", m.detector.kind).to_lowercase(),
+        "optics_transmittance": m.optics.transmittance,
+        "fill_factor": m.detector.fill_factor,
+        "quantum_efficiency": m.detector.quantum_efficiency,
+        "integration_time_s": m.detector.integration_time_s,
+        "well_capacity_e": m.detector.well_capacity_e,
+        "bit_depth": m.adc.bit_depth,
+        "offset_dn": m.adc.offset_dn,
+        "report": report,
+    }))
 }

@@ -59,7 +59,7 @@ pub struct ValidateArgs {
 /// Kind of generated sky.
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum SkyKindArg {
-    /// Clear sky with the elevation gradient.
+    /// A clear sky with a faint haze texture.
     Clear,
     /// Broken cumulus.
     Cumulus,
@@ -71,7 +71,7 @@ pub struct SkyArgs {
     /// Kind of sky.
     #[arg(long, value_enum)]
     pub kind: SkyKindArg,
-    /// Output 16-bit PNG.
+    /// Output PNG (16-bit, brightness temperature at 0.01 K per level).
     #[arg(long)]
     pub out: PathBuf,
     /// Width, px.
@@ -83,16 +83,34 @@ pub struct SkyArgs {
     /// Seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Cloud cover, 0–1 (cumulus).
+    /// Cloud cover, [0, 1] (cumulus).
     #[arg(long, default_value_t = 0.45)]
     pub cover: f64,
+    /// Slope of the layer's power spectrum ([−3.06, −2.39] cumulus, [−4.5, −1.5] clear).
+    #[arg(long, default_value_t = -3.0, allow_negative_numbers = true)]
+    pub psd_slope: f64,
+    /// Largest features as a fraction of the width, (0, 1].
+    #[arg(long, default_value_t = 0.25)]
+    pub scale: f64,
     /// Elevation of the top row, degrees.
     #[arg(long, default_value_t = 12.0, allow_negative_numbers = true)]
     pub elevation_top_deg: f64,
     /// Elevation of the bottom row, degrees.
     #[arg(long, default_value_t = -2.0, allow_negative_numbers = true)]
     pub elevation_bottom_deg: f64,
-    /// Overwrite an existing file.
+    /// Spectral band, µm: LO HI.
+    #[arg(long, num_args = 2, value_names = ["LO", "HI"], default_values_t = [8.0, 12.0])]
+    pub band_um: Vec<f64>,
+    /// Observer altitude, m.
+    #[arg(long, default_value_t = 1000.0, allow_negative_numbers = true)]
+    pub altitude_m: f64,
+    /// Distance to the clouds, km.
+    #[arg(long, default_value_t = 8.0)]
+    pub cloud_range_km: f64,
+    /// Sea-level air temperature, K.
+    #[arg(long, default_value_t = 288.15)]
+    pub t0_k: f64,
+    /// Replace an existing file.
     #[arg(long)]
     pub force: bool,
 }
@@ -124,8 +142,8 @@ pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
         a.scenario.display(),
         s.spec.targets.len(),
         s.spec.run.frames,
-        s.spec.sensor.width,
-        s.spec.sensor.height,
+        s.sensor.intrinsics.width,
+        s.sensor.intrinsics.height,
         s.spec.run.frame_rate_hz
     );
     Ok(())
@@ -168,7 +186,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         "seed": seed,
         "options": { "noise": !a.no_noise, "vibration": !a.no_vibration, "format": a.format, "masks": a.masks },
     });
-    let max_level = scenario.spec.sensor.gray.max_level() as u16;
+    let max_level = scenario.sensor.model.adc.max_level() as u16;
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
     let mut rec = Recorder::new(&a.out, a.format, a.masks, max_level, threads, manifest, frames)
         .map_err(|e| CliError::Failed(e.to_string()))?;
@@ -239,38 +257,91 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
 /// [`CliError::Invalid`] for bad sizes or an existing file without --force; [`CliError::Failed`] on a write
 /// error.
 pub fn sky(a: &SkyArgs) -> Result<(), CliError> {
+    use crate::imaging::sky_field::RadianceLut;
+    use crate::physics::planck::{Band, Measure, brightness_temperature};
+    use crate::physics::sky::{Dome, DomeInputs, DomeSpec};
+    use crate::physics::transmittance::{PathTransmittance, Transmittance};
     if !(1..=16384).contains(&a.width) || !(1..=16384).contains(&a.height) {
         return Err(CliError::Invalid("--width and --height must be in 1 … 16384".into()));
-    }
-    if !(0.0..=1.0).contains(&a.cover) {
-        return Err(CliError::Invalid(format!("--cover {} must be in [0, 1]", a.cover)));
-    }
-    if a.out.exists() && !a.force {
-        return Err(CliError::Invalid(format!("{} exists; use --force to replace it", a.out.display())));
     }
     let kind = match a.kind {
         SkyKindArg::Clear => SkyKind::Clear,
         SkyKindArg::Cumulus => SkyKind::Cumulus,
     };
-    let spec = SkyGenSpec {
-        width: a.width,
-        height: a.height,
-        seed: a.seed,
-        cloud_cover: a.cover,
-        elevation_top_deg: a.elevation_top_deg,
-        elevation_bottom_deg: a.elevation_bottom_deg,
-        ..SkyGenSpec::new(kind)
+    let spec =
+        SkyGenSpec { seed: a.seed, cover: a.cover, psd_slope: a.psd_slope, scale: a.scale, ..SkyGenSpec::new(kind) };
+    spec.validate().map_err(|e| {
+        CliError::Invalid(format!("--{}: {} is outside {}", e.name.replace('_', "-"), e.value, e.range))
+    })?;
+    let (top, bottom) = (a.elevation_top_deg, a.elevation_bottom_deg);
+    if !(top.is_finite()
+        && bottom.is_finite()
+        && (-90.0..=90.0).contains(&top)
+        && (-90.0..=90.0).contains(&bottom)
+        && top > bottom)
+    {
+        return Err(CliError::Invalid(
+            "--elevation-top-deg must exceed --elevation-bottom-deg, both in [−90, 90]".into(),
+        ));
+    }
+    let band = match a.band_um.as_slice() {
+        [lo, hi] => Band::try_new(*lo, *hi).map_err(|e| CliError::Invalid(format!("--band-um: {e}")))?,
+        _ => return Err(CliError::Invalid("--band-um takes two values".into())),
     };
-    let data = generate(&spec);
-    let frame = Frame::from_pixels(a.width, a.height, data.iter().map(|&v| f32::from(v)).collect());
+    if !(a.altitude_m.is_finite() && (0.0..=20_000.0).contains(&a.altitude_m)) {
+        return Err(CliError::Invalid(format!("--altitude-m {} must be in [0, 20000]", a.altitude_m)));
+    }
+    if !(a.cloud_range_km.is_finite() && a.cloud_range_km > 0.0 && a.cloud_range_km <= 200.0) {
+        return Err(CliError::Invalid(format!("--cloud-range-km {} must be in (0, 200]", a.cloud_range_km)));
+    }
+    if !(a.t0_k.is_finite() && a.t0_k > 200.0 && a.t0_k < 330.0) {
+        return Err(CliError::Invalid(format!("--t0-k {} must be in (200, 330)", a.t0_k)));
+    }
+    if a.out.exists() && !a.force {
+        return Err(CliError::Invalid(format!("{} exists; use --force to replace it", a.out.display())));
+    }
+    let atmosphere = Transmittance::default();
+    let dome = Dome::new(&DomeInputs {
+        spec: DomeSpec::default(),
+        band,
+        measure: Measure::Energy,
+        observer_altitude_m: a.altitude_m,
+        t0_k: a.t0_k,
+        atmosphere: &atmosphere,
+    })
+    .map_err(|e| CliError::Invalid(format!("{}: {}", e.name, e.range)))?;
+    let lut = RadianceLut::new(band, Measure::Energy);
+    let layer = generate(&spec, a.width, a.height);
+    let air =
+        |z: f64| crate::physics::atmosphere::ambient_temperature_k(z.clamp(0.0, 80_000.0), a.t0_k).unwrap_or(a.t0_k);
+    let range_m = a.cloud_range_km * 1000.0;
+    let eye = glam::DVec3::new(0.0, 0.0, a.altitude_m);
+    let mut pixels = Vec::with_capacity(a.width * a.height);
+    for y in 0..a.height {
+        let e = (top + (bottom - top) * (y as f64 + 0.5) / a.height as f64).to_radians();
+        let dir = glam::DVec3::new(0.0, e.cos(), e.sin());
+        let clear = f64::from(dome.radiance_toward(dir));
+        let cloud_at = eye + dir * range_m;
+        let tau = atmosphere.along_segment(eye, cloud_at);
+        let path = (1.0 - tau) * lut.radiance(air(0.5 * (eye.z + cloud_at.z)));
+        for x in 0..a.width {
+            let i = y * a.width + x;
+            let alpha = f64::from(layer.opacity[i]);
+            let cloud = tau * lut.radiance(air(cloud_at.z) + f64::from(layer.temp_offset_k[i])) + path;
+            let l = alpha * cloud + (1.0 - alpha) * clear;
+            let t = brightness_temperature(Measure::Energy, band, l).unwrap_or(0.0);
+            pixels.push((t * 100.0).round() as f32);
+        }
+    }
+    let frame = Frame::from_pixels(a.width, a.height, pixels);
     let mut bytes = Vec::new();
     frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
     write_atomic(&a.out, &bytes).map_err(|e| CliError::Failed(e.to_string()))?;
     println!("{}", a.out.display());
+    println!("calibration = {{ mode = \"kelvin\", scale_k = 0.01 }}");
     Ok(())
 }
 
-/// Built-in benchmark scenarios: 256×256 with one target, 640×512 with eight.
 fn bench_scenario(width: u32, height: u32, targets: usize) -> String {
     let mut s = format!(
         r#"
@@ -282,6 +353,7 @@ seed = 1
 [sensor]
 width = {width}
 height = {height}
+preset = "paper_lwir_256"
 pixel_pitch_um = 17
 focal_length_mm = 100
 aperture_mm = 100
@@ -292,10 +364,10 @@ pointing = {{ mode = "look_at", target_m = [0, 30000, 7000] }}
 vibration = {{ amplitude_deg = 0.05, cutoff_hz = 5 }}
 [sky]
 image = "clear.png"
+calibration = {{ mode = "kelvin", scale_k = 0.01 }}
 anchor_m = [0, 30000, 6000]
 width_m = 4000
 height_m = 4000
-gray_gain = 0.5
 "#
     );
     for i in 0..targets {
@@ -349,11 +421,23 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     }
     let dir = std::env::temp_dir().join(format!("irsim-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| CliError::Failed(e.to_string()))?;
-    let sky = SkyGenSpec { width: 512, height: 512, ..SkyGenSpec::new(SkyKind::Clear) };
-    let frame = Frame::from_pixels(512, 512, generate(&sky).iter().map(|&v| f32::from(v)).collect());
-    let mut bytes = Vec::new();
-    frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
-    std::fs::write(dir.join("clear.png"), bytes).map_err(|e| CliError::Failed(e.to_string()))?;
+    sky(&SkyArgs {
+        kind: SkyKindArg::Clear,
+        out: dir.join("clear.png"),
+        width: 512,
+        height: 512,
+        seed: 1,
+        cover: 0.45,
+        psd_slope: -3.0,
+        scale: 0.25,
+        elevation_top_deg: 12.0,
+        elevation_bottom_deg: -2.0,
+        band_um: vec![8.0, 12.0],
+        altitude_m: 8000.0,
+        cloud_range_km: 30.0,
+        t0_k: 288.15,
+        force: true,
+    })?;
     for (w, h, n, recording) in [(256, 256, 1, false), (640, 512, 8, false), (256, 256, 1, true)] {
         let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
         std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;

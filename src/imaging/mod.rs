@@ -3,11 +3,15 @@
 //! Pure Rust, no Bevy. Geometry in f64; frame pixels in f32. Every kernel is plain data in, plain data out,
 //! and row-parallel kernels give the same result for any thread count.
 
+pub mod agc;
 pub mod camera;
 pub mod frame;
 pub mod fusion;
+pub mod psd;
 pub mod psf;
+pub mod sky_field;
 pub mod sky_gen;
 pub mod sky_plane;
 pub mod target_blob;
+pub mod target_psf;
 pub mod vibration;

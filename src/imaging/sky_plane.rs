@@ -144,8 +144,11 @@ pub enum Sampling {
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
 pub enum MissFill {
-    /// 0, as in the paper.
+    /// The clear sky and ground along the ray's own direction (the simulation fills these; a render marks
+    /// them NaN).
     #[default]
+    Dome,
+    /// 0, as in the paper.
     Zero,
     /// A constant value.
     Constant {
@@ -281,6 +284,7 @@ impl SkyPlane {
         let inside = p.x >= 0.0 && p.y >= 0.0 && p.x < w && p.y < h;
         if !inside {
             match fill {
+                MissFill::Dome => return f32::NAN,
                 MissFill::Zero => return 0.0,
                 MissFill::Constant { value } => return value,
                 MissFill::Edge => {}
@@ -441,6 +445,7 @@ impl RowGeometry {
         let d0 = self.base + self.dv * v + self.du * u0;
         let miss = match fill {
             MissFill::Constant { value } => value,
+            MissFill::Dome => f32::NAN,
             _ => 0.0,
         };
         let bilinear = !matches!(sampling, Sampling::Nearest);

@@ -271,9 +271,9 @@ impl SensorModel {
                 let t = d.integration_time_s;
                 require("integration_time_s", t, t > 0.0 && t <= 10.0, "(0, 10] s")?;
                 let w = d.well_capacity_e;
-                require("well_capacity_e", w, w >= 1.0 && w <= 1e12, "[1, 1e12]")?;
+                require("well_capacity_e", w, (1.0..=1e12).contains(&w), "[1, 1e12]")?;
                 let i = d.dark_current_e_s;
-                require("dark_current_e_s", i, i.is_finite() && i >= 0.0 && i <= 1e15, "[0, 1e15]")?;
+                require("dark_current_e_s", i, (0.0..=1e15).contains(&i), "[0, 1e15]")?;
             }
             DetectorKind::Thermal => {
                 let r = d.responsivity_v_per_w;
@@ -289,7 +289,7 @@ impl SensorModel {
         let mut model = Self { band, optics, detector, adc: resolved, read_noise: 0.0 };
         model.read_noise = match detector.noise {
             NoiseSpec::Read(s) => {
-                require("read_noise", s, s.is_finite() && s >= 0.0 && s < 1e15, "[0, 1e15)")?;
+                require("read_noise", s, (0.0..1e15).contains(&s), "[0, 1e15)")?;
                 s
             }
             NoiseSpec::Netd { netd_k, reference_temp_k: t } => {
@@ -450,6 +450,7 @@ pub enum Preset {
     /// An uncooled LWIR VOx microbolometer core: 640×512, 12 µm, F/1, 7.5–13.5 µm, NETD 40 mK at 300 K.
     UncooledLwirMicrobolometer,
     /// The paper's set-up: 256×256, 17 µm, a 50 mm F/1 lens, 8–12 µm, with an uncooled detector (NETD 50 mK).
+    #[serde(rename = "paper_lwir_256")]
     PaperLwir256,
 }
 

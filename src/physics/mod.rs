@@ -7,12 +7,14 @@ pub mod atmosphere;
 pub mod brdf;
 pub mod detector;
 pub mod noise;
+pub mod nonideal;
 pub mod planck;
 pub mod random;
 pub mod reflection;
 pub mod sensor;
 pub mod signal;
 pub mod skin;
+pub mod sky;
 pub mod transmittance;
 
 /// A parameter outside its allowed range: the error of every `validate` in the physics layer.

@@ -6,11 +6,12 @@
 //! 64-bit key from its frame's stream and gives each row its own fast generator hashed from that key and the row
 //! ([`super::random`]).
 //!
-//! A gray value `g` above the black level `g₀` stands for `N = (g − g₀)·k` photo-electrons (`k` electrons per
-//! gray level). The noisy value is `g₀ + Poisson(N)/k + σ·Z`. Poisson samples are exact (sequential-search
-//! inversion) for `N` below a threshold; above it the shot noise is drawn from the normal `N(N, N)`, and since
-//! the sum of two independent normals is normal, one draw of `N(0, N/k² + σ²)` gives shot and read noise
-//! together (the rounding to whole electrons, 1/12 electron² of variance, is dropped). That approximation
+//! Noise is counted in the detector's own unit, never in gray levels ([`Readout`]): a photon detector's mean
+//! signal of `N` electrons becomes `Poisson(N) + σ·Z` (shot and read noise), a thermal detector's `V + σ·Z`.
+//! Poisson samples are exact (sequential-search inversion, PTRS) for `N` below a threshold; above it the shot
+//! noise is drawn from the normal `N(N, N)`, and since the sum of two independent normals is normal, one draw of
+//! `N(0, N + σ²)` gives shot and read noise together (the rounding to whole electrons, 1/12 electron² of
+//! variance, is dropped). That approximation
 //! matches the mean exactly; its total-variation distance from the Poisson law (with rounding), computed
 //! exactly by [`normal_approximation_tv`] (test `normal_approximation_error_table`), is 0.040 at a mean of 10,
 //! 0.0126 at 100 (the default threshold), 0.0040 at 1000: about `0.126/√N`.
@@ -19,7 +20,6 @@ use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::random::{SplitMix64, Ziggurat};
-use serde::{Deserialize, Serialize};
 
 /// Identifiers of the stochastic stages; each keys its own random streams.
 pub mod stage {
@@ -31,6 +31,10 @@ pub mod stage {
     pub const SKY: u64 = 3;
     /// Scenario-level random choices (e.g. swarm layout).
     pub const SCENARIO: u64 = 4;
+    /// The camera's fixed-pattern noise, dead pixels, drift and column noise.
+    pub const FIXED_PATTERN: u64 = 5;
+    /// The tracking loop's pointing noise.
+    pub const TRACKING: u64 = 6;
 }
 
 /// A ChaCha8 generator for `(seed, stage, frame)`, sub-stream `substream`.
@@ -45,65 +49,67 @@ pub fn stream_rng(seed: u64, stage: u64, frame: u64, substream: u64) -> ChaCha8R
     rng
 }
 
-/// An invalid noise parameter: its name, value and allowed range.
-pub type NoiseError = super::ParamError;
-
-/// Shot and read noise of the sensor, in gray levels.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct NoiseModel {
-    /// Photo-electrons per gray level `k`; shot-noise variance in gray² is `(g − g₀)/k`. 0 turns shot noise off.
-    pub electrons_per_gray: f64,
-    /// Standard deviation of the Gaussian noise, gray levels.
-    pub read_noise_gray: f64,
-    /// Mean electron count above which Poisson samples come from the normal approximation.
-    pub poisson_normal_threshold: f64,
+/// The detector's readout for one frame: radiance in, digital numbers out (noise, saturation, ADC).
+///
+/// Per pixel: the mean signal `s = K·g(p)·L + D` (electrons or volts: `K` the signal per unit radiance on axis,
+/// `g(p)` the pixel's gain map — vignetting, gain non-uniformity, dead pixels — and `D` the dark signal); with
+/// noise, `s` plus Poisson shot noise (photon detectors) and Gaussian read noise; saturation at the full well;
+/// then `DN = offset + o(p) + s/gain` (`o(p)` the pixel's offset map in DN), rounded and clamped to the levels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Readout {
+    /// Signal (electrons or volts) per unit radiance on axis, `K`.
+    pub signal_per_radiance: f32,
+    /// Dark signal per frame, `D`.
+    pub dark_signal: f32,
+    /// Poisson shot noise on the signal (photon detectors, signal in electrons).
+    pub shot_noise: bool,
+    /// Read noise variance, signal units².
+    pub read_variance: f32,
+    /// Largest signal (the well); `f32::INFINITY` for none.
+    pub full_well: f32,
+    /// DN per signal unit, `1/gain`.
+    pub dn_per_signal: f32,
+    /// DN of zero signal this frame (the ADC offset plus any drift).
+    pub offset_dn: f32,
+    /// Mean electron count below which shot noise is an exact Poisson count.
+    pub poisson_normal_threshold: f32,
 }
 
-impl Default for NoiseModel {
-    fn default() -> Self {
-        Self { electrons_per_gray: 4.0, read_noise_gray: 2.0, poisson_normal_threshold: 100.0 }
-    }
+/// Optional per-pixel maps of the readout, row-major, the frame's size.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ReadoutMaps<'a> {
+    /// Gain `g(p)` multiplying the radiance (1 where absent).
+    pub gain: Option<&'a [f32]>,
+    /// Offset `o(p)` in DN (0 where absent).
+    pub offset_dn: Option<&'a [f32]>,
+    /// Per-column offset of this frame in DN, `width` long (0 where absent).
+    pub column_dn: Option<&'a [f32]>,
 }
 
-impl NoiseModel {
-    /// Checks the parameters.
-    ///
-    /// # Errors
-    /// [`NoiseError`] naming the first parameter out of range.
-    pub fn validate(&self) -> Result<(), NoiseError> {
-        let e = self.electrons_per_gray;
-        if !(e.is_finite() && e >= 0.0) {
-            return Err(NoiseError { name: "electrons_per_gray", value: e, range: "[0, ∞)".into() });
-        }
-        let s = self.read_noise_gray;
-        if !(s.is_finite() && s >= 0.0) {
-            return Err(NoiseError { name: "read_noise_gray", value: s, range: "[0, ∞)".into() });
-        }
-        let t = self.poisson_normal_threshold;
-        if !(0.0..=500.0).contains(&t) {
-            return Err(NoiseError { name: "poisson_normal_threshold", value: t, range: "[0, 500]".into() });
-        }
-        Ok(())
+impl Readout {
+    /// Mean DN of a pixel of radiance `radiance` with map values `gain`, `offset_dn`, before noise and rounding.
+    #[inline]
+    pub fn mean_dn(&self, radiance: f32, gain: f32, offset_dn: f32) -> f32 {
+        let s = (self.signal_per_radiance * gain * radiance + self.dark_signal).min(self.full_well);
+        self.offset_dn + offset_dn + s * self.dn_per_signal
     }
 
-    /// Adds noise to a row-major f32 frame of width `width`; row `r` draws from sub-stream `r` of
+    /// Temporal noise of a pixel of mean signal `signal`, in DN (shot and read noise).
+    pub fn noise_dn(&self, signal: f64) -> f64 {
+        let shot = if self.shot_noise { signal.max(0.0) } else { 0.0 };
+        (shot + f64::from(self.read_variance)).sqrt() * f64::from(self.dn_per_signal)
+    }
+
+    /// Replaces each radiance in `pixels` (row-major, `width` wide) by its DN: with noise if `noise`, rounded and
+    /// clamped to `[0, max_level]` if `max_level` is given. Row `r` draws from sub-streams of
     /// `(seed, SENSOR_NOISE, frame)`, so the result does not depend on how rows are scheduled.
-    pub fn apply(&self, pixels: &mut [f32], width: usize, black_level: f64, seed: u64, frame: u64) {
-        self.apply_and_quantize(pixels, width, black_level, seed, frame, None);
-    }
-
-    /// As [`NoiseModel::apply`], then, if `max_level` is given, rounds each value to the nearest level in
-    /// `[0, max_level]` (NaN → 0) in the same pass.
-    ///
-    /// Each row draws its normal deviates from a [`SplitMix64`] generator keyed by the frame's ChaCha8 stream
-    /// and the row (the 32-bit [`Ziggurat`], two deviates per 64-bit draw), and its exact Poisson counts from a
-    /// second such generator.
-    pub fn apply_and_quantize(
+    #[allow(clippy::too_many_arguments)]
+    pub fn apply(
         &self,
         pixels: &mut [f32],
         width: usize,
-        black_level: f64,
+        maps: ReadoutMaps<'_>,
+        noise: bool,
         seed: u64,
         frame: u64,
         max_level: Option<f32>,
@@ -116,104 +122,80 @@ impl NoiseModel {
         // rows in batches: one row is too little work to be worth a task
         let rows_per_task = (16_384 / width).max(1);
         pixels.par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(row, line)| {
-            self.apply_row(line, black_level, key, row as u64, max_level);
+            let span = row * width..(row + 1) * width;
+            let gain = maps.gain.map(|g| &g[span.clone()]);
+            let offset = maps.offset_dn.map(|o| &o[span]);
+            self.apply_row(line, gain, offset, maps.column_dn, noise, key, row as u64, max_level);
         });
     }
 
-    /// Noise for one row, then quantization if `max_level` is given: the normal deviates first, in blocks,
-    /// then a branch-free pass for the pixels on the normal path; blocks holding a pixel below the Poisson
-    /// threshold take the per-pixel path.
-    fn apply_row(&self, line: &mut [f32], black_level: f64, key: u64, row: u64, max_level: Option<f32>) {
+    /// One row: the mean signal in blocks, the normal deviates, a branch-free pass for blocks on the normal path
+    /// (or without noise), the per-pixel path where some pixel needs an exact Poisson count.
+    #[allow(clippy::too_many_arguments)]
+    fn apply_row(
+        &self,
+        line: &mut [f32],
+        gain: Option<&[f32]>,
+        offset: Option<&[f32]>,
+        columns: Option<&[f32]>,
+        noise: bool,
+        key: u64,
+        row: u64,
+        max_level: Option<f32>,
+    ) {
         const BLOCK: usize = 64;
-        if self.electrons_per_gray == 0.0 && self.read_noise_gray == 0.0 {
-            if let Some(top) = max_level {
-                quantize_row(line, top);
-            }
-            return;
-        }
+        const ONES: [f32; BLOCK] = [1.0; BLOCK];
+        const ZEROS: [f32; BLOCK] = [0.0; BLOCK];
+        let noisy = noise && (self.shot_noise || self.read_variance > 0.0);
         let zig = Ziggurat::get();
         let mut normals = SplitMix64::substream(key, 2 * row);
         let mut uniforms = SplitMix64::substream(key, 2 * row + 1);
         let mut z = [0f32; BLOCK];
-        let rule = PixelNoise::new(self, black_level);
-        for block in line.chunks_mut(BLOCK) {
-            let z = &mut z[..block.len()];
-            zig.fill(&mut normals, z);
-            if block.iter().fold(true, |all, &g| all & rule.on_normal_path(g)) {
-                for (g, &z) in block.iter_mut().zip(z.iter()) {
-                    *g = rule.normal(*g, z);
+        let threshold = if self.shot_noise { self.poisson_normal_threshold } else { f32::NEG_INFINITY };
+        for (b, block) in line.chunks_mut(BLOCK).enumerate() {
+            let n = block.len();
+            let at = b * BLOCK;
+            let g = gain.map_or(&ONES[..n], |g| &g[at..at + n]);
+            let o = offset.map_or(&ZEROS[..n], |o| &o[at..at + n]);
+            // mean signal
+            for (p, &g) in block.iter_mut().zip(g) {
+                *p = self.signal_per_radiance * g * *p + self.dark_signal;
+            }
+            if noisy {
+                let z = &mut z[..n];
+                zig.fill(&mut normals, z);
+                if block.iter().fold(true, |all, &s| all & (s >= threshold)) {
+                    let shot = if self.shot_noise { 1.0 } else { 0.0 };
+                    for (s, &z) in block.iter_mut().zip(z.iter()) {
+                        *s += (s.max(0.0) * shot + self.read_variance).sqrt() * z;
+                    }
+                } else {
+                    let sd_read = self.read_variance.sqrt();
+                    for (s, &z) in block.iter_mut().zip(z.iter()) {
+                        if *s >= threshold {
+                            *s += (s.max(0.0) + self.read_variance).sqrt() * z;
+                        } else {
+                            // exact Poisson shot noise, and the pixel's normal deviate for the read noise
+                            let count =
+                                poisson(f64::from(s.max(0.0)), f64::from(self.poisson_normal_threshold), &mut uniforms);
+                            *s = count as f32 + sd_read * z;
+                        }
+                    }
                 }
-            } else {
-                self.apply_mixed(&rule, block, z, black_level, &mut uniforms);
+            }
+            // saturation, ADC
+            for (p, &o) in block.iter_mut().zip(o) {
+                *p = self.offset_dn + o + p.min(self.full_well) * self.dn_per_signal;
+            }
+            if let Some(c) = columns {
+                for (p, &c) in block.iter_mut().zip(&c[at..at + n]) {
+                    *p += c;
+                }
             }
             if let Some(top) = max_level {
                 quantize_row(block, top);
             }
         }
-    }
-
-    /// The per-pixel path of [`NoiseModel::apply_and_quantize`] (`k > 0`): pixels below the Poisson threshold
-    /// get an exact count, the others the same normal draw as on the fast path.
-    fn apply_mixed(
-        &self,
-        rule: &PixelNoise,
-        block: &mut [f32],
-        z: &[f32],
-        black_level: f64,
-        uniforms: &mut SplitMix64,
-    ) {
-        let k = self.electrons_per_gray;
-        let sd_read = self.read_noise_gray as f32;
-        for (g, &z) in block.iter_mut().zip(z.iter()) {
-            if rule.on_normal_path(*g) {
-                *g = rule.normal(*g, z);
-            } else {
-                // exact Poisson shot noise, and the pixel's normal deviate for the read noise
-                let above = (*g - rule.black).max(0.0);
-                let count = poisson(f64::from(above) * k, self.poisson_normal_threshold, uniforms);
-                *g = (black_level + count / k) as f32 + sd_read * z;
-            }
-        }
-    }
-}
-
-/// A noise model's constants for one frame in f32, and its rule for pixels on the normal path.
-struct PixelNoise {
-    /// Black level `g₀`.
-    black: f32,
-    /// Electrons per gray `k`.
-    k: f32,
-    /// `1/k`, 0 without shot noise.
-    inv_k: f32,
-    /// Read-noise variance `σ²`.
-    read_var: f32,
-    /// Mean electron count from which shot noise is normal; −∞ without shot noise (f32 counts are exact to
-    /// 2⁻²⁴ relative, ample for this test).
-    threshold: f32,
-}
-
-impl PixelNoise {
-    fn new(model: &NoiseModel, black_level: f64) -> Self {
-        let k = model.electrons_per_gray;
-        Self {
-            black: black_level as f32,
-            k: k as f32,
-            inv_k: if k > 0.0 { (1.0 / k) as f32 } else { 0.0 },
-            read_var: (model.read_noise_gray * model.read_noise_gray) as f32,
-            threshold: if k > 0.0 { model.poisson_normal_threshold as f32 } else { f32::NEG_INFINITY },
-        }
-    }
-
-    /// Whether the mean electron count `max(g − g₀, 0)·k` reaches the threshold.
-    #[inline]
-    fn on_normal_path(&self, g: f32) -> bool {
-        (g - self.black).max(0.0) * self.k >= self.threshold
-    }
-
-    /// `g` plus shot and read noise as one normal draw `z`: variance `max(g − g₀, 0)/k + σ²` gray².
-    #[inline]
-    fn normal(&self, g: f32, z: f32) -> f32 {
-        g + ((g - self.black).max(0.0) * self.inv_k + self.read_var).sqrt() * z
     }
 }
 
@@ -484,16 +466,48 @@ mod tests {
         }
     }
 
+    fn readout() -> Readout {
+        Readout {
+            signal_per_radiance: 2.0,
+            dark_signal: 0.0,
+            shot_noise: true,
+            read_variance: 4.0,
+            full_well: f32::INFINITY,
+            dn_per_signal: 0.25,
+            offset_dn: 100.0,
+            poisson_normal_threshold: 100.0,
+        }
+    }
+
     #[test]
     fn row_parallel_noise_does_not_depend_on_thread_count() {
-        let model = NoiseModel::default();
+        let r = readout();
         let base: Vec<f32> = (0..64 * 48).map(|i| (i % 700) as f32).collect();
         let mut a = base.clone();
-        model.apply(&mut a, 64, 0.0, 11, 5);
+        r.apply(&mut a, 64, ReadoutMaps::default(), true, 11, 5, None);
         let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
         let mut b = base.clone();
-        pool.install(|| model.apply(&mut b, 64, 0.0, 11, 5));
+        pool.install(|| r.apply(&mut b, 64, ReadoutMaps::default(), true, 11, 5, None));
         assert_eq!(a, b);
-        assert_ne!(a, base);
+        let mut c = base.clone();
+        r.apply(&mut c, 64, ReadoutMaps::default(), false, 11, 5, None);
+        for (i, (&v, &l)) in c.iter().zip(&base).enumerate() {
+            assert_eq!(v, r.mean_dn(l, 1.0, 0.0), "pixel {i}");
+        }
+        assert_ne!(a, c);
+    }
+
+    #[test]
+    fn maps_and_saturation() {
+        let r = Readout { full_well: 1000.0, ..readout() };
+        let gain = vec![0.5f32; 8];
+        let offset = vec![3.0f32; 8];
+        let mut p = vec![100.0f32, 100.0, 100.0, 100.0, 1e6, 1e6, 0.0, 0.0];
+        let maps = ReadoutMaps { gain: Some(&gain), offset_dn: Some(&offset), column_dn: None };
+        r.apply(&mut p, 8, maps, false, 1, 1, Some(16_383.0));
+        // 2·0.5·100 = 100 e⁻ → 100 + 3 + 25 = 128 DN; saturated: 100 + 3 + 250 = 353 DN
+        assert_eq!(&p[..4], &[128.0; 4]);
+        assert_eq!(&p[4..6], &[353.0; 2]);
+        assert_eq!(&p[6..], &[103.0; 2]);
     }
 }

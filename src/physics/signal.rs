@@ -7,8 +7,9 @@ use serde::Serialize;
 use thiserror::Error;
 
 use super::ParamError;
+use super::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
 use super::brdf::CookTorrance;
-use super::planck::Band;
+use super::planck::{Band, Measure, band_radiance_in};
 use super::reflection::{ReflectionGeometry, ReflectionInput, SphereQuadrature, Sun, reflected_radiance};
 use super::sensor::{GrayMapping, Radiometer};
 use super::skin::{SkinError, StagnationModel, self_radiance, skin_temperatures};
@@ -160,6 +161,104 @@ pub fn ellipsoid_projected_area(semi_axes_m: DVec3, body_to_world: DMat3, d: DVe
     let d = body_to_world.transpose() * d.normalize_or_zero();
     let (a, b, c) = (semi_axes_m.x, semi_axes_m.y, semi_axes_m.z);
     std::f64::consts::PI * ((b * c * d.x).powi(2) + (a * c * d.y).powi(2) + (a * b * d.z).powi(2)).sqrt()
+}
+
+/// Everything the apparent radiance of a target needs besides the target.
+#[derive(Clone, Copy)]
+pub struct ApparentContext<'a> {
+    /// Sensor band.
+    pub band: Band,
+    /// The detector's measure (energy or photons).
+    pub measure: Measure,
+    /// Sea-level temperature for eq 2, K.
+    pub t0_k: f64,
+    /// Stagnation constants.
+    pub stagnation: StagnationModel,
+    /// The sun.
+    pub sun: Sun,
+    /// Atmospheric transmittance model.
+    pub atmosphere: &'a (dyn PathTransmittance + Sync),
+    /// Facet (paper) or ellipsoid-averaged reflection.
+    pub reflection: ReflectionGeometry,
+    /// Quadrature for the ellipsoid average.
+    pub quadrature: &'a SphereQuadrature,
+}
+
+/// A target's radiance at the sensor's aperture, in the detector's measure.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Apparent {
+    /// T∞ at the target's altitude, K.
+    pub ambient_temp_k: f64,
+    /// Skin temperature, K.
+    pub skin_temp_k: f64,
+    /// Self-emitted band radiance `ε·L(T_skin)`, in the measure.
+    pub self_radiance: f64,
+    /// Reflected sun radiance, in the measure.
+    pub reflected_radiance: f64,
+    /// Transmittance of the path target → sensor.
+    pub tau: f64,
+    /// Radiance the path itself adds, `(1 − τ)·L(T∞(mid-path))`, in the measure.
+    pub path_radiance: f64,
+    /// `τ·(self + reflected) + path`: what a pixel filled by the target receives, in the measure.
+    pub apparent_radiance: f64,
+    /// Range, m.
+    pub range_m: f64,
+}
+
+/// The radiance a pixel filled by the target receives (eqs 1–3, 9–10 and the path), in the detector's measure.
+///
+/// The reflected sun term is computed in energy (eq 9) and converted with the sun's photon-to-energy ratio in
+/// the band, exact because the BRDF is grey. The path emits at the air temperature of its middle height.
+///
+/// # Errors
+/// [`SignalError`] for an out-of-range altitude, Mach number, material or transmittance parameter, or a target
+/// at the sensor's position.
+pub fn apparent_radiance(
+    target: &TargetState,
+    sensor_m: DVec3,
+    ctx: &ApparentContext<'_>,
+) -> Result<Apparent, SignalError> {
+    target.brdf.validate()?;
+    let temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
+    let l_self = band_radiance_in(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
+    let line = sensor_m - target.position_m;
+    let range_m = line.length();
+    if !(range_m > 0.0) || !range_m.is_finite() {
+        return Err(SignalError::Geometry(format!("range {range_m} m between sensor and target must be > 0")));
+    }
+    let to_viewer = line / range_m;
+    let sun_tau = ctx.atmosphere.to_space(target.position_m, ctx.sun.direction());
+    let input =
+        ReflectionInput { brdf: &target.brdf, sun: &ctx.sun, band: ctx.band, sun_transmittance: sun_tau, to_viewer };
+    let l_re_energy =
+        reflected_radiance(&input, ctx.reflection, Some((target.semi_axes_m, target.attitude, ctx.quadrature)));
+    let l_re = match ctx.measure {
+        Measure::Energy => l_re_energy,
+        Measure::Photon => {
+            let e = band_radiance_in(Measure::Energy, ctx.band, ctx.sun.temp_k, 1.0);
+            if e > 0.0 {
+                l_re_energy * band_radiance_in(Measure::Photon, ctx.band, ctx.sun.temp_k, 1.0) / e
+            } else {
+                0.0
+            }
+        }
+    };
+    let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m).clamp(0.0, 1.0);
+    let mid_z = 0.5 * (target.position_m.z + sensor_m.z);
+    let t_mid = ambient_temperature_k(mid_z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), ctx.t0_k)
+        .map_err(|e| SignalError::Skin(SkinError::from(e)))?;
+    let path_radiance = (1.0 - tau) * band_radiance_in(ctx.measure, ctx.band, t_mid, 1.0);
+    Ok(Apparent {
+        ambient_temp_k: temps.ambient_temp_k,
+        skin_temp_k: temps.skin_temp_k,
+        self_radiance: l_self,
+        reflected_radiance: l_re,
+        tau,
+        path_radiance,
+        apparent_radiance: tau * (l_self + l_re) + path_radiance,
+        range_m,
+    })
 }
 
 /// A convenience context holder with owned parts, for callers that build one from flags or a scenario.

@@ -100,17 +100,23 @@ pub fn load_str(text: &str, format: Format, source: &Path, base_dir: &Path) -> R
             }
         })?,
     };
-    let (observer_trajectory, target_trajectories, sky_image) =
-        spec.check(base_dir).map_err(|FieldError { path, message }| {
-            let (line, column) = match format {
-                Format::Toml => locate_toml(text, &path),
-                Format::Json => locate_json(text, &path),
-            }
-            .map(|o| line_col(text, o))
-            .unwrap_or((0, 0));
-            ScenarioError { file: file.clone(), line, column, field: path, message }
-        })?;
-    Ok(CheckedScenario { spec, source: PathBuf::from(source), observer_trajectory, target_trajectories, sky_image })
+    let checked = spec.check(base_dir).map_err(|FieldError { path, message }| {
+        let (line, column) = match format {
+            Format::Toml => locate_toml(text, &path),
+            Format::Json => locate_json(text, &path),
+        }
+        .map(|o| line_col(text, o))
+        .unwrap_or((0, 0));
+        ScenarioError { file: file.clone(), line, column, field: path, message }
+    })?;
+    Ok(CheckedScenario {
+        spec,
+        source: PathBuf::from(source),
+        observer_trajectory: checked.observer,
+        target_trajectories: checked.targets,
+        sky_image: checked.sky_image,
+        sensor: checked.sensor,
+    })
 }
 
 /// 1-based line and column of byte `offset`.
@@ -233,7 +239,7 @@ pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
     #[test]
     fn minimal_scenario_loads() {
         let s = load_toml(MINIMAL).unwrap();
-        assert_eq!(s.spec.sensor.width, 64);
+        assert_eq!(s.sensor.intrinsics.width, 64);
         assert_eq!(s.spec.run.frames, 100);
     }
 
@@ -248,12 +254,12 @@ pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
 
     #[test]
     fn semantic_error_is_located() {
-        let text = format!("{MINIMAL}\n[sensor.gray]\nv_low = 2.0\nv_high = 1.0\n");
-        // [sensor.gray] after [observer] is still valid TOML
+        let text = format!("{MINIMAL}\n[sensor.adc]\nnoise_dn = 2.0\nbit_depth = 40\n");
+        // [sensor.adc] after [observer] is still valid TOML
         let e = load_toml(&text).unwrap_err();
-        assert_eq!(e.field, "sensor.gray.v_high", "{e}");
+        assert_eq!(e.field, "sensor.adc.bit_depth", "{e}");
         assert_eq!(e.line, 16, "{e}");
-        assert!(e.to_string().starts_with("s.toml:16:1: field `sensor.gray.v_high`"), "{e}");
+        assert!(e.to_string().starts_with("s.toml:16:1: field `sensor.adc.bit_depth`"), "{e}");
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! `docs/scenarios.md`.
 
 pub mod load;
+pub mod sensor;
 pub mod trajectory;
 
 use std::path::{Path, PathBuf};
@@ -12,19 +13,21 @@ use std::path::{Path, PathBuf};
 use glam::{DVec2, DVec3};
 use serde::{Deserialize, Serialize};
 
-use crate::imaging::camera::{Intrinsics, YawPitchRoll};
+use serde::de::IgnoredAny;
+
+use crate::imaging::camera::YawPitchRoll;
 use crate::imaging::fusion::{Guidance, Solver};
+use crate::imaging::sky_field::SkyCalibration;
+use crate::imaging::sky_gen::SkyGenSpec;
 use crate::imaging::sky_plane::{MissFill, Sampling, SkyPlacement};
-use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::vibration::VibrationSpec;
 use crate::physics::brdf::CookTorrance;
-use crate::physics::noise::NoiseModel;
-use crate::physics::planck::Band;
 use crate::physics::reflection::{ReflectionGeometry, Sun};
-use crate::physics::sensor::{GrayMapping, Radiometer};
 use crate::physics::skin::StagnationModel;
+use crate::physics::sky::DomeSpec;
 use crate::physics::transmittance::Transmittance;
 pub use load::{ScenarioError, load, load_str};
+pub use sensor::{BlobSpec, ResolvedSensor, SensorSpec, TargetModel};
 use trajectory::{Trajectory, TrajectorySpec};
 
 /// A whole scenario file.
@@ -44,9 +47,9 @@ pub struct Scenario {
     pub sensor: SensorSpec,
     /// The camera's platform: trajectory, pointing, vibration.
     pub observer: ObserverSpec,
-    /// The sky image placed in the world; without it the background is uniform at `sensor.gray.g_min`.
+    /// The sky: the clear-sky dome, and an image or a generated cloud layer placed in the world.
     #[serde(default)]
-    pub sky: Option<SkySpec>,
+    pub sky: SkySpec,
     /// Air temperature and transmittance.
     #[serde(default)]
     pub atmosphere: AtmosphereSpec,
@@ -59,6 +62,24 @@ pub struct Scenario {
     /// The aircraft.
     #[serde(default)]
     pub targets: Vec<TargetSpec>,
+    /// What the labels call detectable.
+    #[serde(default)]
+    pub labels: LabelsSpec,
+}
+
+/// `[labels]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LabelsSpec {
+    /// A target in the frame is `detectable` when its SNR (peak signal over the temporal noise at its
+    /// background) is at least this.
+    pub detectable_snr: f64,
+}
+
+impl Default for LabelsSpec {
+    fn default() -> Self {
+        Self { detectable_snr: 3.0 }
+    }
 }
 
 /// Frame rate, count and seed.
@@ -81,133 +102,6 @@ impl Default for RunSpec {
     }
 }
 
-/// The camera: geometry, radiometry, electronics.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SensorSpec {
-    /// Image width, px.
-    pub width: u32,
-    /// Image height, px.
-    pub height: u32,
-    /// Pixel pitch, µm.
-    pub pixel_pitch_um: f64,
-    /// Focal length, mm.
-    pub focal_length_mm: f64,
-    /// Aperture diameter, mm.
-    pub aperture_mm: f64,
-    /// Spectral band, µm.
-    pub band_um: Band,
-    /// Optics transmittance.
-    #[serde(default = "default_optics_transmittance")]
-    pub optics_transmittance: f64,
-    /// Responsivity, V/W.
-    #[serde(default = "default_responsivity")]
-    pub responsivity_v_per_w: f64,
-    /// Photosensitive fraction of the pixel.
-    #[serde(default = "one")]
-    pub detector_fill: f64,
-    /// Gray mapping (eqs 14–15) and bit depth.
-    #[serde(default)]
-    pub gray: GrayMapping,
-    /// Sensor noise.
-    #[serde(default)]
-    pub noise: NoiseSpec,
-    /// How targets are drawn.
-    #[serde(default)]
-    pub blob: BlobSpec,
-}
-
-fn default_optics_transmittance() -> f64 {
-    0.8
-}
-fn default_responsivity() -> f64 {
-    1e8
-}
-fn one() -> f64 {
-    1.0
-}
-
-/// Sensor noise, with a switch.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct NoiseSpec {
-    /// Add noise at all.
-    pub enabled: bool,
-    /// Photo-electrons per gray level (shot noise); 0 turns it off.
-    pub electrons_per_gray: f64,
-    /// Gaussian noise, gray levels.
-    pub read_noise_gray: f64,
-    /// Mean electron count above which Poisson samples use the normal approximation.
-    pub poisson_normal_threshold: f64,
-}
-
-impl Default for NoiseSpec {
-    fn default() -> Self {
-        let m = NoiseModel::default();
-        Self {
-            enabled: true,
-            electrons_per_gray: m.electrons_per_gray,
-            read_noise_gray: m.read_noise_gray,
-            poisson_normal_threshold: m.poisson_normal_threshold,
-        }
-    }
-}
-
-impl NoiseSpec {
-    /// The noise model.
-    pub fn model(&self) -> NoiseModel {
-        NoiseModel {
-            electrons_per_gray: self.electrons_per_gray,
-            read_noise_gray: self.read_noise_gray,
-            poisson_normal_threshold: self.poisson_normal_threshold,
-        }
-    }
-}
-
-/// How targets are drawn (eq 11).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct BlobSpec {
-    /// Minimum blur (optics point spread), px.
-    pub min_blur_px: f64,
-    /// Shape exponent β (2 = Gaussian).
-    pub beta: f64,
-    /// The region of interest ends where the blob falls below this fraction of its peak.
-    pub roi_fraction: f64,
-    /// Pixel sampling.
-    pub sampling: BlobSampling,
-}
-
-impl Default for BlobSpec {
-    fn default() -> Self {
-        Self { min_blur_px: 0.7, beta: 2.0, roi_fraction: 1e-3, sampling: BlobSampling::Auto }
-    }
-}
-
-impl SensorSpec {
-    /// Camera intrinsics.
-    pub fn intrinsics(&self) -> Intrinsics {
-        Intrinsics {
-            width: self.width,
-            height: self.height,
-            focal_length_m: self.focal_length_mm * 1e-3,
-            pixel_pitch_m: self.pixel_pitch_um * 1e-6,
-        }
-    }
-
-    /// Optics and detector for eq 13.
-    pub fn radiometer(&self) -> Radiometer {
-        Radiometer {
-            aperture_m: self.aperture_mm * 1e-3,
-            focal_length_m: self.focal_length_mm * 1e-3,
-            pixel_pitch_m: self.pixel_pitch_um * 1e-6,
-            detector_fill: self.detector_fill,
-            optics_transmittance: self.optics_transmittance,
-            responsivity_v_per_w: self.responsivity_v_per_w,
-        }
-    }
-}
-
 /// Where the camera points.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "mode", rename_all = "snake_case", deny_unknown_fields)]
@@ -220,13 +114,20 @@ pub enum Pointing {
         #[serde(default)]
         roll_deg: f64,
     },
-    /// At a named target's position each frame.
+    /// At a named target, through a tracking loop: aimed at where the target was `lag_s` ago, plus seeded
+    /// pointing noise.
     Track {
         /// The target's name.
         target: String,
         /// Roll about the optical axis, degrees.
         #[serde(default)]
         roll_deg: f64,
+        /// Delay of the tracking loop, s.
+        #[serde(default = "default_track_lag")]
+        lag_s: f64,
+        /// Rms pointing noise per axis, µrad (white from frame to frame).
+        #[serde(default = "default_track_noise")]
+        noise_urad: f64,
     },
     /// A fixed attitude.
     YawPitchRoll(YawPitchRoll),
@@ -239,6 +140,13 @@ pub enum Pointing {
         #[serde(default)]
         pitch_offset_deg: f64,
     },
+}
+
+fn default_track_lag() -> f64 {
+    0.05
+}
+fn default_track_noise() -> f64 {
+    30.0
 }
 
 /// The camera's platform.
@@ -254,24 +162,41 @@ pub struct ObserverSpec {
     pub vibration: VibrationSpec,
 }
 
-/// The sky image and its placement (paper III.B).
+/// The sky (paper III.B, as radiance): the clear-sky dome, and optionally an image or a generated cloud layer
+/// placed as a plane in the world.
 ///
 /// The placement fields repeat [`SkyPlacement`]'s ([`SkySpec::placement`] converts): serde's `flatten` cannot be
 /// combined with `deny_unknown_fields`, which every scenario table uses.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SkySpec {
-    /// Image file, relative to the scenario file.
-    pub image: String,
+    /// Image file, relative to the scenario file (needs `calibration`).
+    #[serde(default)]
+    pub image: Option<String>,
+    /// How the image's values become radiance.
+    #[serde(default)]
+    pub calibration: Option<SkyCalibration>,
+    /// A generated cloud or haze layer instead of an image.
+    #[serde(default)]
+    pub generate: Option<SkyGenSpec>,
+    /// Cloud-base temperature of a generated layer relative to the air at its height, K.
+    #[serde(default)]
+    pub cloud_offset_k: f64,
+    /// Largest side of a generated layer, texels (its resolution follows the sensor's footprint up to this).
+    #[serde(default = "default_max_texels")]
+    pub max_texels: usize,
     /// World position of the anchor point P, m.
-    pub anchor_m: DVec3,
+    #[serde(default)]
+    pub anchor_m: Option<DVec3>,
     /// Image coordinates of P, px; default the image centre.
     #[serde(default)]
     pub anchor_px: Option<DVec2>,
     /// Width of the image in the world, m.
-    pub width_m: f64,
+    #[serde(default)]
+    pub width_m: Option<f64>,
     /// Height of the image in the world, m.
-    pub height_m: f64,
+    #[serde(default)]
+    pub height_m: Option<f64>,
     /// Plane normal toward the camera; default vertical, facing the observer's start.
     #[serde(default)]
     pub normal: Option<DVec3>,
@@ -281,28 +206,40 @@ pub struct SkySpec {
     /// Sampling of the image.
     #[serde(default)]
     pub sampling: Sampling,
-    /// What rays that miss the image get.
+    /// What rays that miss the image get (default: the dome along the ray).
     #[serde(default)]
     pub miss: MissFill,
-    /// Sensor gray = `gray_offset + gray_gain · image value`.
-    #[serde(default = "one")]
-    pub gray_gain: f64,
-    /// See `gray_gain`.
+    /// The clear sky and the ground.
     #[serde(default)]
-    pub gray_offset: f64,
+    pub dome: DomeSpec,
+    /// Removed: see `calibration`.
+    #[serde(default, skip_serializing)]
+    pub gray_gain: Option<IgnoredAny>,
+    /// Removed: see `calibration`.
+    #[serde(default, skip_serializing)]
+    pub gray_offset: Option<IgnoredAny>,
+}
+
+fn default_max_texels() -> usize {
+    4096
 }
 
 impl SkySpec {
-    /// The placement part.
-    pub fn placement(&self) -> SkyPlacement {
-        SkyPlacement {
-            anchor_m: self.anchor_m,
+    /// The placement part, if the anchor and size are given.
+    pub fn placement(&self) -> Option<SkyPlacement> {
+        Some(SkyPlacement {
+            anchor_m: self.anchor_m?,
             anchor_px: self.anchor_px,
-            width_m: self.width_m,
-            height_m: self.height_m,
+            width_m: self.width_m?,
+            height_m: self.height_m?,
             normal: self.normal,
             up: self.up,
-        }
+        })
+    }
+
+    /// True if an image or a generated layer is placed in the world.
+    pub fn has_layer(&self) -> bool {
+        self.image.is_some() || self.generate.is_some()
     }
 }
 
@@ -391,6 +328,21 @@ pub struct CheckedScenario {
     pub target_trajectories: Vec<Trajectory>,
     /// Resolved sky image path.
     pub sky_image: Option<PathBuf>,
+    /// The sensor with the preset and overrides resolved.
+    pub sensor: ResolvedSensor,
+}
+
+/// What [`Scenario::check`] builds.
+#[derive(Debug, Clone)]
+pub struct Checked {
+    /// Observer trajectory.
+    pub observer: Trajectory,
+    /// Target trajectories, in order.
+    pub targets: Vec<Trajectory>,
+    /// Resolved sky image path.
+    pub sky_image: Option<PathBuf>,
+    /// The resolved sensor.
+    pub sensor: ResolvedSensor,
 }
 
 impl Scenario {
@@ -398,7 +350,7 @@ impl Scenario {
     ///
     /// # Errors
     /// The first [`FieldError`] found.
-    pub fn check(&self, base_dir: &Path) -> Result<(Trajectory, Vec<Trajectory>, Option<PathBuf>), FieldError> {
+    pub fn check(&self, base_dir: &Path) -> Result<Checked, FieldError> {
         let r = &self.run;
         if !(r.frame_rate_hz.is_finite() && r.frame_rate_hz > 0.0 && r.frame_rate_hz <= 100_000.0) {
             return Err(fe("run.frame_rate_hz", format!("{} must be in (0, 100000]", r.frame_rate_hz)));
@@ -409,48 +361,12 @@ impl Scenario {
         if r.frames == 0 || r.frames > 100_000_000 {
             return Err(fe("run.frames", format!("{} must be in 1 … 100000000", r.frames)));
         }
-        let s = &self.sensor;
-        Intrinsics::try_new(s.width, s.height, s.focal_length_mm * 1e-3, s.pixel_pitch_um * 1e-6).map_err(|e| {
-            let name = match &e {
-                crate::imaging::camera::CameraError::OutOfRange { name, .. } => match *name {
-                    "focal_length_m" => "focal_length_mm",
-                    "pixel_pitch_m" => "pixel_pitch_um",
-                    other => other,
-                },
-                _ => "width",
-            };
-            fe(format!("sensor.{name}"), e)
-        })?;
-        s.radiometer().validate().map_err(|e| {
-            let name = match e.name {
-                "aperture_m" => "aperture_mm",
-                "focal_length_m" => "focal_length_mm",
-                "pixel_pitch_m" => "pixel_pitch_um",
-                other => other,
-            };
-            fe(format!("sensor.{name}"), format!("{} is outside its allowed range {}", e.value, e.range))
-        })?;
-        s.gray
-            .validate()
-            .map_err(|e| fe(format!("sensor.gray.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
-        s.noise
-            .model()
-            .validate()
-            .map_err(|e| fe(format!("sensor.noise.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
-        let b = &s.blob;
-        if !(b.min_blur_px.is_finite() && (0.0..=100.0).contains(&b.min_blur_px)) {
-            return Err(fe("sensor.blob.min_blur_px", format!("{} must be in [0, 100]", b.min_blur_px)));
-        }
-        if !(b.beta.is_finite() && (0.1..=1000.0).contains(&b.beta)) {
-            return Err(fe("sensor.blob.beta", format!("{} must be in [0.1, 1000]", b.beta)));
-        }
-        if !(b.roi_fraction > 0.0 && b.roi_fraction < 1.0) {
-            return Err(fe("sensor.blob.roi_fraction", format!("{} must be in (0, 1)", b.roi_fraction)));
-        }
-        if let BlobSampling::Integrated { n } = b.sampling
-            && !(1..=16).contains(&n)
-        {
-            return Err(fe("sensor.blob.sampling.n", format!("{n} must be in 1 … 16")));
+        let sensor = self.sensor.resolve()?;
+        if !(self.labels.detectable_snr.is_finite() && self.labels.detectable_snr >= 0.0) {
+            return Err(fe(
+                "labels.detectable_snr",
+                format!("{} must be a finite number ≥ 0", self.labels.detectable_snr),
+            ));
         }
 
         let observer = self
@@ -468,12 +384,18 @@ impl Scenario {
                     return Err(fe("observer.pointing.roll_deg", "must be finite"));
                 }
             }
-            Pointing::Track { target, roll_deg } => {
+            Pointing::Track { target, roll_deg, lag_s, noise_urad } => {
                 if !self.targets.iter().any(|t| &t.name == target) {
                     return Err(fe("observer.pointing.target", format!("no target named `{target}`")));
                 }
                 if !roll_deg.is_finite() {
                     return Err(fe("observer.pointing.roll_deg", "must be finite"));
+                }
+                if !(lag_s.is_finite() && (0.0..=10.0).contains(lag_s)) {
+                    return Err(fe("observer.pointing.lag_s", format!("{lag_s} must be in [0, 10] s")));
+                }
+                if !(noise_urad.is_finite() && (0.0..=1e5).contains(noise_urad)) {
+                    return Err(fe("observer.pointing.noise_urad", format!("{noise_urad} must be in [0, 1e5] µrad")));
                 }
             }
             Pointing::YawPitchRoll(a) => {
@@ -490,36 +412,80 @@ impl Scenario {
             }
         }
 
-        let sky_image = match &self.sky {
-            None => None,
-            Some(sky) => {
-                if !sky.anchor_m.is_finite() {
-                    return Err(fe("sky.anchor_m", "must be finite"));
-                }
-                for (n, v) in [("width_m", sky.width_m), ("height_m", sky.height_m)] {
-                    if !(v.is_finite() && v > 0.0) {
+        let sky = &self.sky;
+        if sky.gray_gain.is_some() || sky.gray_offset.is_some() {
+            let which = if sky.gray_gain.is_some() { "gray_gain" } else { "gray_offset" };
+            return Err(fe(
+                format!("sky.{which}"),
+                "was removed: the sky is now radiance; give `calibration = { mode = \"temperature\", \
+                 value_range = [lo, hi], temp_range_k = [t_lo, t_hi] }` (the image values' brightness \
+                 temperatures in the band) or `{ mode = \"kelvin\", scale_k = … }` (docs/scenarios.md, \"Migrating\")",
+            ));
+        }
+        sky.dome
+            .validate()
+            .map_err(|e| fe(format!("sky.dome.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+        if sky.image.is_some() && sky.generate.is_some() {
+            return Err(fe("sky.generate", "give either `image` or `generate`, not both"));
+        }
+        if let Some(g) = &sky.generate {
+            g.validate()
+                .map_err(|e| fe(format!("sky.generate.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+        }
+        if !(sky.cloud_offset_k.is_finite() && (-100.0..=100.0).contains(&sky.cloud_offset_k)) {
+            return Err(fe("sky.cloud_offset_k", format!("{} must be in [−100, 100] K", sky.cloud_offset_k)));
+        }
+        if sky.generate.is_some() && !(16..=8192).contains(&sky.max_texels) {
+            return Err(fe("sky.max_texels", format!("{} must be in 16 … 8192", sky.max_texels)));
+        }
+        if let Some(c) = &sky.calibration {
+            c.validate().map_err(|(f, m)| fe(format!("sky.calibration.{f}"), m))?;
+        }
+        let sky_image = if sky.has_layer() {
+            let Some(anchor) = sky.anchor_m else {
+                return Err(fe("sky.anchor_m", "is required with `image` or `generate`"));
+            };
+            if !anchor.is_finite() {
+                return Err(fe("sky.anchor_m", "must be finite"));
+            }
+            for (n, v) in [("width_m", sky.width_m), ("height_m", sky.height_m)] {
+                match v {
+                    None => return Err(fe(format!("sky.{n}"), "is required with `image` or `generate`")),
+                    Some(v) if !(v.is_finite() && v > 0.0) => {
                         return Err(fe(format!("sky.{n}"), format!("{v} must be a finite number > 0")));
                     }
+                    _ => {}
                 }
-                if !(sky.gray_gain.is_finite() && sky.gray_offset.is_finite()) {
-                    return Err(fe("sky.gray_gain", "gain and offset must be finite"));
-                }
-                if let Sampling::Supersample { n } = sky.sampling
-                    && !(1..=16).contains(&n)
-                {
-                    return Err(fe("sky.sampling.n", format!("{n} must be in 1 … 16")));
-                }
-                if let Some(n) = sky.normal
-                    && (!n.is_finite() || n.length() == 0.0)
-                {
-                    return Err(fe("sky.normal", "must be a finite, non-zero vector"));
-                }
-                let path = base_dir.join(&sky.image);
-                if !path.is_file() {
-                    return Err(fe("sky.image", format!("file not found: {}", path.display())));
-                }
-                Some(path)
             }
+            if let Sampling::Supersample { n } = sky.sampling
+                && !(1..=16).contains(&n)
+            {
+                return Err(fe("sky.sampling.n", format!("{n} must be in 1 … 16")));
+            }
+            if let Some(n) = sky.normal
+                && (!n.is_finite() || n.length() == 0.0)
+            {
+                return Err(fe("sky.normal", "must be a finite, non-zero vector"));
+            }
+            match &sky.image {
+                Some(image) => {
+                    if sky.calibration.is_none() {
+                        return Err(fe(
+                            "sky.calibration",
+                            "is required with `image`: say what the values mean, e.g. `{ mode = \"temperature\", \
+                             value_range = [0, 65535], temp_range_k = [220, 290] }`",
+                        ));
+                    }
+                    let path = base_dir.join(image);
+                    if !path.is_file() {
+                        return Err(fe("sky.image", format!("file not found: {}", path.display())));
+                    }
+                    Some(path)
+                }
+                None => None,
+            }
+        } else {
+            None
         };
 
         let a = &self.atmosphere;
@@ -579,6 +545,6 @@ impl Scenario {
                 .validate()
                 .map_err(|e| fe(format!("{p}.brdf.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
         }
-        Ok((observer, trajectories, sky_image))
+        Ok(Checked { observer, targets: trajectories, sky_image, sensor })
     }
 }

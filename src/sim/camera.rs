@@ -4,8 +4,11 @@ use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
-use super::{Aim, Aircraft, CameraPose, Kinematics, Observer, Shake, SimClock, VibrationSystems};
-use crate::imaging::camera::{Camera, Intrinsics, YawPitchRoll};
+use super::{
+    Aim, Aircraft, CameraPose, FlightPath, Kinematics, Observer, Shake, SimClock, SimSettings, VibrationSystems,
+};
+use crate::imaging::camera::{Camera, Intrinsics, Jitter, YawPitchRoll};
+use crate::physics::noise::{stage, standard_normal, stream_rng};
 use crate::scenario::Pointing;
 
 /// Points and shakes the camera.
@@ -20,8 +23,9 @@ impl Plugin for CameraPlugin {
 /// Computes the steady camera from the pointing mode, then applies this frame's jitter.
 pub fn shake_camera(
     clock: Res<SimClock>,
+    settings: Res<SimSettings>,
     mut observer: Query<(&Kinematics, &Aim, &Shake, &mut CameraPose), With<Observer>>,
-    targets: Query<(&Aircraft, &Kinematics), Without<Observer>>,
+    targets: Query<(&Aircraft, &Kinematics, &FlightPath), Without<Observer>>,
 ) {
     let Ok((kin, aim, shake, mut pose)) = observer.single_mut() else { return };
     let intrinsics: Intrinsics = pose.steady.intrinsics;
@@ -32,9 +36,21 @@ pub fn shake_camera(
     };
     let steady = match &aim.0 {
         Pointing::LookAt { target_m, roll_deg } => look_at(*target_m, *roll_deg),
-        Pointing::Track { target, roll_deg } => {
-            let p = targets.iter().find(|(a, _)| &a.name == target).map_or(eye + glam::DVec3::Y, |(_, k)| k.position_m);
-            look_at(p, *roll_deg)
+        Pointing::Track { target, roll_deg, lag_s, noise_urad } => {
+            // the loop aims where the target was `lag_s` ago, plus white pointing noise per frame
+            let t = clock.t_s();
+            let p = targets.iter().find(|(a, _, _)| &a.name == target).map_or(eye + glam::DVec3::Y, |(_, k, path)| {
+                if *lag_s > 0.0 { path.0.state(t - lag_s).0 } else { k.position_m }
+            });
+            let cam = look_at(p, *roll_deg);
+            if *noise_urad > 0.0 {
+                let mut rng = stream_rng(settings.seed, stage::TRACKING, clock.frame, 0);
+                let s = noise_urad * 1e-6;
+                let (yaw, pitch) = (standard_normal(&mut rng) * s, standard_normal(&mut rng) * s);
+                cam.jittered(Jitter { x_rad: pitch, y_rad: yaw, z_rad: 0.0 })
+            } else {
+                cam
+            }
         }
         Pointing::YawPitchRoll(a) => Camera::new(intrinsics, eye, *a),
         Pointing::AlongVelocity { yaw_offset_deg, pitch_offset_deg } => {

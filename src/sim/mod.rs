@@ -31,17 +31,23 @@ use glam::DVec3;
 use crate::imaging::camera::{Camera, Jitter, YawPitchRoll};
 use crate::imaging::frame::Frame;
 use crate::imaging::fusion::PoissonFusion;
+use crate::imaging::psf::{Convolver, Psf, PsfOptics};
+use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate};
+use crate::imaging::sky_gen::{SkyGenSpec, generate};
 use crate::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlane};
 use crate::imaging::target_blob::{GeneralizedGaussian, ImageEllipse, PixelRect};
 use crate::imaging::vibration::Vibration;
+use crate::physics::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
 use crate::physics::brdf::CookTorrance;
-use crate::physics::noise::NoiseModel;
-use crate::physics::planck::Band;
+use crate::physics::noise::Readout;
+use crate::physics::nonideal::{FocalPlane, NonIdeal};
+use crate::physics::planck::Measure;
 use crate::physics::reflection::{ReflectionGeometry, SphereQuadrature, Sun};
-use crate::physics::sensor::{GrayMapping, Radiometer};
-use crate::physics::signal::TargetSignal;
+use crate::physics::signal::Apparent;
 use crate::physics::skin::StagnationModel;
+use crate::physics::sky::{Dome, DomeInputs};
 use crate::physics::transmittance::Transmittance;
+use crate::scenario::sensor::{PsfToml, ResolvedSensor};
 use crate::scenario::trajectory::Trajectory;
 use crate::scenario::{BlobSpec, CheckedScenario, FusionSpec, Pointing};
 
@@ -53,13 +59,13 @@ pub struct MotionSystems;
 /// Camera pointing and vibration.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct VibrationSystems;
-/// Target radiance and gray value.
+/// Target apparent radiance.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct RadiometrySystems;
 /// Ellipsoid → image ellipse.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct ProjectionSystems;
-/// Sky plane ray cast into the sensor frame.
+/// Sky plane ray cast into the sensor frame, the dome for the misses, the optics blur.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct RenderToTextureSystems;
 /// Target patches.
@@ -68,7 +74,7 @@ pub struct TargetsSystems;
 /// Poisson fusion of the patches.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct FusionSystems;
-/// Sensor noise and quantization.
+/// The detector: electrons or volts, noise, non-idealities, ADC.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct NoiseSystems;
 /// Ground truth and frame hand-off.
@@ -143,11 +149,9 @@ pub struct Skin {
 #[derive(Component, Debug, Clone, Default)]
 pub struct Signature {
     /// The chain's values, if they could be computed (the altitude may leave the model's range).
-    pub signal: Option<TargetSignal>,
+    pub signal: Option<Apparent>,
     /// Mach number used.
     pub mach: f64,
-    /// Gray per unit fill of the pixel above the black level (the target filling the pixel).
-    pub full_contrast_gray: f64,
     /// Why `signal` is missing.
     pub error: Option<String>,
     /// Inputs of the last computation.
@@ -159,12 +163,18 @@ pub struct Signature {
 pub struct Footprint {
     /// The exact image ellipse of its outline, if entirely in front of the camera.
     pub ellipse: Option<ImageEllipse>,
-    /// The blob drawn for it.
+    /// The paper model's blob (unit peak until the targets stage scales it).
     pub blob: Option<GeneralizedGaussian>,
     /// Its region of interest, clipped to the frame; `None` if off-frame.
     pub roi: Option<PixelRect>,
     /// Range from the camera, m.
     pub range_m: f64,
+    /// Radiance added at the brightest pixel (signed), in the detector's measure; set by the targets stage.
+    pub peak_radiance: f64,
+    /// Background radiance at the target's centre (noise-free, blurred), in the detector's measure.
+    pub background_radiance: f64,
+    /// Index of its patch in [`TargetPatches`] this frame.
+    pub patch: Option<usize>,
 }
 
 /// Where the camera points.
@@ -186,44 +196,64 @@ pub struct CameraPose {
     pub jitter: Jitter,
 }
 
-/// The sky plane.
+/// The sky: the clear-sky dome and, optionally, a radiance image placed as a plane.
 #[derive(Component, Debug, Clone)]
 pub struct Sky {
-    /// The placed image.
-    pub plane: Arc<SkyPlane>,
+    /// The placed radiance image.
+    pub plane: Option<Arc<SkyPlane>>,
     /// Sampling.
     pub sampling: Sampling,
-    /// Fill for rays that miss.
+    /// Fill for rays that miss the plane.
     pub miss: MissFill,
-    /// Sensor gray = offset + gain · image value.
-    pub gain: f32,
-    /// See `gain`.
-    pub offset: f32,
+    /// The clear sky and ground.
+    pub dome: Arc<Dome>,
 }
 
-/// The sensor: optics, electronics, noise.
-#[derive(Component, Debug, Clone, Copy)]
+/// The sensor: radiometry, optics blur, readout, non-idealities.
+#[derive(Component, Debug, Clone)]
 pub struct Sensor {
-    /// Band.
-    pub band: Band,
-    /// Optics and detector.
-    pub radiometer: Radiometer,
-    /// Gray mapping.
-    pub gray: GrayMapping,
-    /// Noise model.
-    pub noise: NoiseModel,
+    /// Band, optics, detector, ADC.
+    pub resolved: ResolvedSensor,
+    /// The readout (noise and ADC) of a frame, before drift.
+    pub readout: Readout,
+    /// Highest DN.
+    pub max_level: f32,
+    /// DN per unit radiance on axis.
+    pub dn_per_radiance: f64,
+    /// The optics PSF, if on.
+    pub psf: Option<Arc<Psf>>,
+    /// Blur the frame (false when the blur would change no pixel by more than the set DN).
+    pub blur_frame: bool,
+    /// The non-idealities of this sequence.
+    pub nonideal: Option<Arc<NonIdeal>>,
+}
+
+impl Sensor {
+    /// The detector's measure.
+    pub fn measure(&self) -> Measure {
+        self.resolved.model.measure()
+    }
+
+    /// Temporal noise in DN of a pixel whose background radiance is `radiance`.
+    pub fn noise_dn(&self, radiance: f64) -> f64 {
+        let r = &self.readout;
+        let signal = f64::from(r.signal_per_radiance) * radiance + f64::from(r.dark_signal);
+        r.noise_dn(signal)
+    }
 }
 
 /// The sensor's frame and its cached sky background.
-#[derive(Component, Debug, Clone)]
+#[derive(Component, Debug)]
 pub struct SensorFrame {
-    /// The frame being built; after the Noise set, quantized gray levels.
+    /// The frame being built: radiance until the Noise set, then DN.
     pub frame: Frame,
-    /// The frame before quantization (kept only when asked for).
+    /// The frame before quantization, DN (kept only when asked for).
     pub float_frame: Option<Frame>,
-    /// The sky as last rendered, and the camera it was rendered for.
-    background: Frame,
+    /// The sky as last rendered (radiance, blurred), and the camera it was rendered for.
+    pub background: Frame,
     background_camera: Option<Camera>,
+    convolver: Convolver,
+    columns: Vec<f32>,
 }
 
 // ---------------------------------------------------------------- resources
@@ -263,6 +293,8 @@ pub struct SimSettings {
     pub fusion: FusionSpec,
     /// How targets are drawn.
     pub blob: BlobSpec,
+    /// SNR from which a target is `detectable`.
+    pub detectable_snr: f64,
 }
 
 /// The scene's physics.
@@ -278,6 +310,13 @@ pub struct SceneParams {
     pub atmosphere: Transmittance,
     /// Quadrature for ellipsoid-averaged reflection.
     pub quadrature: SphereQuadrature,
+}
+
+impl SceneParams {
+    /// Air temperature at `altitude_m` (clamped to the model's range), K.
+    pub fn air_temp_k(&self, altitude_m: f64) -> f64 {
+        ambient_temperature_k(altitude_m.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), self.t0_k).unwrap_or(self.t0_k)
+    }
 }
 
 /// Reusable buffers of target patches for the fusion stage.
@@ -304,6 +343,11 @@ pub struct FrameOutput {
     pub ready: bool,
 }
 
+/// Reusable target-rendering state: the tracking loop's pointing noise stream is keyed per frame, so it needs
+/// no state; this holds the SCR window buffer.
+#[derive(Resource, Debug, Default)]
+pub struct LabelScratch(pub Vec<f32>);
+
 // ---------------------------------------------------------------- plugins
 
 /// Declares the pipeline order and the shared resources.
@@ -326,7 +370,10 @@ impl Plugin for PipelinePlugin {
             )
                 .chain(),
         );
-        app.init_resource::<TargetPatches>().init_resource::<Fusion>().init_resource::<FrameOutput>();
+        app.init_resource::<TargetPatches>()
+            .init_resource::<Fusion>()
+            .init_resource::<FrameOutput>()
+            .init_resource::<LabelScratch>();
     }
 }
 
@@ -432,7 +479,8 @@ impl Default for RunOptions {
     }
 }
 
-/// An error building the simulation from a checked scenario (the sky image cannot be read or placed).
+/// An error building the simulation from a checked scenario (the sky image cannot be read, calibrated or
+/// placed; the optics PSF cannot be built).
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
 pub struct SetupError(pub String);
@@ -453,42 +501,44 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
     if options.timings {
         app.add_plugins(TimingPlugin);
     }
+    let sensor_spec = scenario.sensor;
     app.insert_resource(SimClock { frame: 0, start_s: spec.run.start_time_s, dt_s: dt });
     app.insert_resource(SimSettings {
         seed,
-        noise: options.noise && spec.sensor.noise.enabled,
+        noise: options.noise && sensor_spec.noise.enabled,
         vibration: options.vibration,
         keep_float: options.keep_float,
         masks: options.masks,
         fusion: spec.fusion,
-        blob: spec.sensor.blob,
+        blob: sensor_spec.blob,
+        detectable_snr: spec.labels.detectable_snr,
     });
-    app.insert_resource(SceneParams {
+    let scene = SceneParams {
         t0_k: spec.atmosphere.t0_k,
         stagnation: spec.atmosphere.stagnation,
         sun: spec.sun,
         atmosphere: spec.atmosphere.transmittance,
         quadrature: SphereQuadrature::default(),
-    });
+    };
 
-    let world = app.world_mut();
-    let intrinsics = spec.sensor.intrinsics();
+    let intrinsics = sensor_spec.intrinsics;
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
+    let sky = build_sky(scenario, &scene, p0, seed)?;
+    let sensor = build_sensor(&sensor_spec, &sky, seed)?;
+    app.insert_resource(scene);
+    let world = app.world_mut();
     world.spawn((
-        Sensor {
-            band: spec.sensor.band_um,
-            radiometer: spec.sensor.radiometer(),
-            gray: spec.sensor.gray,
-            noise: spec.sensor.noise.model(),
-        },
+        sensor,
         SensorFrame {
             frame: Frame::new(w, h),
             float_frame: None,
             background: Frame::new(w, h),
             background_camera: None,
+            convolver: Convolver::new(),
+            columns: Vec::new(),
         },
     ));
-    let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
     let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
     let placeholder = Camera::new(intrinsics, p0, Default::default());
     world.spawn((
@@ -499,17 +549,7 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
         Shake(vibration),
         CameraPose { steady: placeholder, current: placeholder, jitter: Jitter::default() },
     ));
-    if let (Some(sky), Some(path)) = (&spec.sky, &scenario.sky_image) {
-        let image = SkyImage::load(path).map_err(|e| SetupError(e.to_string()))?;
-        let plane = SkyPlane::new(image, &sky.placement(), p0).map_err(|e| SetupError(e.to_string()))?;
-        world.spawn(Sky {
-            plane: Arc::new(plane),
-            sampling: sky.sampling,
-            miss: sky.miss,
-            gain: sky.gray_gain as f32,
-            offset: sky.gray_offset as f32,
-        });
-    }
+    world.spawn(sky);
     for (i, (t, tr)) in spec.targets.iter().zip(&scenario.target_trajectories).enumerate() {
         let (p, v) = tr.state(spec.run.start_time_s);
         world.spawn((
@@ -527,6 +567,149 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
     Ok(app)
 }
 
+/// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
+fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: u64) -> Result<Sky, SetupError> {
+    let sky = &scenario.spec.sky;
+    let model = &scenario.sensor.model;
+    let (band, measure) = (model.band, model.measure());
+    let dome = Dome::new(&DomeInputs {
+        spec: sky.dome,
+        band,
+        measure,
+        observer_altitude_m: eye.z,
+        t0_k: scene.t0_k,
+        atmosphere: &scene.atmosphere,
+    })
+    .map_err(|e| SetupError(format!("sky.dome: {} = {} is outside {}", e.name, e.value, e.range)))?;
+    let dome = Arc::new(dome);
+    let lut = RadianceLut::new(band, measure);
+    let placement = sky.placement();
+    let plane = match (&sky.generate, &scenario.sky_image, placement) {
+        (_, Some(path), Some(placement)) => {
+            let raw = SkyImage::load(path).map_err(|e| SetupError(e.to_string()))?;
+            let calibration = sky.calibration.ok_or_else(|| SetupError("sky.calibration is required".into()))?;
+            let image = calibrate(&raw, &calibration, &lut, &path.display().to_string())
+                .map_err(|e| SetupError(e.to_string()))?;
+            Some(SkyPlane::new(image, &placement, eye).map_err(|e| SetupError(e.to_string()))?)
+        }
+        (Some(gen_spec), None, Some(placement)) => {
+            let (tw, th) = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
+            let gen_spec = SkyGenSpec { seed: gen_spec.seed ^ seed.wrapping_mul(0x9E37_79B9_7F4A_7C15), ..*gen_spec };
+            let layer = generate(&gen_spec, tw, th);
+            let blank = SkyImage::from_f32(tw, th, vec![0.0; tw * th]).map_err(|e| SetupError(e.to_string()))?;
+            let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| SetupError(e.to_string()))?;
+            let air = |z: f64| scene.air_temp_k(z);
+            let image = bake_layer(&LayerBake {
+                layer: &layer,
+                plane: &geometry,
+                eye_m: eye,
+                dome: &dome,
+                air_temp_k: &air,
+                atmosphere: &scene.atmosphere,
+                lut: &lut,
+                cloud_offset_k: sky.cloud_offset_k,
+            })
+            .map_err(|e| SetupError(e.to_string()))?;
+            Some(SkyPlane::new(image, &placement, eye).map_err(|e| SetupError(e.to_string()))?)
+        }
+        _ => None,
+    };
+    Ok(Sky { plane: plane.map(Arc::new), sampling: sky.sampling, miss: sky.miss, dome })
+}
+
+/// Texels of a generated layer: at least one per sensor pixel at the plane's distance from the observer's
+/// start (its nearest point), up to `max_texels` per side.
+fn layer_size(
+    sensor: &ResolvedSensor,
+    placement: &crate::imaging::sky_plane::SkyPlacement,
+    eye: DVec3,
+    max_texels: usize,
+) -> (usize, usize) {
+    let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
+    let normal = placement.normal.map_or_else(
+        || {
+            let d = eye - placement.anchor_m;
+            DVec3::new(d.x, d.y, 0.0).normalize_or(DVec3::Y)
+        },
+        |n| n.normalize_or(DVec3::Y),
+    );
+    let distance = (eye - placement.anchor_m).dot(normal).abs().max(1.0);
+    let texel_m = ifov * distance;
+    let side = |extent_m: f64| ((extent_m / texel_m).ceil() as usize).clamp(16, max_texels);
+    (side(placement.width_m), side(placement.height_m))
+}
+
+/// The sensor component: readout, PSF (and whether the frame needs it), non-idealities.
+fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Sensor, SetupError> {
+    let model = &resolved.model;
+    let k = model.signal_per_radiance();
+    let readout = Readout {
+        signal_per_radiance: k as f32,
+        dark_signal: model.dark_signal() as f32,
+        shot_noise: model.shot_noise(),
+        read_variance: (model.read_noise * model.read_noise) as f32,
+        full_well: model.full_well() as f32,
+        dn_per_signal: (1.0 / model.adc.gain) as f32,
+        offset_dn: model.adc.offset_dn as f32,
+        poisson_normal_threshold: resolved.noise.poisson_normal_threshold as f32,
+    };
+    let dn_per_radiance = k / model.adc.gain;
+    let psf = match resolved.psf {
+        Some(p) => Some(Arc::new(
+            Psf::new(
+                &p.spec(),
+                &PsfOptics {
+                    f_number: model.optics.f_number(),
+                    pixel_pitch_m: model.detector.pixel_pitch_m,
+                    fill_factor: model.detector.fill_factor,
+                    band: model.band,
+                    measure: model.measure(),
+                    reference_temp_k: 300.0,
+                },
+            )
+            .map_err(|e| SetupError(format!("sensor.psf: {} = {} is outside {}", e.name, e.value, e.range)))?,
+        )),
+        None => None,
+    };
+    let blur_frame = match (&psf, resolved.psf) {
+        (Some(psf), Some(cfg)) => frame_needs_blur(psf, &cfg, sky, resolved, dn_per_radiance),
+        _ => false,
+    };
+    let report = model.report(300.0);
+    let nonideal = if resolved.nonideal.is_ideal() {
+        None
+    } else {
+        let plane = FocalPlane {
+            width: resolved.intrinsics.width as usize,
+            height: resolved.intrinsics.height as usize,
+            focal_px: resolved.intrinsics.focal_px(),
+        };
+        Some(Arc::new(NonIdeal::new(&resolved.nonideal, plane, report.noise_dn, seed)))
+    };
+    Ok(Sensor {
+        resolved: *resolved,
+        readout,
+        max_level: model.adc.max_level() as f32,
+        dn_per_radiance,
+        psf,
+        blur_frame,
+        nonideal,
+    })
+}
+
+/// Whether blurring the background can change a pixel by more than `skip_below_dn`: always for an image
+/// layer; for the dome alone, the blur of a smooth field changes it by `½·M₂·|L''|` (M₂ the kernel's second
+/// moment in px², L'' the largest curvature per px²), which is compared with the threshold.
+fn frame_needs_blur(psf: &Psf, cfg: &PsfToml, sky: &Sky, sensor: &ResolvedSensor, dn_per_radiance: f64) -> bool {
+    if sky.plane.is_some() || cfg.skip_below_dn <= 0.0 {
+        return true;
+    }
+    let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
+    let curvature_per_px2 = sky.dome.max_curvature_per_rad2() * ifov * ifov;
+    let change_dn = 0.5 * psf.point_kernel().second_moment_px2() * curvature_per_px2 * dn_per_radiance;
+    change_dn > cfg.skip_below_dn
+}
+
 /// Runs one step (one frame) and returns its labels.
 pub fn step(app: &mut App) -> FrameLabels {
     app.update();
@@ -535,7 +718,7 @@ pub fn step(app: &mut App) -> FrameLabels {
     out.labels.clone()
 }
 
-/// The sensor frame of the last completed step (quantized gray levels as f32).
+/// The sensor frame of the last completed step (quantized DN as f32).
 pub fn current_frame(app: &mut App) -> &Frame {
     let world = app.world_mut();
     let mut q = world.query::<&SensorFrame>();

@@ -1,44 +1,48 @@
-//! Sensor noise and quantization.
+//! The detector stage: radiance to electrons or volts, temporal noise, non-idealities, ADC.
 
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{NoiseSystems, Sensor, SensorFrame, SimClock, SimSettings};
-use crate::physics::noise::quantize_row;
+use crate::physics::noise::{Readout, ReadoutMaps};
 
-/// Adds noise and quantizes.
+/// Reads the detector out.
 pub struct NoisePlugin;
 
 impl Plugin for NoisePlugin {
     fn build(&self, app: &mut App) {
-        app.add_systems(FixedUpdate, add_noise_and_quantize.in_set(NoiseSystems));
+        app.add_systems(FixedUpdate, read_out.in_set(NoiseSystems));
     }
 }
 
-/// Poisson + Gaussian noise from the `(seed, SENSOR_NOISE, frame)` streams, then rounding to the bit depth.
-pub fn add_noise_and_quantize(
-    clock: Res<SimClock>,
-    settings: Res<SimSettings>,
-    mut sensor: Query<(&Sensor, &mut SensorFrame)>,
-) {
+/// Replaces the frame's radiance by DN: the pixel's gain map (vignetting, FPN gain, dead pixels), shot and read
+/// noise from the `(seed, SENSOR_NOISE, frame)` streams, the well, the ADC with the offset map, this frame's
+/// drift and column offsets, and rounding to the bit depth.
+pub fn read_out(clock: Res<SimClock>, settings: Res<SimSettings>, mut sensor: Query<(&Sensor, &mut SensorFrame)>) {
     let Ok((sensor, mut sf)) = sensor.single_mut() else { return };
     let sf = &mut *sf;
     let width = sf.frame.width();
-    let top = sensor.gray.max_level() as f32;
     let (seed, frame) = (settings.seed, clock.frame);
-    if settings.keep_float {
-        if settings.noise {
-            sensor.noise.apply(sf.frame.pixels_mut(), width, sensor.gray.g_min, seed, frame);
+    let mut readout: Readout = sensor.readout;
+    let mut maps = ReadoutMaps::default();
+    if let Some(ni) = &sensor.nonideal {
+        readout.offset_dn += ni.drift_dn(clock.t_s()) as f32;
+        maps.gain = ni.gain();
+        maps.offset_dn = ni.offset_dn();
+        if ni.column_offsets(frame, &mut sf.columns) {
+            maps.column_dn = Some(&sf.columns);
         }
+    }
+    let top = sensor.max_level;
+    if settings.keep_float {
+        readout.apply(sf.frame.pixels_mut(), width, maps, settings.noise, seed, frame, None);
         match &mut sf.float_frame {
             Some(f) => f.pixels_mut().copy_from_slice(sf.frame.pixels()),
             None => sf.float_frame = Some(sf.frame.clone()),
         }
-        quantize_row(sf.frame.pixels_mut(), top);
-    } else if settings.noise {
-        sensor.noise.apply_and_quantize(sf.frame.pixels_mut(), width, sensor.gray.g_min, seed, frame, Some(top));
+        crate::physics::noise::quantize_row(sf.frame.pixels_mut(), top);
     } else {
-        quantize_row(sf.frame.pixels_mut(), top);
+        readout.apply(sf.frame.pixels_mut(), width, maps, settings.noise, seed, frame, Some(top));
     }
 }

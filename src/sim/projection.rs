@@ -1,11 +1,13 @@
-//! Projection: each target's ellipsoid to its exact image ellipse, and the blob drawn for it.
+//! Projection: each target's ellipsoid to its exact image ellipse, and the pixels its image covers.
 
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
-use super::{Body, CameraPose, Footprint, Kinematics, Observer, ProjectionSystems, Sensor, Signature, SimSettings};
+use super::{Body, CameraPose, Footprint, Kinematics, Observer, ProjectionSystems, Sensor, SimSettings};
 use crate::imaging::target_blob::{Ellipsoid, EllipsoidProjection, GeneralizedGaussian, project_ellipsoid};
+use crate::imaging::target_psf::psf_region;
+use crate::scenario::TargetModel;
 
 /// Projects the targets.
 pub struct ProjectionPlugin;
@@ -16,24 +18,19 @@ impl Plugin for ProjectionPlugin {
     }
 }
 
-/// Image ellipse, blob (energy-conserving peak) and region of interest of every target.
-///
-/// The blob's peak is set so that its integral equals the target's signal: `peak = C · A / ∫shape`, where
-/// `C` is the gray a pixel filled by the target would show and `A` the ellipse's area in px². A resolved
-/// target (blob ≈ ellipse) peaks at `C`; a sub-pixel one spreads `C·A` over the blur, which is eq 13 with the
-/// fill factor of DESIGN.md applied through the optics' point spread. The peak is capped at the gray range.
+/// Image ellipse and region of interest of every target: the ellipse grown by the PSF's radius (PSF model), or
+/// the paper blob's support (paper model, whose unit-peak blob is kept for the targets stage to scale).
 pub fn project_targets(
     settings: Res<SimSettings>,
     sensor: Query<&Sensor>,
     observer: Query<&CameraPose, With<Observer>>,
-    mut targets: Query<(&Kinematics, &Body, &Signature, &mut Footprint), Without<Observer>>,
+    mut targets: Query<(&Kinematics, &Body, &mut Footprint), Without<Observer>>,
 ) {
     let (Ok(sensor), Ok(pose)) = (sensor.single(), observer.single()) else { return };
     let cam = pose.current;
     let (w, h) = (cam.intrinsics.width as usize, cam.intrinsics.height as usize);
     let blob_spec = settings.blob;
-    let range_cap = sensor.gray.g_max - sensor.gray.g_min;
-    for (kin, body, sig, mut fp) in &mut targets {
+    for (kin, body, mut fp) in &mut targets {
         let ellipsoid = Ellipsoid {
             center_m: kin.position_m,
             semi_axes_m: body.semi_axes_m,
@@ -46,12 +43,17 @@ pub fn project_targets(
         };
         fp.blob = None;
         fp.roi = None;
+        fp.peak_radiance = 0.0;
+        fp.patch = None;
         let Some(ellipse) = fp.ellipse else { continue };
-        let mut blob = GeneralizedGaussian::from_ellipse(&ellipse, blob_spec.min_blur_px, blob_spec.beta, 1.0);
-        let peak = sig.full_contrast_gray * ellipse.area_px2() / blob.integral();
-        blob.peak = if peak.is_finite() { peak.clamp(0.0, range_cap) } else { 0.0 };
-        let roi = blob.region_of_interest(blob_spec.roi_fraction, w, h);
-        fp.blob = Some(blob);
+        let roi = match (blob_spec.model, &sensor.psf) {
+            (TargetModel::Psf, Some(psf)) => psf_region(&ellipse, psf, w, h),
+            _ => {
+                let blob = GeneralizedGaussian::from_ellipse(&ellipse, blob_spec.min_blur_px, blob_spec.beta, 1.0);
+                fp.blob = Some(blob);
+                blob.region_of_interest(blob_spec.roi_fraction, w, h)
+            }
+        };
         if !roi.is_empty() {
             fp.roi = Some(roi);
         }

@@ -1,4 +1,5 @@
-//! Radiometry: skin temperature, radiance, transmittance, detector signal and gray value per target.
+//! Radiometry: skin temperature, radiance, reflection, transmittance and path radiance per target, in the
+//! detector's measure.
 
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
@@ -6,7 +7,7 @@ use bevy::prelude::FixedUpdate;
 
 use super::{Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, Skin};
 use crate::physics::atmosphere::ambient_temperature_k;
-use crate::physics::signal::{SignalContext, TargetState, target_signal};
+use crate::physics::signal::{ApparentContext, TargetState, apparent_radiance};
 use crate::physics::skin::speed_of_sound_m_s;
 
 /// Computes each target's signature.
@@ -27,17 +28,15 @@ pub fn update_signatures(
 ) {
     let (Ok(sensor), Ok(pose)) = (sensor.single(), observer.single()) else { return };
     let eye = pose.steady.position_m;
-    let ctx = SignalContext {
-        band: sensor.band,
+    let ctx = ApparentContext {
+        band: sensor.resolved.model.band,
+        measure: sensor.measure(),
         t0_k: scene.t0_k,
         stagnation: scene.stagnation,
         sun: scene.sun,
         atmosphere: &scene.atmosphere,
         reflection: Default::default(),
         quadrature: &scene.quadrature,
-        radiometer: sensor.radiometer,
-        gray: sensor.gray,
-        fill_factor: false,
     };
     for (kin, body, skin, mut sig) in &mut targets {
         let p = kin.position_m;
@@ -61,18 +60,14 @@ pub fn update_signatures(
             semi_axes_m: body.semi_axes_m,
             attitude: body.body_to_world(kin.velocity_m_s),
         };
-        let ctx = SignalContext { reflection: skin.reflection, ..ctx };
-        match target_signal(&state, eye, &ctx) {
+        let ctx = ApparentContext { reflection: skin.reflection, ..ctx };
+        match apparent_radiance(&state, eye, &ctx) {
             Ok(signal) => {
-                // eq 13 without the fill factor, mapped by the gray gain: the gray a pixel filled by the target
-                // would show above the black level
-                sig.full_contrast_gray = signal.voltage_v * sensor.gray.gain_per_v();
                 sig.signal = Some(signal);
                 sig.error = None;
             }
             Err(e) => {
                 sig.signal = None;
-                sig.full_contrast_gray = 0.0;
                 sig.error = Some(e.to_string());
             }
         }

@@ -1,10 +1,13 @@
-//! Targets: a generalized-Gaussian patch per visible target on its region of interest (eqs 11–12).
+//! Targets: the radiance each visible target adds over its background, as the projected ellipse convolved
+//! with the optics PSF (default) or the paper's generalized Gaussian (eqs 11–12).
 
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
-use super::{Footprint, SimSettings, TargetPatches, TargetsSystems};
+use super::{Footprint, Sensor, SensorFrame, Signature, SimSettings, TargetPatches, TargetsSystems};
+use crate::imaging::target_psf::render_target;
+use crate::scenario::TargetModel;
 
 /// Draws the target patches.
 pub struct TargetsPlugin;
@@ -15,13 +18,38 @@ impl Plugin for TargetsPlugin {
     }
 }
 
-/// Renders each visible target's blob into a reused patch buffer.
-pub fn draw_targets(settings: Res<SimSettings>, mut patches: ResMut<TargetPatches>, targets: Query<&Footprint>) {
+/// Renders each visible target into a reused patch buffer.
+///
+/// The target replaces the background it covers: a pixel filled by it receives its apparent radiance
+/// `L_app` instead of the sky's `L_bg` (the noise-free, blurred background at the ellipse's centre), so the
+/// patch carries `ΔL = L_app − L_bg` times the fraction of the pixel's PSF-weighted footprint it covers: the
+/// ellipse ⊗ PSF sampled at the pixel centres, or, in the paper model, a generalized Gaussian of the same
+/// integral (`ΔL·A/∫shape`, A the ellipse's area in px²).
+pub fn draw_targets(
+    settings: Res<SimSettings>,
+    mut patches: ResMut<TargetPatches>,
+    sensor: Query<(&Sensor, &SensorFrame)>,
+    mut targets: Query<(&Signature, &mut Footprint)>,
+) {
+    let Ok((sensor, sf)) = sensor.single() else { return };
     let patches = &mut *patches;
     patches.used = 0;
-    for fp in &targets {
-        let (Some(blob), Some(roi)) = (fp.blob, fp.roi) else { continue };
-        if blob.peak <= 0.0 {
+    let (w, h) = (sf.background.width(), sf.background.height());
+    for (sig, mut fp) in &mut targets {
+        let (Some(ellipse), Some(roi), Some(signal)) = (fp.ellipse, fp.roi, sig.signal) else { continue };
+        let (cx, cy) = (ellipse.center.x.floor(), ellipse.center.y.floor());
+        let bg = if cx >= 0.0 && cy >= 0.0 && (cx as usize) < w && (cy as usize) < h {
+            f64::from(sf.background.get(cx as usize, cy as usize))
+        } else {
+            // off-frame centre: the nearest pixel of the region
+            let x = (cx.max(roi.x0 as f64) as usize).min(roi.x1 - 1);
+            let y = (cy.max(roi.y0 as f64) as usize).min(roi.y1 - 1);
+            f64::from(sf.background.get(x, y))
+        };
+        fp.background_radiance = bg;
+        fp.patch = None;
+        let delta = signal.apparent_radiance - bg;
+        if !(delta.is_finite() && delta != 0.0) {
             continue;
         }
         if patches.patches.len() == patches.used {
@@ -30,7 +58,20 @@ pub fn draw_targets(settings: Res<SimSettings>, mut patches: ResMut<TargetPatche
         let (rect, values) = &mut patches.patches[patches.used];
         *rect = roi;
         values.resize(roi.width() * roi.height(), 0.0);
-        blob.render_patch(roi, settings.blob.sampling, values);
+        let peak = match (settings.blob.model, &sensor.psf, fp.blob) {
+            (TargetModel::Psf, Some(psf), _) => {
+                f64::from(render_target(&ellipse, delta as f32, psf, &settings.blob.target_psf(), roi, values))
+            }
+            (_, _, Some(mut blob)) => {
+                blob.peak = delta * ellipse.area_px2() / blob.integral();
+                blob.render_patch(roi, settings.blob.sampling, values);
+                fp.blob = Some(blob);
+                values.iter().fold(0.0f64, |m, &v| if f64::from(v).abs() > m.abs() { f64::from(v) } else { m })
+            }
+            _ => continue,
+        };
+        fp.peak_radiance = peak;
+        fp.patch = Some(patches.used);
         patches.used += 1;
     }
 }

@@ -1,0 +1,332 @@
+//! The clear sky and the ground as a radiance field over the view direction's elevation (a simple documented
+//! model; a LOWTRAN-grounded one can replace it behind the same interface).
+//!
+//! **Sky** (elevation `e > 0`): a plane-parallel atmosphere whose absorber (water vapour, and CO₂ in the
+//! 4.3 µm band) falls off with scale height `H` above sea level. Its zenith optical depth above the observer
+//! at altitude `h` is `τ_z(h) = −ln(1 − ε_z0)·e^{−h/H}`, where `ε_z0` is the band's zenith emissivity at sea
+//! level, so along elevation `e` the path's emissivity is `ε(e) = 1 − exp(−τ_z/sin e)`: small toward the
+//! zenith, 1 at the horizon. The path emits at the air temperature of eq 2 at the height `h + z_e·sin e`,
+//! where most of its emission comes from (`z_e` the emission height, about one absorber scale height):
+//! `L(e) = ε(e)·B(T∞(h + z_e sin e))`. So the sky's radiance rises toward the horizon, where it reaches the
+//! air's own temperature.
+//!
+//! **Limb** (`−dip < e < 0`, `dip = acos(R/(R + h))` the horizon's dip on an Earth of radius R): the ray passes
+//! above the ground, down to its tangent height `(R + h)·cos e − R`, through hundreds of kilometres of air; it is
+//! taken as opaque, emitting at the air temperature where the straight path to the tangent point reaches half
+//! its optical depth (as ground paths below), so the sky brightens smoothly from `B(T∞(h))` at the horizontal
+//! to the lower air's at the visible horizon and joins the ground's haze there.
+//!
+//! **Ground** (`e ≤ −dip`, flat Earth beyond that): the line of sight meets the ground after
+//! `d = h/sin|e|`; the ground emits `ε_g·B(T_g)` and reflects `(1 − ε_g)` of the sky at the mirror elevation;
+//! the path transmits `τ(d)` of it (the scenario's transmittance model) and adds `(1 − τ)·B(T∞(z_p))`, where
+//! `z_p` is the height at which the path has reached half its optical depth: a near-horizontal path emits at
+//! about the observer's height (so the ground joins the sky at the horizon without a step), a steep one lower.
+//!
+//! Not modelled: scattered sunlight (it matters in the MWIR by day), clouds (a sky-plane layer adds them),
+//! Earth's curvature beyond the horizon's dip, and the spectral structure of absorption (a single effective emissivity per band).
+//! Defaults: `ε_z0 = 0.28` for bands centred beyond 6 µm and 0.35 below (the opaque 4.3 µm CO₂ band raises the
+//! MWIR value), `H = 2 km`, `z_e = 1.5 km`, ground 5 K above the sea-level air with `ε_g = 0.95`. With them a
+//! sea-level observer sees an 8–12 µm zenith sky at about 225 K brightness temperature, within the 210–240 K
+//! that clear mid-latitude skies show.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use super::ParamError;
+use super::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
+use super::planck::{Band, Measure, band_radiance_in};
+use super::transmittance::PathTransmittance;
+
+/// Mean Earth radius, m.
+const EARTH_RADIUS_M: f64 = 6.371e6;
+
+/// Samples of the radiance table over `sin e ∈ [−1, 1]`.
+const TABLE_SAMPLES: usize = 8193;
+
+/// Parameters of the clear sky and the ground.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DomeSpec {
+    /// Zenith emissivity of the whole atmosphere seen from sea level, (0, 1); `None` takes the band's default.
+    pub zenith_emissivity: Option<f64>,
+    /// Scale height of the absorber, km, > 0.
+    pub scale_height_km: f64,
+    /// Height above the observer from which a zenith path's emission comes, km, ≥ 0.
+    pub emission_height_km: f64,
+    /// Ground temperature, K; `None` is 5 K above the sea-level air temperature.
+    pub ground_temp_k: Option<f64>,
+    /// Ground emissivity, [0, 1].
+    pub ground_emissivity: f64,
+}
+
+impl Default for DomeSpec {
+    fn default() -> Self {
+        Self {
+            zenith_emissivity: None,
+            scale_height_km: 2.0,
+            emission_height_km: 1.5,
+            ground_temp_k: None,
+            ground_emissivity: 0.95,
+        }
+    }
+}
+
+impl DomeSpec {
+    /// Checks the parameters.
+    ///
+    /// # Errors
+    /// [`ParamError`] naming the first parameter out of range.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let bad = |name, value, range: &str| Err(ParamError { name, value, range: range.into() });
+        if let Some(e) = self.zenith_emissivity
+            && !(e > 0.0 && e < 1.0)
+        {
+            return bad("zenith_emissivity", e, "(0, 1)");
+        }
+        if !(self.scale_height_km.is_finite() && self.scale_height_km >= 0.1 && self.scale_height_km <= 100.0) {
+            return bad("scale_height_km", self.scale_height_km, "[0.1, 100] km");
+        }
+        if !(self.emission_height_km.is_finite() && (0.0..=20.0).contains(&self.emission_height_km)) {
+            return bad("emission_height_km", self.emission_height_km, "[0, 20] km");
+        }
+        if let Some(t) = self.ground_temp_k
+            && !(t.is_finite() && (150.0..=400.0).contains(&t))
+        {
+            return bad("ground_temp_k", t, "[150, 400] K");
+        }
+        if !(0.0..=1.0).contains(&self.ground_emissivity) {
+            return bad("ground_emissivity", self.ground_emissivity, "[0, 1]");
+        }
+        Ok(())
+    }
+}
+
+/// Default sea-level zenith emissivity of a band.
+pub fn default_zenith_emissivity(band: Band) -> f64 {
+    if 0.5 * (band.lo_um() + band.hi_um()) > 6.0 { 0.28 } else { 0.35 }
+}
+
+/// The clear sky and ground as seen from one altitude: radiance as a function of the sine of the elevation.
+#[derive(Debug, Clone)]
+pub struct Dome {
+    /// Radiance at `sin e = −1 + 2i/(n − 1)`, in the detector's measure.
+    table: Vec<f32>,
+    /// Largest `|d²L/de²|`, radiance per rad².
+    max_curvature_per_rad2: f64,
+    /// Radiance at the horizon, from above.
+    horizon_sky: f64,
+}
+
+/// Everything a dome depends on.
+pub struct DomeInputs<'a> {
+    /// The parameters.
+    pub spec: DomeSpec,
+    /// The detector's band and measure.
+    pub band: Band,
+    /// Energy or photons.
+    pub measure: Measure,
+    /// Observer altitude, m.
+    pub observer_altitude_m: f64,
+    /// Sea-level temperature of eq 2, K.
+    pub t0_k: f64,
+    /// Transmittance of ground paths.
+    pub atmosphere: &'a (dyn PathTransmittance + Sync),
+}
+
+impl Dome {
+    /// Tabulates the sky and ground radiance for an observer.
+    ///
+    /// # Errors
+    /// [`ParamError`] for invalid parameters, or an observer altitude outside [−5, 86] km.
+    pub fn new(inputs: &DomeInputs<'_>) -> Result<Self, ParamError> {
+        let s = &inputs.spec;
+        s.validate()?;
+        let h = inputs.observer_altitude_m;
+        if !(MIN_ALTITUDE_M..=MAX_ALTITUDE_M).contains(&h) {
+            return Err(ParamError { name: "observer_altitude_m", value: h, range: "[−5000, 86000] m".into() });
+        }
+        let t_air = |z: f64| {
+            ambient_temperature_k(z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), inputs.t0_k).map_err(|e| ParamError {
+                name: "t0_k",
+                value: inputs.t0_k,
+                range: e.to_string(),
+            })
+        };
+        let planck = |t: f64| band_radiance_in(inputs.measure, inputs.band, t, 1.0);
+        let eps_z0 = s.zenith_emissivity.unwrap_or_else(|| default_zenith_emissivity(inputs.band));
+        let scale_m = s.scale_height_km * 1000.0;
+        let tau_z = -(1.0 - eps_z0).ln() * (-h.max(0.0) / scale_m).exp();
+        let z_e = s.emission_height_km * 1000.0;
+        let mut sky_at = Vec::with_capacity(TABLE_SAMPLES);
+        // the sky for every positive sin e (also the reflection of the sky in the ground)
+        let sky = |sin_e: f64| -> Result<f64, ParamError> {
+            let eps = if sin_e <= 0.0 { 1.0 } else { -(-tau_z / sin_e).exp_m1() };
+            Ok(eps * planck(t_air(h + z_e * sin_e.max(0.0))?))
+        };
+        let ground_k = match s.ground_temp_k {
+            Some(t) => t,
+            None => t_air(0.0)? + 5.0,
+        };
+        let ground = s.ground_emissivity * planck(ground_k);
+        let path_air = planck(t_air(h)?);
+        // the horizon's dip below the horizontal, from the Earth's curvature
+        let dip = (EARTH_RADIUS_M / (EARTH_RADIUS_M + h.max(0.0))).acos();
+        for i in 0..TABLE_SAMPLES {
+            let sin_e = -1.0 + 2.0 * i as f64 / (TABLE_SAMPLES - 1) as f64;
+            let value = if sin_e > 0.0 || (sin_e == 0.0 && h <= 0.0) {
+                sky(sin_e)?
+            } else if h <= 0.0 {
+                // an observer on the ground sees the ground below the horizon at once
+                ground + (1.0 - s.ground_emissivity) * sky(-sin_e)?
+            } else if sin_e == 0.0 {
+                path_air
+            } else if sin_e.asin() > -dip {
+                // a grazing ray above the curved Earth's horizon: a long path through the air down to its tangent
+                // height (opaque at these lengths), emitting where it reaches half its optical depth on the way
+                let cos_e = (1.0 - sin_e * sin_e).max(0.0).sqrt();
+                let h_t = ((EARTH_RADIUS_M + h) * cos_e - EARTH_RADIUS_M).max(0.0);
+                let reach = ((EARTH_RADIUS_M + h).powi(2) - (EARTH_RADIUS_M + h_t).powi(2)).max(0.0).sqrt();
+                let from = DVec3::new(0.0, 0.0, h);
+                let tangent = DVec3::new(0.0, reach, h_t);
+                let tau = inputs.atmosphere.along_segment(from, tangent).clamp(0.0, 1.0);
+                planck(t_air(emission_altitude(inputs.atmosphere, from, tangent, tau))?)
+            } else {
+                let d = h / -sin_e;
+                let cos_e = (1.0 - sin_e * sin_e).max(0.0).sqrt();
+                let from = DVec3::new(0.0, 0.0, h);
+                let hit = from + DVec3::new(0.0, cos_e, sin_e) * d;
+                let tau = inputs.atmosphere.along_segment(from, hit).clamp(0.0, 1.0);
+                let path = planck(t_air(emission_altitude(inputs.atmosphere, from, hit, tau))?);
+                tau * (ground + (1.0 - s.ground_emissivity) * sky(-sin_e)?) + (1.0 - tau) * path
+            };
+            sky_at.push(value);
+        }
+        // |d²L/de²| by finite differences in e over the table (e = asin(sin e))
+        let mut max_curvature_per_rad2: f64 = 0.0;
+        for i in 1..TABLE_SAMPLES - 1 {
+            let e = |j: usize| (-1.0 + 2.0 * j as f64 / (TABLE_SAMPLES - 1) as f64).asin();
+            let (e0, e1, e2) = (e(i - 1), e(i), e(i + 1));
+            let (l0, l1, l2) = (sky_at[i - 1], sky_at[i], sky_at[i + 1]);
+            let d1 = (l1 - l0) / (e1 - e0);
+            let d2 = (l2 - l1) / (e2 - e1);
+            let c = 2.0 * (d2 - d1) / (e2 - e0);
+            if c.is_finite() {
+                max_curvature_per_rad2 = max_curvature_per_rad2.max(c.abs());
+            }
+        }
+        let horizon_sky = sky(1e-9)?;
+        Ok(Self { table: sky_at.iter().map(|&v| v as f32).collect(), max_curvature_per_rad2, horizon_sky })
+    }
+
+    /// Radiance toward a direction whose elevation has sine `sin_e` (clamped to [−1, 1]), linear in the table.
+    #[inline]
+    pub fn radiance(&self, sin_e: f64) -> f32 {
+        let x = (sin_e.clamp(-1.0, 1.0) + 1.0) * 0.5 * (TABLE_SAMPLES - 1) as f64;
+        let i = (x as usize).min(TABLE_SAMPLES - 2);
+        let t = (x - i as f64) as f32;
+        self.table[i] + (self.table[i + 1] - self.table[i]) * t
+    }
+
+    /// Radiance toward world direction `d` (any length).
+    #[inline]
+    pub fn radiance_toward(&self, d: DVec3) -> f32 {
+        let len = d.length();
+        if len > 0.0 { self.radiance(d.z / len) } else { self.horizon_sky as f32 }
+    }
+
+    /// Largest `|d²L/de²|` over the sky and ground, radiance per rad² (for the PSF's skip bound).
+    pub fn max_curvature_per_rad2(&self) -> f64 {
+        self.max_curvature_per_rad2
+    }
+
+    /// The sky's radiance just above the horizon.
+    pub fn horizon_sky(&self) -> f64 {
+        self.horizon_sky
+    }
+}
+
+/// The altitude a path's emission comes from: where its transmittance from the observer has fallen to
+/// `√τ_total` (half its optical depth), found by bisection. A near-horizontal path reaches it close to the
+/// observer's altitude, so the ground's haze joins the sky's at the horizon without a step; a steep one lower.
+fn emission_altitude(atmosphere: &(dyn PathTransmittance + Sync), from: DVec3, to: DVec3, tau_total: f64) -> f64 {
+    let half = tau_total.max(1e-300).sqrt();
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if atmosphere.along_segment(from, from.lerp(to, mid)) > half {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    from.lerp(to, 0.5 * (lo + hi)).z
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physics::planck::brightness_temperature;
+    use crate::physics::transmittance::Transmittance;
+
+    fn dome(h: f64, band: Band) -> Dome {
+        let atm = Transmittance::BeerLambert { extinction_per_km: 0.15, scale_height_km: 2.0 };
+        Dome::new(&DomeInputs {
+            spec: DomeSpec::default(),
+            band,
+            measure: Measure::Energy,
+            observer_altitude_m: h,
+            t0_k: 288.15,
+            atmosphere: &atm,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn sky_brightens_toward_the_horizon_and_reaches_air_temperature() {
+        let d = dome(0.0, Band::LWIR_8_12);
+        let tb = |s: f64| brightness_temperature(Measure::Energy, Band::LWIR_8_12, f64::from(d.radiance(s))).unwrap();
+        let zenith = tb(1.0);
+        assert!(zenith > 210.0 && zenith < 240.0, "zenith {zenith} K");
+        let mut last = zenith;
+        for s in [0.5, 0.2, 0.1, 0.05, 0.01] {
+            let t = tb(s);
+            assert!(t > last, "{s}: {t} after {last}");
+            last = t;
+        }
+        assert!((tb(1e-4) - 288.15).abs() < 0.5, "horizon {}", tb(1e-4));
+    }
+
+    #[test]
+    fn ground_is_continuous_with_the_haze_and_warm_below() {
+        let d = dome(1500.0, Band::LWIR_8_12);
+        let below = |s: f64| f64::from(d.radiance(s));
+        // looking down steeply sees the warm ground, near the horizon the lower air
+        assert!(below(-1.0) > below(0.3));
+        // just below the horizontal the limb emits at about the observer's height, as the sky just above does
+        let near = below(-1e-3);
+        let air =
+            band_radiance_in(Measure::Energy, Band::LWIR_8_12, ambient_temperature_k(1500.0, 288.15).unwrap(), 1.0);
+        assert!(((near - air) / air).abs() < 0.02, "{near} vs {air}");
+        assert!(((below(1e-3) - near) / air).abs() < 0.02, "step at the horizon: {} vs {near}", below(1e-3));
+        // and brightens smoothly down to the visible horizon (dip 1.24° at 1.5 km) and the ground beyond
+        let mut last = near;
+        for k in 1..=40 {
+            let v = below(-(k as f64 * 0.001));
+            assert!(v >= last - 1e-6 * air, "not monotone at sin e = {}", -(k as f64 * 0.001));
+            assert!((v - last) / air < 0.02, "a step of {} at sin e = {}", (v - last) / air, -(k as f64 * 0.001));
+            last = v;
+        }
+    }
+
+    #[test]
+    fn table_matches_direct_evaluation() {
+        let d = dome(8000.0, Band::MWIR_3_5);
+        // a value between table nodes vs. the nodes' neighbourhood: linear interpolation error is tiny
+        for s in [0.0371, 0.4123, -0.3001] {
+            let a = f64::from(d.radiance(s));
+            let b = f64::from(d.radiance(s + 1e-6));
+            assert!(((a - b) / a).abs() < 1e-4);
+        }
+        assert!(d.max_curvature_per_rad2().is_finite() && d.max_curvature_per_rad2() > 0.0);
+    }
+}
