@@ -10,17 +10,7 @@ use irsim::sim::{RunOptions, build_app, current_frame, step};
 
 fn readout(preset: Preset) -> (irsim::scenario::ResolvedSensor, Readout) {
     let s = SensorSpec { preset: Some(preset), ..Default::default() }.resolve().unwrap();
-    let m = &s.model;
-    let r = Readout {
-        signal_per_radiance: m.signal_per_radiance() as f32,
-        dark_signal: m.dark_signal() as f32,
-        shot_noise: m.shot_noise(),
-        read_variance: (m.read_noise * m.read_noise) as f32,
-        full_well: m.full_well() as f32,
-        dn_per_signal: (1.0 / m.adc.gain) as f32,
-        offset_dn: m.adc.offset_dn as f32,
-        poisson_normal_threshold: 100.0,
-    };
+    let r = s.model.readout(100.0);
     (s, r)
 }
 

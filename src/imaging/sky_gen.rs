@@ -104,13 +104,7 @@ impl SkyGenSpec {
     /// # Errors
     /// [`ParamError`] naming the first parameter out of range.
     pub fn validate(&self) -> Result<(), ParamError> {
-        let check = |name: &'static str, v: f64, lo: f64, hi: f64| {
-            if v.is_finite() && v >= lo && v <= hi {
-                Ok(())
-            } else {
-                Err(ParamError { name, value: v, range: format!("[{lo}, {hi}]") })
-            }
-        };
+        let check = ParamError::check_range;
         match self.kind {
             SkyKind::Cumulus => check("psd_slope", self.psd_slope, CUMULUS_SLOPES[0].0, CUMULUS_SLOPES[5].0)?,
             SkyKind::Clear => check("psd_slope", self.psd_slope, -4.5, -1.5)?,

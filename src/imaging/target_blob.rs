@@ -220,6 +220,22 @@ pub struct PixelRect {
 }
 
 impl PixelRect {
+    /// The rectangle `[x0, y0, x1, y1]` (whole numbers of pixels, any sign, NaN as 0) clipped to a
+    /// `width × height` frame.
+    pub fn clipped(bounds: [f64; 4], width: usize, height: usize) -> Self {
+        let clip = |v: f64, max: usize| -> usize {
+            if v.is_nan() || v <= 0.0 {
+                0
+            } else if v >= max as f64 {
+                max
+            } else {
+                v as usize
+            }
+        };
+        let [x0, y0, x1, y1] = bounds;
+        PixelRect { x0: clip(x0, width), y0: clip(y0, height), x1: clip(x1, width), y1: clip(y1, height) }
+    }
+
     /// Width, px.
     pub fn width(&self) -> usize {
         self.x1 - self.x0
@@ -303,21 +319,16 @@ impl GeneralizedGaussian {
         let (s, c) = self.angle_rad.sin_cos();
         let hx = (h.x * c).abs() + (h.y * s).abs();
         let hy = (h.x * s).abs() + (h.y * c).abs();
-        let clip = |v: f64, max: usize| -> usize {
-            if v.is_nan() || v <= 0.0 {
-                0
-            } else if v >= max as f64 {
-                max
-            } else {
-                v as usize
-            }
-        };
-        PixelRect {
-            x0: clip((self.center.x - hx).floor() - 1.0, width),
-            y0: clip((self.center.y - hy).floor() - 1.0, height),
-            x1: clip((self.center.x + hx).ceil() + 1.0, width),
-            y1: clip((self.center.y + hy).ceil() + 1.0, height),
-        }
+        PixelRect::clipped(
+            [
+                (self.center.x - hx).floor() - 1.0,
+                (self.center.y - hy).floor() - 1.0,
+                (self.center.x + hx).ceil() + 1.0,
+                (self.center.y + hy).ceil() + 1.0,
+            ],
+            width,
+            height,
+        )
     }
 
     /// Samples per pixel side for `sampling`.

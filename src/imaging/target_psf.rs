@@ -78,21 +78,11 @@ const MAX_NODES: usize = 40_000;
 pub fn psf_region(ellipse: &ImageEllipse, psf: &Psf, width: usize, height: usize) -> PixelRect {
     let [x0, y0, x1, y1] = ellipse.bbox();
     let grow = psf.radius_px() as f64 + 1.5;
-    let clip = |v: f64, max: usize| -> usize {
-        if v.is_nan() || v <= 0.0 {
-            0
-        } else if v >= max as f64 {
-            max
-        } else {
-            v as usize
-        }
-    };
-    PixelRect {
-        x0: clip((x0 - grow).floor(), width),
-        y0: clip((y0 - grow).floor(), height),
-        x1: clip((x1 + grow).ceil(), width),
-        y1: clip((y1 + grow).ceil(), height),
-    }
+    PixelRect::clipped(
+        [(x0 - grow).floor(), (y0 - grow).floor(), (x1 + grow).ceil(), (y1 + grow).ceil()],
+        width,
+        height,
+    )
 }
 
 /// Renders `amplitude·∫_E PSF(p − x) dx` at the centres of the pixels of `rect` into `out` (row-major,

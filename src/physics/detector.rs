@@ -387,6 +387,21 @@ impl SensorModel {
         (self.shot_variance(scene_signal) + self.read_noise * self.read_noise).sqrt()
     }
 
+    /// The per-frame readout: signal per radiance, dark signal, shot and read noise, well, ADC gain and offset;
+    /// shot noise is an exact Poisson count below `poisson_normal_threshold` electrons.
+    pub fn readout(&self, poisson_normal_threshold: f64) -> super::noise::Readout {
+        super::noise::Readout {
+            signal_per_radiance: self.signal_per_radiance() as f32,
+            dark_signal: self.dark_signal() as f32,
+            shot_noise: self.shot_noise(),
+            read_variance: (self.read_noise * self.read_noise) as f32,
+            full_well: self.full_well() as f32,
+            dn_per_signal: (1.0 / self.adc.gain) as f32,
+            offset_dn: self.adc.offset_dn as f32,
+            poisson_normal_threshold: poisson_normal_threshold as f32,
+        }
+    }
+
     /// Figures of merit at scene temperature `temp_k` (a blackbody filling the field of view, on axis).
     pub fn report(&self, temp_k: f64) -> SensorReport {
         let m = self.measure();

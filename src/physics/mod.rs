@@ -28,3 +28,17 @@ pub struct ParamError {
     /// The allowed range, in words.
     pub range: String,
 }
+
+impl ParamError {
+    /// `Ok` if `value` is finite and in `[lo, hi]`, else the error naming `name` and the range.
+    ///
+    /// # Errors
+    /// The [`ParamError`].
+    pub fn check_range(name: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), ParamError> {
+        if value.is_finite() && value >= lo && value <= hi {
+            Ok(())
+        } else {
+            Err(ParamError { name, value, range: format!("[{lo}, {hi}]") })
+        }
+    }
+}

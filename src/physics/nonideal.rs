@@ -110,13 +110,7 @@ impl NonIdealSpec {
     /// # Errors
     /// [`ParamError`] naming the first parameter out of range.
     pub fn validate(&self) -> Result<(), ParamError> {
-        let check = |name: &'static str, v: f64, lo: f64, hi: f64| {
-            if v.is_finite() && v >= lo && v <= hi {
-                Ok(())
-            } else {
-                Err(ParamError { name, value: v, range: format!("[{lo}, {hi}]") })
-            }
-        };
+        let check = ParamError::check_range;
         check("gain_rms", self.gain_rms, 0.0, 0.1)?;
         check("offset_netd", self.offset_netd, 0.0, 1000.0)?;
         check("column_netd", self.column_netd, 0.0, 1000.0)?;

@@ -119,16 +119,8 @@ pub fn target_signal(
     ctx.gray.validate()?;
     let temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
     let l_self = self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
-    let line = sensor_m - target.position_m;
-    let range_m = line.length();
-    if !(range_m > 0.0) || !range_m.is_finite() {
-        return Err(SignalError::Geometry(format!("range {range_m} m between sensor and target must be > 0")));
-    }
-    let to_viewer = line / range_m;
-    let sun_tau = ctx.atmosphere.to_space(target.position_m, ctx.sun.direction());
-    let input =
-        ReflectionInput { brdf: &target.brdf, sun: &ctx.sun, band: ctx.band, sun_transmittance: sun_tau, to_viewer };
-    let l_re = reflected_radiance(&input, ctx.reflection, Some((target.semi_axes_m, target.attitude, ctx.quadrature)));
+    let Sunlit { range_m, to_viewer, sun_tau, reflected: l_re } =
+        sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature)?;
     let l_sum = l_self + l_re;
     let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m);
     let projected_area_m2 = ellipsoid_projected_area(target.semi_axes_m, target.attitude, to_viewer);
@@ -151,6 +143,37 @@ pub fn target_signal(
         gray,
         gray_level: ctx.gray.quantize(gray),
     })
+}
+
+/// The viewing geometry and the sunlight a target reflects toward the sensor (eq 9, energy radiance).
+struct Sunlit {
+    range_m: f64,
+    to_viewer: DVec3,
+    sun_tau: f64,
+    reflected: f64,
+}
+
+/// Range, direction, sun transmittance and reflected sun radiance, shared by [`target_signal`] and
+/// [`apparent_radiance`].
+fn sunlit(
+    target: &TargetState,
+    sensor_m: DVec3,
+    band: Band,
+    sun: &Sun,
+    atmosphere: &(dyn PathTransmittance + Sync),
+    reflection: ReflectionGeometry,
+    quadrature: &SphereQuadrature,
+) -> Result<Sunlit, SignalError> {
+    let line = sensor_m - target.position_m;
+    let range_m = line.length();
+    if !(range_m > 0.0) || !range_m.is_finite() {
+        return Err(SignalError::Geometry(format!("range {range_m} m between sensor and target must be > 0")));
+    }
+    let to_viewer = line / range_m;
+    let sun_tau = atmosphere.to_space(target.position_m, sun.direction());
+    let input = ReflectionInput { brdf: &target.brdf, sun, band, sun_transmittance: sun_tau, to_viewer };
+    let reflected = reflected_radiance(&input, reflection, Some((target.semi_axes_m, target.attitude, quadrature)));
+    Ok(Sunlit { range_m, to_viewer, sun_tau, reflected })
 }
 
 /// Area of an ellipsoid's orthographic projection along unit direction `d`, m².
@@ -222,17 +245,8 @@ pub fn apparent_radiance(
     let temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let l_self = band_radiance_in(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
-    let line = sensor_m - target.position_m;
-    let range_m = line.length();
-    if !(range_m > 0.0) || !range_m.is_finite() {
-        return Err(SignalError::Geometry(format!("range {range_m} m between sensor and target must be > 0")));
-    }
-    let to_viewer = line / range_m;
-    let sun_tau = ctx.atmosphere.to_space(target.position_m, ctx.sun.direction());
-    let input =
-        ReflectionInput { brdf: &target.brdf, sun: &ctx.sun, band: ctx.band, sun_transmittance: sun_tau, to_viewer };
-    let l_re_energy =
-        reflected_radiance(&input, ctx.reflection, Some((target.semi_axes_m, target.attitude, ctx.quadrature)));
+    let Sunlit { range_m, reflected: l_re_energy, .. } =
+        sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature)?;
     let l_re = match ctx.measure {
         Measure::Energy => l_re_energy,
         Measure::Photon => {

@@ -643,16 +643,7 @@ fn layer_size(
 fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Sensor, SetupError> {
     let model = &resolved.model;
     let k = model.signal_per_radiance();
-    let readout = Readout {
-        signal_per_radiance: k as f32,
-        dark_signal: model.dark_signal() as f32,
-        shot_noise: model.shot_noise(),
-        read_variance: (model.read_noise * model.read_noise) as f32,
-        full_well: model.full_well() as f32,
-        dn_per_signal: (1.0 / model.adc.gain) as f32,
-        offset_dn: model.adc.offset_dn as f32,
-        poisson_normal_threshold: resolved.noise.poisson_normal_threshold as f32,
-    };
+    let readout = model.readout(resolved.noise.poisson_normal_threshold);
     let dn_per_radiance = k / model.adc.gain;
     let psf = match resolved.psf {
         Some(p) => Some(Arc::new(
