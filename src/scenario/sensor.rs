@@ -494,7 +494,8 @@ fn sensor_param_error(e: &ParamError, spec: &SensorSpec) -> FieldError {
         "reference_temp_k" => "sensor.detector.netd_reference_k".to_owned(),
         other => format!("sensor.detector.{other}"),
     };
-    let value = if e.value.is_nan() { String::new() } else { format!("{} ", e.value) };
+    // the thermal-detector `full_well` gain has no value to show
+    let value = if e.name == "gain" && e.value.is_nan() { String::new() } else { format!("{} ", e.value) };
     fe(path, format!("{value}is outside its allowed range {}", e.range))
 }
 
