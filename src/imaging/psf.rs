@@ -133,6 +133,8 @@ pub struct Kernel {
     terms: Vec<(f32, Vec<f32>)>,
     /// `Σ K[d]·|d|²`, px².
     second_moment_px2: f64,
+    /// `Σ |K[d]|·|d_x|`, px: the first absolute moment along one axis.
+    first_abs_moment_px: f64,
 }
 
 /// The PSF of a camera.
@@ -225,6 +227,46 @@ impl Psf {
         let top = f[i] + (f[i + 1] - f[i]) * tx;
         let bottom = f[i + self.fine_side] + (f[i + self.fine_side + 1] - f[i + self.fine_side]) * tx;
         top + (bottom - top) * ty
+    }
+
+    /// Adds `weight ×` the PSF of a point source at `(x, y)` (px) to the pixels `x0..x1 × y0..y1` of `out`, a
+    /// row-major buffer `width` wide whose first element is pixel `(x0, y0)`: the same values as
+    /// [`Psf::value`] at each pixel centre, with the interpolation weights computed once (every pixel centre
+    /// has the same sub-pixel offset from the source, so it falls at the same place between the fine table's
+    /// nodes).
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_point(&self, x: f64, y: f64, weight: f32, [x0, y0, x1, y1]: [usize; 4], out: &mut [f32], width: usize) {
+        let per = FINE_PER_PX as f64;
+        let half = (self.fine_side / 2) as f64;
+        let limit = (self.fine_side - 1) as f64;
+        // fine coordinates of pixel (x0, y0), and of each further pixel by steps of FINE_PER_PX nodes
+        let fx0 = (x0 as f64 + 0.5 - x) * per + half;
+        let fy0 = (y0 as f64 + 0.5 - y) * per + half;
+        let first = |f0: f64| if f0 >= 0.0 { 0 } else { ((-f0) / per).ceil() as usize };
+        let count = |f0: f64, n: usize| {
+            if f0 >= limit { 0 } else { (((limit - f0) / per).ceil() as usize).min(n) }
+        };
+        let (kx0, kx1) = (first(fx0), count(fx0, x1.saturating_sub(x0)));
+        let (ky0, ky1) = (first(fy0), count(fy0, y1.saturating_sub(y0)));
+        if kx0 >= kx1 || ky0 >= ky1 {
+            return;
+        }
+        let fx = fx0 + per * kx0 as f64;
+        let fy = fy0 + per * ky0 as f64;
+        let (ix, iy) = (fx.floor(), fy.floor());
+        let (tx, ty) = ((fx - ix) as f32, (fy - iy) as f32);
+        let (ix, iy) = (ix as usize, iy as usize);
+        let (side, f) = (self.fine_side, &self.fine);
+        for ky in ky0..ky1 {
+            let row = iy + (ky - ky0) * FINE_PER_PX;
+            let (top, bottom) = (&f[row * side..], &f[(row + 1) * side..]);
+            for (n, o) in out[ky * width + kx0..ky * width + kx1].iter_mut().enumerate() {
+                let i = ix + n * FINE_PER_PX;
+                let t = top[i] + (top[i + 1] - top[i]) * tx;
+                let b = bottom[i] + (bottom[i + 1] - bottom[i]) * tx;
+                *o += weight * (t + (b - t) * ty);
+            }
+        }
     }
 
     /// Kernel for a frame of point samples (nearest or bilinear sky).
@@ -424,6 +466,7 @@ impl Kernel {
                 v * (x * x + y * y)
             })
             .sum();
+        let first_abs_moment_px = values.iter().enumerate().map(|(i, v)| v.abs() * ((i % side) as f64 - r).abs()).sum();
         // symmetric part, eigen-decomposed; keep the largest terms until the worst error is 1e-4 of the peak
         let sym: Vec<f64> =
             (0..side * side).map(|i| 0.5 * (values[i] + values[(i % side) * side + i / side])).collect();
@@ -453,7 +496,13 @@ impl Kernel {
                 t.0 = (f64::from(t.0) * want / got) as f32;
             }
         }
-        Self { radius, values: values.iter().map(|&v| v as f32).collect(), terms, second_moment_px2 }
+        Self {
+            radius,
+            values: values.iter().map(|&v| v as f32).collect(),
+            terms,
+            second_moment_px2,
+            first_abs_moment_px,
+        }
     }
 
     /// Radius, px.
@@ -475,6 +524,11 @@ impl Kernel {
     /// bound for a symmetric kernel), which is how a smooth sky is recognised as not needing it.
     pub fn second_moment_px2(&self) -> f64 {
         self.second_moment_px2
+    }
+
+    /// `Σ |K[d]|·|d_x|`, px: the first absolute moment along one axis.
+    pub fn first_abs_moment_px(&self) -> f64 {
+        self.first_abs_moment_px
     }
 }
 
@@ -527,6 +581,36 @@ fn jacobi_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
     ((0..n).map(|i| a[i * n + i]).collect(), v)
 }
 
+/// Per [`BLUR_TILE_PX`] tile of `frame`, the largest `|F_xx| + |F_yy| + 2·|F_xy|` (second differences, edges
+/// replicated) into `out`; NaN where a pixel or a neighbour is NaN.
+fn tile_curvature(frame: &Frame, out: &mut Vec<f32>) {
+    let (w, h) = (frame.width(), frame.height());
+    let t = BLUR_TILE_PX;
+    let (tw, th) = (w.div_ceil(t), h.div_ceil(t));
+    out.clear();
+    out.resize(tw * th, 0.0);
+    let px = frame.pixels();
+    out.par_chunks_mut(tw).enumerate().for_each(|(ty, tiles)| {
+        let mut line = vec![0.0f32; w];
+        for y in ty * t..((ty + 1) * t).min(h) {
+            let (up, mid, down) = (&px[y.saturating_sub(1) * w..], &px[y * w..], &px[(y + 1).min(h - 1) * w..]);
+            for (x, c) in line.iter_mut().enumerate() {
+                let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                let fxx = mid[l] - 2.0 * mid[x] + mid[r];
+                let fyy = up[x] - 2.0 * mid[x] + down[x];
+                let fxy = 0.25 * (down[r] - down[l] - up[r] + up[l]);
+                *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
+            }
+            for (tx, tile) in tiles.iter_mut().enumerate() {
+                for &c in &line[tx * t..((tx + 1) * t).min(w)] {
+                    // NaN sticks
+                    *tile = if c.is_nan() || tile.is_nan() { f32::NAN } else { tile.max(c) };
+                }
+            }
+        }
+    });
+}
+
 /// Reusable buffers for applying kernels to frames of one size.
 #[derive(Debug, Default)]
 pub struct Convolver {
@@ -534,6 +618,68 @@ pub struct Convolver {
     acc: Vec<f32>,
     padded: Vec<f32>,
     fft: Option<FftConvolution>,
+    /// Per tile: the curvature measure, then whether the tile is blurred.
+    rough: Vec<f32>,
+    needed: Vec<bool>,
+}
+
+/// Side of the tiles a selective blur ([`Convolver::apply_where_needed`]) decides on, px.
+pub const BLUR_TILE_PX: usize = 16;
+
+/// What a selective blur did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct BlurStats {
+    /// Tiles blurred.
+    pub tiles_blurred: usize,
+    /// Tiles in the frame.
+    pub tiles: usize,
+}
+
+/// `out[x] += Σ_k v[k]·src[k][x]` for every `x` of `out`, sixteen outputs at a time in registers.
+#[inline]
+fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
+    const LANES: usize = 16;
+    let w = out.len();
+    let mut x = 0;
+    while x + LANES <= w {
+        let mut acc = [0.0f32; LANES];
+        for (row, &c) in rows.iter().zip(v) {
+            let p: &[f32; LANES] = row[x..x + LANES].try_into().expect("a block of LANES");
+            for j in 0..LANES {
+                acc[j] += c * p[j];
+            }
+        }
+        for (o, a) in out[x..x + LANES].iter_mut().zip(acc) {
+            *o += a;
+        }
+        x += LANES;
+    }
+    for (i, o) in out.iter_mut().enumerate().skip(x) {
+        *o += rows.iter().zip(v).map(|(row, &c)| c * row[i]).sum::<f32>();
+    }
+}
+
+/// `out[x] = Σ_k v[k]·src[x + k]`, sixteen outputs at a time in registers (`src` holds `out.len() + v.len() − 1`
+/// values).
+#[inline]
+fn correlate_row(src: &[f32], v: &[f32], out: &mut [f32]) {
+    const LANES: usize = 16;
+    let w = out.len();
+    let mut x = 0;
+    while x + LANES <= w {
+        let mut acc = [0.0f32; LANES];
+        for (k, &c) in v.iter().enumerate() {
+            let p: &[f32; LANES] = src[x + k..x + k + LANES].try_into().expect("a block of LANES");
+            for j in 0..LANES {
+                acc[j] += c * p[j];
+            }
+        }
+        out[x..x + LANES].copy_from_slice(&acc);
+        x += LANES;
+    }
+    for (i, o) in out.iter_mut().enumerate().skip(x) {
+        *o = v.iter().enumerate().map(|(k, &c)| c * src[i + k]).sum();
+    }
 }
 
 struct FftConvolution {
@@ -584,32 +730,112 @@ impl Convolver {
         for (lambda, v) in &kernel.terms {
             // horizontal pass into tmp
             let src = frame.pixels();
-            self.tmp.par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each(|(y, out)| {
-                let row = &src[y * w..(y + 1) * w];
-                let mut pad = vec![0.0f32; w + 2 * r];
-                pad[..r].fill(row[0]);
-                pad[r..r + w].copy_from_slice(row);
-                pad[r + w..].fill(row[w - 1]);
-                out.fill(0.0);
-                for (k, &c) in v.iter().enumerate() {
-                    for (o, &p) in out.iter_mut().zip(&pad[k..k + w]) {
-                        *o += c * p;
-                    }
-                }
-            });
+            self.tmp.par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each_init(
+                || vec![0.0f32; w + 2 * r],
+                |pad, (y, out)| {
+                    let row = &src[y * w..(y + 1) * w];
+                    pad[..r].fill(row[0]);
+                    pad[r..r + w].copy_from_slice(row);
+                    pad[r + w..].fill(row[w - 1]);
+                    correlate_row(pad, v, out);
+                },
+            );
             // vertical pass, scaled by λ, accumulated
             let tmp = &self.tmp;
+            let scaled: Vec<f32> = v.iter().map(|c| c * lambda).collect();
             self.acc.par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each(|(y, out)| {
-                for (k, &c) in v.iter().enumerate() {
+                let mut rows: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
+                for (k, row) in rows.iter_mut().enumerate().take(scaled.len()) {
                     let sy = (y + k).saturating_sub(r).min(h - 1);
-                    let c = c * lambda;
-                    for (o, &p) in out.iter_mut().zip(&tmp[sy * w..(sy + 1) * w]) {
-                        *o += c * p;
-                    }
+                    *row = &tmp[sy * w..(sy + 1) * w];
                 }
+                accumulate_rows(&rows[..scaled.len()], &scaled, out);
             });
         }
         frame.pixels_mut().copy_from_slice(&self.acc);
+    }
+
+    /// As [`Convolver::apply`], only on the tiles of [`BLUR_TILE_PX`] px where the blur can change a pixel by
+    /// more than `skip_below` (the frame's units); the other tiles keep their values.
+    ///
+    /// For a symmetric kernel `K` the blur changes a pixel by `Σ_d K(d)·(F(x+d) − F(x) − g·d)` for any `g`;
+    /// with `g` the central difference, the discrete Taylor bound gives at most `½·(M₂ + 2·m₁)·D`, where `M₂ =
+    /// Σ K·|d|²`, `m₁` the first absolute moment along an axis, and `D` the largest `|F_xx| + |F_yy| + 2·|F_xy|`
+    /// (second differences) within the kernel's reach. A tile is blurred when that bound, with `D` taken over the
+    /// tile and its neighbours within the kernel radius, exceeds `skip_below`. Mostly blurred frames take the
+    /// whole-frame method.
+    pub fn apply_where_needed(
+        &mut self,
+        kernel: &Kernel,
+        frame: &mut Frame,
+        method: ConvolutionMethod,
+        skip_below: f32,
+    ) -> BlurStats {
+        let (w, h) = (frame.width(), frame.height());
+        let t = BLUR_TILE_PX;
+        let (tw, th) = (w.div_ceil(t), h.div_ceil(t));
+        let tiles = tw * th;
+        if kernel.radius == 0 || !(skip_below > 0.0) {
+            self.apply(kernel, frame, method);
+            return BlurStats { tiles_blurred: tiles, tiles };
+        }
+        tile_curvature(frame, &mut self.rough);
+        let factor = (0.5 * (kernel.second_moment_px2 + 2.0 * kernel.first_abs_moment_px)) as f32;
+        let reach = kernel.radius.div_ceil(t) as isize;
+        self.needed.clear();
+        self.needed.extend((0..tiles).map(|i| {
+            let (tx, ty) = ((i % tw) as isize, (i / tw) as isize);
+            let mut worst = 0.0f32;
+            for y in (ty - reach).max(0)..=(ty + reach).min(th as isize - 1) {
+                for x in (tx - reach).max(0)..=(tx + reach).min(tw as isize - 1) {
+                    // NaN counts as rough
+                    let c = self.rough[y as usize * tw + x as usize];
+                    worst = if c.is_nan() { f32::INFINITY } else { worst.max(c) };
+                }
+            }
+            !(worst * factor <= skip_below)
+        }));
+        let blurred = self.needed.iter().filter(|&&n| n).count();
+        if blurred == 0 {
+            return BlurStats { tiles_blurred: 0, tiles };
+        }
+        if 2 * blurred > tiles {
+            self.apply(kernel, frame, method);
+            return BlurStats { tiles_blurred: tiles, tiles };
+        }
+        let r = kernel.radius;
+        let pw = self.pad(frame, r);
+        let padded = &self.padded;
+        let needed = &self.needed;
+        frame.pixels_mut().par_chunks_mut(t * w).enumerate().for_each_init(
+            || (vec![0.0f32; (t + 2 * r) * t], vec![0.0f32; t * t]),
+            |(tmp, acc), (ty, band)| {
+                let rows = band.len() / w;
+                for tx in (0..tw).filter(|&tx| needed[ty * tw + tx]) {
+                    let (x0, cols) = (tx * t, t.min(w - tx * t));
+                    acc[..rows * t].fill(0.0);
+                    for (lambda, v) in &kernel.terms {
+                        // horizontal over the band's rows and r more on each side (padded coordinates)
+                        for py in 0..rows + 2 * r {
+                            let src = &padded[(ty * t + py) * pw + x0..];
+                            correlate_row(src, v, &mut tmp[py * t..py * t + cols]);
+                        }
+                        let scaled: Vec<f32> = v.iter().map(|c| c * lambda).collect();
+                        let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
+                        for y in 0..rows {
+                            for (k, row) in src.iter_mut().enumerate().take(v.len()) {
+                                *row = &tmp[(y + k) * t..(y + k) * t + cols];
+                            }
+                            accumulate_rows(&src[..v.len()], &scaled, &mut acc[y * t..y * t + cols]);
+                        }
+                    }
+                    for y in 0..rows {
+                        band[y * w + x0..y * w + x0 + cols].copy_from_slice(&acc[y * t..y * t + cols]);
+                    }
+                }
+            },
+        );
+        BlurStats { tiles_blurred: blurred, tiles }
     }
 
     /// Copies `frame` into `self.padded` with `r` replicated pixels on every side.
@@ -765,6 +991,34 @@ mod tests {
     }
 
     #[test]
+    fn add_point_matches_value_at_every_pixel_centre() {
+        let psf = Psf::new(&PsfSpec::default(), &optics(1.0, Band::LWIR_8_12)).unwrap();
+        let (w, h) = (23, 19);
+        for (x, y) in [(11.3, 9.7), (0.02, 18.99), (-3.4, 4.5), (25.0, -2.2), (11.5, 9.5), (4.0, 3.0)] {
+            let mut out = vec![0.0f32; w * h];
+            psf.add_point(x, y, 2.0, [0, 0, w, h], &mut out, w);
+            for py in 0..h {
+                for px in 0..w {
+                    let want = 2.0 * psf.value(px as f64 + 0.5 - x, py as f64 + 0.5 - y);
+                    let got = out[py * w + px];
+                    assert!(
+                        (got - want).abs() <= 1e-6 * want.abs().max(1e-3),
+                        "({x}, {y}) px ({px}, {py}): {got} vs {want}"
+                    );
+                }
+            }
+            // a sub-rectangle at an offset in a wider buffer
+            let mut sub = vec![0.0f32; 40 * 10];
+            psf.add_point(x, y, 2.0, [5, 4, 15, 12], &mut sub, 40);
+            for py in 4..12 {
+                for px in 5..15 {
+                    assert_eq!(sub[(py - 4) * 40 + px - 5], out[py * w + px]);
+                }
+            }
+        }
+    }
+
+    #[test]
     fn airy_fwhm_matches_the_formula() {
         // diffraction only, a narrow band at 10 µm: FWHM = 1.029 λN
         let spec = PsfSpec { pixel_aperture: false, aberration_sigma_px: 0.0, ..PsfSpec::default() };
@@ -801,6 +1055,46 @@ mod tests {
         let mut flat = Frame::from_pixels(w, h, vec![123.0; w * h]);
         c.apply(psf.point_kernel(), &mut flat, ConvolutionMethod::Separable);
         assert!(flat.pixels().iter().all(|v| (v - 123.0).abs() < 1e-3));
+    }
+
+    #[test]
+    fn selective_blur_changes_skipped_tiles_by_less_than_the_threshold() {
+        let psf = Psf::new(&PsfSpec::default(), &optics(1.0, Band::LWIR_8_12)).unwrap();
+        let kernel = psf.point_kernel();
+        let (w, h) = (100, 84);
+        // a smooth ramp with weak texture, a bilinear-like kinked band, and a sharp cloud edge at the bottom right
+        let field = |x: usize, y: usize| {
+            let (fx, fy) = (x as f32, y as f32);
+            let mut v = 1000.0 + 0.5 * fx + 0.002 * fy * fy + 0.3 * (0.05 * fx).sin();
+            v += 0.4 * ((fx / 3.7).fract() - 0.5).abs();
+            if x > 80 && y > 60 {
+                v += 300.0;
+            }
+            v
+        };
+        let base = Frame::from_pixels(w, h, (0..w * h).map(|i| field(i % w, i / w)).collect());
+        let mut full = base.clone();
+        let mut c = Convolver::new();
+        c.apply(kernel, &mut full, ConvolutionMethod::Separable);
+        for skip in [0.05f32, 0.5, 2.0] {
+            let mut sel = base.clone();
+            let stats = c.apply_where_needed(kernel, &mut sel, ConvolutionMethod::Separable, skip);
+            assert!(stats.tiles_blurred > 0 && stats.tiles_blurred <= stats.tiles, "{stats:?}");
+            for i in 0..w * h {
+                let (kept, blurred) = (sel.pixels()[i], full.pixels()[i]);
+                if kept == base.pixels()[i] {
+                    // a skipped pixel: the blur would have moved it by less than the threshold
+                    assert!((blurred - kept).abs() <= skip, "skip {skip}: pixel {i} moves {}", blurred - kept);
+                } else {
+                    assert!((kept - blurred).abs() < 1e-3, "skip {skip}: pixel {i}: {kept} vs {blurred}");
+                }
+            }
+        }
+        // a ramp under a threshold above what the replicated edges' kinks give (0.3·1.1): nothing to do
+        let smooth = Frame::from_pixels(w, h, (0..w * h).map(|i| 1000.0 + 0.3 * (i % w) as f32).collect());
+        let mut f = smooth.clone();
+        assert_eq!(c.apply_where_needed(kernel, &mut f, ConvolutionMethod::Separable, 0.5).tiles_blurred, 0);
+        assert_eq!(f, smooth);
     }
 
     #[test]

@@ -199,14 +199,12 @@ fn scatter(psf: &Psf, x: f64, y: f64, weight: f32, rect: PixelRect, out: &mut [f
     let hi = |v: f64, max: usize| ((v + reach).ceil().max(0.0) as usize).min(max);
     let (px0, px1) = (lo(x, rect.x0), hi(x, rect.x1));
     let (py0, py1) = (lo(y, rect.y0), hi(y, rect.y1));
-    let w = rect.width();
-    for py in py0..py1 {
-        let dy = py as f64 + 0.5 - y;
-        let row = (py - rect.y0) * w;
-        for px in px0..px1 {
-            out[row + px - rect.x0] += weight * psf.value(px as f64 + 0.5 - x, dy);
-        }
+    if px0 >= px1 || py0 >= py1 {
+        return;
     }
+    let w = rect.width();
+    let start = (py0 - rect.y0) * w + px0 - rect.x0;
+    psf.add_point(x, y, weight, [px0, py0, px1, py1], &mut out[start..], w);
 }
 
 #[cfg(test)]

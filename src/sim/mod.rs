@@ -31,7 +31,7 @@ use glam::DVec3;
 use crate::imaging::camera::{Camera, Jitter, YawPitchRoll};
 use crate::imaging::frame::Frame;
 use crate::imaging::fusion::PoissonFusion;
-use crate::imaging::psf::{Convolver, Psf, PsfOptics};
+use crate::imaging::psf::{BlurStats, Convolver, Psf, PsfOptics};
 use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate};
 use crate::imaging::sky_gen::{SkyGenSpec, generate};
 use crate::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlane};
@@ -252,6 +252,8 @@ pub struct SensorFrame {
     /// The sky as last rendered (radiance, blurred), and the camera it was rendered for.
     pub background: Frame,
     background_camera: Option<Camera>,
+    /// What the last blur of the background did.
+    pub blur: BlurStats,
     convolver: Convolver,
     columns: Vec<f32>,
 }
@@ -535,6 +537,7 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
             float_frame: None,
             background: Frame::new(w, h),
             background_camera: None,
+            blur: BlurStats::default(),
             convolver: Convolver::new(),
             columns: Vec::new(),
         },

@@ -41,7 +41,9 @@ pub fn render_sky(
             // a point-sampled sky needs the pixel aperture in the kernel; an area-averaged one has it already
             let area_sampled = sky.plane.is_some() && matches!(sky.sampling, Sampling::Supersample { n } if n > 1);
             let kernel = if area_sampled { psf.area_kernel() } else { psf.point_kernel() };
-            sf.convolver.apply(kernel, &mut sf.background, cfg.method);
+            // tiles where the blur changes no pixel by more than the set DN keep their values
+            let skip = (cfg.skip_below_dn / sensor.dn_per_radiance) as f32;
+            sf.blur = sf.convolver.apply_where_needed(kernel, &mut sf.background, cfg.method, skip);
         }
         sf.background_camera = Some(pose.current);
     }
