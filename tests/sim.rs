@@ -287,3 +287,24 @@ fn fixed_attitude_orients_a_hovering_target() {
         }
     }
 }
+
+#[test]
+fn internal_heating_raises_the_skin_and_the_target_signal() {
+    let label = |heating: f64| {
+        let text = CONSTANT_VELOCITY
+            .replace("semi_axes_m = [0.5, 0.5, 0.5]", &format!("semi_axes_m = [0.5, 0.5, 0.5]\nheating_k = {heating}"));
+        let mut app = build_app(&scenario(&text), RunOptions { noise: false, ..RunOptions::default() }).unwrap();
+        step(&mut app).targets.remove(0)
+    };
+    let (cold, warm) = (label(0.0), label(10.0));
+    assert!((warm.skin_temp_k - cold.skin_temp_k - 10.0).abs() < 1e-9, "{} vs {}", warm.skin_temp_k, cold.skin_temp_k);
+    assert!(warm.apparent_temp_k > cold.apparent_temp_k + 1.0, "{} vs {}", warm.apparent_temp_k, cold.apparent_temp_k);
+    assert!(warm.peak_dn > cold.peak_dn, "{} vs {}", warm.peak_dn, cold.peak_dn);
+    // out of range or not a number: a located error
+    for bad in ["-1", "3000", "nan"] {
+        let text = CONSTANT_VELOCITY
+            .replace("semi_axes_m = [0.5, 0.5, 0.5]", &format!("semi_axes_m = [0.5, 0.5, 0.5]\nheating_k = {bad}"));
+        let err = load_str(&text, Format::Toml, Path::new("test.toml"), &root()).unwrap_err().to_string();
+        assert!(err.contains("targets[0].heating_k"), "{bad}: {err}");
+    }
+}

@@ -292,6 +292,7 @@ fn signal(a: &SignalArgs) -> Result<Value, CliError> {
         position_m: target_pos,
         mach: a.mach,
         emissivity: a.emissivity,
+        heating_k: 0.0,
         brdf: CookTorrance { kd: a.kd, ks: a.ks, f0: a.f0, roughness: a.roughness },
         semi_axes_m: axes,
         attitude,

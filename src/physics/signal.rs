@@ -38,12 +38,25 @@ pub struct TargetState {
     pub mach: f64,
     /// Emissivity of the skin, [0, 1].
     pub emissivity: f64,
+    /// Skin temperature above the stagnation (recovery) temperature from internal heat (motors, batteries,
+    /// engine bay), K; 0 for the paper's skin.
+    pub heating_k: f64,
     /// Reflectance model.
     pub brdf: CookTorrance,
     /// Ellipsoid semi-axes, m, body frame (x along the velocity).
     pub semi_axes_m: DVec3,
     /// Body-to-world rotation.
     pub attitude: DMat3,
+}
+
+/// The target's internal heating, checked: finite and in `[0, 2000]` K.
+fn heating(target: &TargetState) -> Result<f64, SignalError> {
+    let h = target.heating_k;
+    if h.is_finite() && (0.0..=2000.0).contains(&h) {
+        Ok(h)
+    } else {
+        Err(SignalError::Param(ParamError { name: "heating_k", value: h, range: "[0, 2000]".into() }))
+    }
 }
 
 /// Everything else that the chain needs: the scene and the sensor.
@@ -117,7 +130,8 @@ pub fn target_signal(
     target.brdf.validate()?;
     ctx.radiometer.validate()?;
     ctx.gray.validate()?;
-    let temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    let mut temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    temps.skin_temp_k += heating(target)?;
     let l_self = self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let Sunlit { range_m, to_viewer, sun_tau, reflected: l_re } =
         sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature)?;
@@ -242,7 +256,8 @@ pub fn apparent_radiance(
     ctx: &ApparentContext<'_>,
 ) -> Result<Apparent, SignalError> {
     target.brdf.validate()?;
-    let temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    let mut temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    temps.skin_temp_k += heating(target)?;
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let l_self = band_radiance_in(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
     let Sunlit { range_m, reflected: l_re_energy, .. } =

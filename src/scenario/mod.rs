@@ -287,6 +287,10 @@ pub struct TargetSpec {
     /// Skin emissivity.
     #[serde(default = "default_emissivity")]
     pub emissivity: f64,
+    /// Skin temperature above the stagnation temperature from internal heat (a drone's motors and batteries,
+    /// an engine bay), K; default 0, the paper's skin.
+    #[serde(default)]
+    pub heating_k: f64,
     /// Reflectance.
     #[serde(default)]
     pub brdf: CookTorrance,
@@ -540,6 +544,9 @@ impl Scenario {
             }
             if !(0.0..=1.0).contains(&t.emissivity) {
                 return Err(fe(format!("{p}.emissivity"), format!("{} must be in [0, 1]", t.emissivity)));
+            }
+            if !(t.heating_k.is_finite() && (0.0..=2000.0).contains(&t.heating_k)) {
+                return Err(fe(format!("{p}.heating_k"), format!("{} must be in [0, 2000]", t.heating_k)));
             }
             t.brdf
                 .validate()

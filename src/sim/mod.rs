@@ -143,6 +143,8 @@ pub struct Skin {
     pub reflection: ReflectionGeometry,
     /// Mach number if fixed; otherwise from speed and the local speed of sound.
     pub mach: Option<f64>,
+    /// Skin temperature above the stagnation temperature from internal heat, K.
+    pub heating_k: f64,
 }
 
 /// Radiometric result of a target, recomputed only when its inputs change.
@@ -560,7 +562,13 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
             FlightPath(tr.clone()),
             Kinematics { position_m: p, velocity_m_s: v },
             Body { semi_axes_m: t.semi_axes_m, attitude: t.attitude },
-            Skin { emissivity: t.emissivity, brdf: t.brdf, reflection: t.reflection, mach: t.mach },
+            Skin {
+                emissivity: t.emissivity,
+                brdf: t.brdf,
+                reflection: t.reflection,
+                mach: t.mach,
+                heating_k: t.heating_k,
+            },
             Signature::default(),
             Footprint::default(),
         ));

@@ -56,6 +56,7 @@ pub fn update_signatures(
             position_m: p,
             mach,
             emissivity: skin.emissivity,
+            heating_k: skin.heating_k,
             brdf: skin.brdf,
             semi_axes_m: body.semi_axes_m,
             attitude: body.body_to_world(kin.velocity_m_s),
