@@ -133,8 +133,6 @@ pub struct Kernel {
     terms: Vec<(f32, Vec<f32>)>,
     /// `Σ K[d]·|d|²`, px².
     second_moment_px2: f64,
-    /// `Σ |K[d]|·|d_x|`, px: the first absolute moment along one axis.
-    first_abs_moment_px: f64,
 }
 
 /// The PSF of a camera.
@@ -466,7 +464,6 @@ impl Kernel {
                 v * (x * x + y * y)
             })
             .sum();
-        let first_abs_moment_px = values.iter().enumerate().map(|(i, v)| v.abs() * ((i % side) as f64 - r).abs()).sum();
         // symmetric part, eigen-decomposed; keep the largest terms until the worst error is 1e-4 of the peak
         let sym: Vec<f64> =
             (0..side * side).map(|i| 0.5 * (values[i] + values[(i % side) * side + i / side])).collect();
@@ -496,13 +493,7 @@ impl Kernel {
                 t.0 = (f64::from(t.0) * want / got) as f32;
             }
         }
-        Self {
-            radius,
-            values: values.iter().map(|&v| v as f32).collect(),
-            terms,
-            second_moment_px2,
-            first_abs_moment_px,
-        }
+        Self { radius, values: values.iter().map(|&v| v as f32).collect(), terms, second_moment_px2 }
     }
 
     /// Radius, px.
@@ -524,11 +515,6 @@ impl Kernel {
     /// bound for a symmetric kernel), which is how a smooth sky is recognised as not needing it.
     pub fn second_moment_px2(&self) -> f64 {
         self.second_moment_px2
-    }
-
-    /// `Σ |K[d]|·|d_x|`, px: the first absolute moment along one axis.
-    pub fn first_abs_moment_px(&self) -> f64 {
-        self.first_abs_moment_px
     }
 }
 
@@ -581,8 +567,9 @@ fn jacobi_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
     ((0..n).map(|i| a[i * n + i]).collect(), v)
 }
 
-/// Per [`BLUR_TILE_PX`] tile of `frame`, the largest `|F_xx| + |F_yy| + 2·|F_xy|` (second differences, edges
-/// replicated) into `out`; NaN where a pixel or a neighbour is NaN.
+/// Per [`BLUR_TILE_PX`] tile of `frame`, the largest `|F_xx| + |F_yy| + 2·|F_xy|` (central second differences
+/// along the axes, the forward mixed difference of the pixel's 2 × 2 cell; edges replicated) into `out`; NaN
+/// where a pixel or a neighbour is NaN.
 fn tile_curvature(frame: &Frame, out: &mut Vec<f32>) {
     let (w, h) = (frame.width(), frame.height());
     let t = BLUR_TILE_PX;
@@ -598,7 +585,7 @@ fn tile_curvature(frame: &Frame, out: &mut Vec<f32>) {
                 let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
                 let fxx = mid[l] - 2.0 * mid[x] + mid[r];
                 let fyy = up[x] - 2.0 * mid[x] + down[x];
-                let fxy = 0.25 * (down[r] - down[l] - up[r] + up[l]);
+                let fxy = down[r] - down[x] - mid[r] + mid[x];
                 *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
             }
             for (tx, tile) in tiles.iter_mut().enumerate() {
@@ -629,7 +616,9 @@ pub const BLUR_TILE_PX: usize = 16;
 /// What a selective blur did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct BlurStats {
-    /// Tiles blurred.
+    /// Tiles where the blur can change a pixel by more than the threshold.
+    pub tiles_needed: usize,
+    /// Tiles blurred (all of them when the whole-frame method was cheaper).
     pub tiles_blurred: usize,
     /// Tiles in the frame.
     pub tiles: usize,
@@ -758,12 +747,13 @@ impl Convolver {
     /// As [`Convolver::apply`], only on the tiles of [`BLUR_TILE_PX`] px where the blur can change a pixel by
     /// more than `skip_below` (the frame's units); the other tiles keep their values.
     ///
-    /// For a symmetric kernel `K` the blur changes a pixel by `Σ_d K(d)·(F(x+d) − F(x) − g·d)` for any `g`;
-    /// with `g` the central difference, the discrete Taylor bound gives at most `½·(M₂ + 2·m₁)·D`, where `M₂ =
-    /// Σ K·|d|²`, `m₁` the first absolute moment along an axis, and `D` the largest `|F_xx| + |F_yy| + 2·|F_xy|`
-    /// (second differences) within the kernel's reach. A tile is blurred when that bound, with `D` taken over the
-    /// tile and its neighbours within the kernel radius, exceeds `skip_below`. Mostly blurred frames take the
-    /// whole-frame method.
+    /// For a symmetric kernel `K` the blur changes a pixel by `½·Σ_d K(d)·(F(x+d) + F(x−d) − 2·F(x))`. For
+    /// `d = (a, b)` that sum splits exactly into second differences along the axes (`a²` and `b²` of them, with
+    /// weights summing to those) and `2·|a·b|` mixed differences of 2 × 2 cells, so the change is at most
+    /// `½·Σ K·(a²·D_xx + b²·D_yy + 2·|a·b|·D_xy) ≤ ¼·M₂·D`, with `M₂ = Σ K·|d|²` and `D` the largest
+    /// `|F_xx| + |F_yy| + 2·|F_xy|` within the kernel's reach. A tile is blurred when that bound, with `D` taken
+    /// over the tile and its neighbours within the kernel radius, exceeds `skip_below`. Mostly blurred frames take
+    /// the whole-frame method.
     pub fn apply_where_needed(
         &mut self,
         kernel: &Kernel,
@@ -777,10 +767,10 @@ impl Convolver {
         let tiles = tw * th;
         if kernel.radius == 0 || !(skip_below > 0.0) {
             self.apply(kernel, frame, method);
-            return BlurStats { tiles_blurred: tiles, tiles };
+            return BlurStats { tiles_needed: tiles, tiles_blurred: tiles, tiles };
         }
         tile_curvature(frame, &mut self.rough);
-        let factor = (0.5 * (kernel.second_moment_px2 + 2.0 * kernel.first_abs_moment_px)) as f32;
+        let factor = (0.25 * kernel.second_moment_px2) as f32;
         let reach = kernel.radius.div_ceil(t) as isize;
         self.needed.clear();
         self.needed.extend((0..tiles).map(|i| {
@@ -797,11 +787,11 @@ impl Convolver {
         }));
         let blurred = self.needed.iter().filter(|&&n| n).count();
         if blurred == 0 {
-            return BlurStats { tiles_blurred: 0, tiles };
+            return BlurStats { tiles_needed: 0, tiles_blurred: 0, tiles };
         }
         if 2 * blurred > tiles {
             self.apply(kernel, frame, method);
-            return BlurStats { tiles_blurred: tiles, tiles };
+            return BlurStats { tiles_needed: blurred, tiles_blurred: tiles, tiles };
         }
         let r = kernel.radius;
         let pw = self.pad(frame, r);
@@ -835,7 +825,7 @@ impl Convolver {
                 }
             },
         );
-        BlurStats { tiles_blurred: blurred, tiles }
+        BlurStats { tiles_needed: blurred, tiles_blurred: blurred, tiles }
     }
 
     /// Copies `frame` into `self.padded` with `r` replicated pixels on every side.
@@ -1067,6 +1057,10 @@ mod tests {
             let (fx, fy) = (x as f32, y as f32);
             let mut v = 1000.0 + 0.5 * fx + 0.002 * fy * fy + 0.3 * (0.05 * fx).sin();
             v += 0.4 * ((fx / 3.7).fract() - 0.5).abs();
+            // pixel-scale texture in the top rows
+            if y < 20 {
+                v += 0.05 * ((x * 7919 + y * 104_729) % 1000) as f32 / 1000.0;
+            }
             if x > 80 && y > 60 {
                 v += 300.0;
             }

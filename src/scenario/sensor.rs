@@ -165,8 +165,8 @@ pub struct PsfToml {
     pub energy_cutoff: f64,
     /// How the kernel is applied to the frame.
     pub method: ConvolutionMethod,
-    /// The frame is not blurred where the blur would change no pixel by more than this many DN (estimated
-    /// from the background's curvature); 0 always blurs.
+    /// A 16 × 16 px tile of the frame is not blurred when the blur cannot change any of its pixels by more than
+    /// this many DN (bounded from the background's second differences); 0 always blurs.
     pub skip_below_dn: f64,
 }
 
