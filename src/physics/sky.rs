@@ -189,12 +189,17 @@ impl Dome {
                 let from = DVec3::new(0.0, 0.0, h);
                 let tangent = DVec3::new(0.0, reach, h_t);
                 let tau = inputs.atmosphere.along_segment(from, tangent).clamp(0.0, 1.0);
-                planck(t_air(emission_altitude(inputs.atmosphere, from, tangent, tau))?)
+                // what passes the tangent point is the horizontal sky seen from its height
+                tau * planck(t_air(h_t)?)
+                    + (1.0 - tau) * planck(t_air(emission_altitude(inputs.atmosphere, from, tangent, tau))?)
             } else {
-                let d = h / -sin_e;
-                let cos_e = (1.0 - sin_e * sin_e).max(0.0).sqrt();
+                // the ray meets the curved ground after t = −(R+h)·sin e − √((R+h)²·sin²e − (2Rh + h²)); the path
+                // is taken, like the grazing one, as a straight descent over that horizontal distance, so the two
+                // agree at the horizon
+                let r_h = EARTH_RADIUS_M + h;
+                let t = -r_h * sin_e - (r_h * r_h * sin_e * sin_e - (2.0 * EARTH_RADIUS_M * h + h * h)).max(0.0).sqrt();
                 let from = DVec3::new(0.0, 0.0, h);
-                let hit = from + DVec3::new(0.0, cos_e, sin_e) * d;
+                let hit = DVec3::new(0.0, t.max(0.0), 0.0);
                 let tau = inputs.atmosphere.along_segment(from, hit).clamp(0.0, 1.0);
                 let path = planck(t_air(emission_altitude(inputs.atmosphere, from, hit, tau))?);
                 tau * (ground + (1.0 - s.ground_emissivity) * sky(-sin_e)?) + (1.0 - tau) * path
@@ -279,6 +284,30 @@ mod tests {
             atmosphere: &atm,
         })
         .unwrap()
+    }
+
+    #[test]
+    fn grazing_and_ground_paths_meet_at_the_curved_horizon() {
+        for h in [500.0, 8000.0] {
+            let d = dome(h, Band::LWIR_8_12);
+            let dip = (EARTH_RADIUS_M / (EARTH_RADIUS_M + h)).acos();
+            // one table step either side of the limb
+            let step = 2.0 / (TABLE_SAMPLES - 1) as f64;
+            let limb = -dip.sin();
+            let at = |k: f64| f64::from(d.radiance(limb + k * step));
+            // the limb is a kink (the radiance climbs steeply above it), not a step: the change across it is
+            // no larger than the neighbouring changes
+            let across = (at(1.0) - at(-1.0)).abs();
+            let beside = (at(2.0) - at(1.0)).abs().max((at(-1.0) - at(-2.0)).abs());
+            assert!(across <= 2.0 * beside + 1e-4 * at(0.0), "h {h}: {across} across the limb, {beside} beside it");
+            // and no dip below the limb: the warmer, nearer ground only brightens the view downward
+            let mut last = f64::from(d.radiance(limb));
+            for k in 1..40 {
+                let v = f64::from(d.radiance(limb - k as f64 * step));
+                assert!(v >= last - 1e-6 * last, "h {h}: radiance falls {k} steps below the limb: {v} < {last}");
+                last = v;
+            }
+        }
     }
 
     #[test]
