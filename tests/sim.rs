@@ -113,7 +113,7 @@ fn runs_are_deterministic_and_thread_count_independent() {
 /// the hashes with the values printed in the failure message, and say why in the commit. If the change was not
 /// meant to change frames, the failure is a regression.
 const GOLDEN_PAPER_CLEAR_SKY: [u64; 3] =
-    [4_910_074_622_319_582_642, 9_794_229_693_141_235_450, 18_097_565_566_242_254_707];
+    [12_755_682_623_723_593_629, 18_372_879_938_888_972_796, 14_232_147_651_712_537_130];
 
 #[test]
 fn golden_frame_hashes() {
