@@ -308,3 +308,36 @@ fn internal_heating_raises_the_skin_and_the_target_signal() {
         assert!(err.contains("targets[0].heating_k"), "{bad}: {err}");
     }
 }
+
+#[test]
+fn no_cloud_below_the_cloud_base() {
+    // the constant-velocity camera at 8 km looking north at a cumulus layer 20 km away spanning 6–10 km
+    let frame = |sky: &str| {
+        let text = format!(
+            "{CONSTANT_VELOCITY}[sky]\n{sky}\nanchor_m = [0, 20000, 8000]\nnormal = [0, -1, 0]\nwidth_m = 8000\nheight_m = 4000\n"
+        );
+        let text = if sky.is_empty() { CONSTANT_VELOCITY.to_owned() } else { text };
+        let mut app = build_app(&scenario(&text), RunOptions { noise: false, ..RunOptions::default() }).unwrap();
+        step(&mut app);
+        current_frame(&mut app).clone()
+    };
+    let layer = "generate = { kind = \"cumulus\", cover = 0.6, psd_slope = -3.0, scale = 0.3, seed = 3 }";
+    let (clear, cloudy) = (frame(""), frame(layer));
+    let based = frame(&format!("{layer}\ncloud_base_m = 11000"));
+    let worst = |a: &irsim::imaging::frame::Frame, b: &irsim::imaging::frame::Frame| {
+        a.pixels().iter().zip(b.pixels()).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max)
+    };
+    let (with_clouds, above_base) = (worst(&cloudy, &clear), worst(&based, &clear));
+    // clouds change the frame by many DN; a base above the whole layer leaves only the baked dome's resampling
+    assert!(with_clouds > 50.0, "clouds change the frame by only {with_clouds} DN");
+    assert!(above_base < 0.02 * with_clouds, "{above_base} DN with every cloud below the base");
+    let err = load_str(
+        &format!("{CONSTANT_VELOCITY}[sky]\n{layer}\ncloud_base_m = -1e9\nanchor_m = [0, 20000, 8000]\nwidth_m = 8000\nheight_m = 4000\n"),
+        Format::Toml,
+        Path::new("test.toml"),
+        &root(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("sky.cloud_base_m"), "{err}");
+}

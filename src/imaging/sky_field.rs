@@ -204,7 +204,12 @@ pub struct LayerBake<'a> {
     pub lut: &'a RadianceLut,
     /// Cloud-base temperature relative to the air at its height, K.
     pub cloud_offset_k: f64,
+    /// Cloud-base altitude, m: no cloud below it, fading in over [`CLOUD_BASE_FADE_M`] above it.
+    pub cloud_base_m: Option<f64>,
 }
+
+/// Height over which a layer's clouds fade in above the cloud base, m.
+pub const CLOUD_BASE_FADE_M: f64 = 100.0;
 
 /// The layer as radiance texels over the dome (see the module's documentation).
 ///
@@ -220,7 +225,8 @@ pub fn bake_layer(b: &LayerBake<'_>) -> Result<SkyImage, SkyError> {
             let p = b.plane.world_point(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
             let d = p - b.eye_m;
             let dome = f64::from(b.dome.radiance_toward(d));
-            let alpha = f64::from(b.layer.opacity[i]);
+            let base = b.cloud_base_m.map_or(1.0, |base| ((p.z - base) / CLOUD_BASE_FADE_M).clamp(0.0, 1.0));
+            let alpha = f64::from(b.layer.opacity[i]) * base;
             *texel = if alpha > 0.0 {
                 let t_cloud = (b.air_temp_k)(p.z) + b.cloud_offset_k + f64::from(b.layer.temp_offset_k[i]);
                 let tau = b.atmosphere.along_segment(b.eye_m, p).clamp(0.0, 1.0);

@@ -182,6 +182,10 @@ pub struct SkySpec {
     /// Cloud-base temperature of a generated layer relative to the air at its height, K.
     #[serde(default)]
     pub cloud_offset_k: f64,
+    /// Cloud-base altitude of a generated layer, m: below it the layer holds no cloud (it fades out over the
+    /// 100 m above); default none, clouds wherever the layer is.
+    #[serde(default)]
+    pub cloud_base_m: Option<f64>,
     /// Largest side of a generated layer, texels (its resolution follows the sensor's footprint up to this).
     #[serde(default = "default_max_texels")]
     pub max_texels: usize,
@@ -438,6 +442,11 @@ impl Scenario {
         }
         if !(sky.cloud_offset_k.is_finite() && (-100.0..=100.0).contains(&sky.cloud_offset_k)) {
             return Err(fe("sky.cloud_offset_k", format!("{} must be in [−100, 100] K", sky.cloud_offset_k)));
+        }
+        if let Some(b) = sky.cloud_base_m
+            && !(b.is_finite() && (-5000.0..=86000.0).contains(&b))
+        {
+            return Err(fe("sky.cloud_base_m", format!("{b} must be in [−5000, 86000] m")));
         }
         if sky.generate.is_some() && !(16..=8192).contains(&sky.max_texels) {
             return Err(fe("sky.max_texels", format!("{} must be in 16 … 8192", sky.max_texels)));

@@ -619,6 +619,7 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
                 atmosphere: &scene.atmosphere,
                 lut: &lut,
                 cloud_offset_k: sky.cloud_offset_k,
+                cloud_base_m: sky.cloud_base_m,
             })
             .map_err(|e| SetupError(e.to_string()))?;
             Some(SkyPlane::new(image, &placement, eye).map_err(|e| SetupError(e.to_string()))?)
