@@ -33,6 +33,7 @@ use serde::{Deserialize, Serialize};
 use super::frame::Frame;
 use crate::physics::ParamError;
 use crate::physics::planck::{Band, Measure, spectral_radiance};
+use crate::physics::simd::widest;
 
 /// Period of the grid the PSF is computed on, px.
 const PERIOD_PX: usize = 32;
@@ -726,7 +727,7 @@ impl Convolver {
                     pad[..r].fill(row[0]);
                     pad[r..r + w].copy_from_slice(row);
                     pad[r + w..].fill(row[w - 1]);
-                    correlate_row(pad, v, out);
+                    widest(|| correlate_row(pad, v, out));
                 },
             );
             // vertical pass, scaled by λ, accumulated
@@ -738,7 +739,7 @@ impl Convolver {
                     let sy = (y + k).saturating_sub(r).min(h - 1);
                     *row = &tmp[sy * w..(sy + 1) * w];
                 }
-                accumulate_rows(&rows[..scaled.len()], &scaled, out);
+                widest(|| accumulate_rows(&rows[..scaled.len()], &scaled, out));
             });
         }
         frame.pixels_mut().copy_from_slice(&self.acc);
@@ -808,7 +809,7 @@ impl Convolver {
                         // horizontal over the band's rows and r more on each side (padded coordinates)
                         for py in 0..rows + 2 * r {
                             let src = &padded[(ty * t + py) * pw + x0..];
-                            correlate_row(src, v, &mut tmp[py * t..py * t + cols]);
+                            widest(|| correlate_row(src, v, &mut tmp[py * t..py * t + cols]));
                         }
                         let scaled: Vec<f32> = v.iter().map(|c| c * lambda).collect();
                         let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
@@ -816,7 +817,7 @@ impl Convolver {
                             for (k, row) in src.iter_mut().enumerate().take(v.len()) {
                                 *row = &tmp[(y + k) * t..(y + k) * t + cols];
                             }
-                            accumulate_rows(&src[..v.len()], &scaled, &mut acc[y * t..y * t + cols]);
+                            widest(|| accumulate_rows(&src[..v.len()], &scaled, &mut acc[y * t..y * t + cols]));
                         }
                     }
                     for y in 0..rows {

@@ -18,6 +18,7 @@ use thiserror::Error;
 
 use super::camera::Camera;
 use super::frame::Frame;
+use crate::physics::simd::widest;
 
 /// An error loading or placing a sky image.
 #[derive(Debug, Error)]
@@ -354,7 +355,7 @@ impl SkyPlane {
         let rows_per_task = (8_192 / (width * n * n)).max(1);
         frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
             if n == 1 {
-                geometry.cast_row(self, j as f64 + 0.5, 0.5, point_sampling, fill, row, false);
+                widest(|| geometry.cast_row(self, j as f64 + 0.5, 0.5, point_sampling, fill, row, false));
             } else {
                 row.fill(0.0);
                 for sy in 0..n {

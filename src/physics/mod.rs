@@ -13,6 +13,7 @@ pub mod random;
 pub mod reflection;
 pub mod sensor;
 pub mod signal;
+pub mod simd;
 pub mod skin;
 pub mod sky;
 pub mod transmittance;

@@ -20,6 +20,7 @@ use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::random::{SplitMix64, Ziggurat};
+use super::simd::widest;
 
 /// Identifiers of the stochastic stages; each keys its own random streams.
 pub mod stage {
@@ -125,7 +126,7 @@ impl Readout {
             let span = row * width..(row + 1) * width;
             let gain = maps.gain.map(|g| &g[span.clone()]);
             let offset = maps.offset_dn.map(|o| &o[span]);
-            self.apply_row(line, gain, offset, maps.column_dn, noise, key, row as u64, max_level);
+            widest(|| self.apply_row(line, gain, offset, maps.column_dn, noise, key, row as u64, max_level));
         });
     }
 
