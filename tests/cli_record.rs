@@ -249,6 +249,24 @@ fn missing_scenario_file_is_reported() {
     assert!(err.contains("/no/such/scenario.toml"), "{err}");
 }
 
+#[test]
+fn out_naming_an_existing_file_is_bad_input_and_the_file_is_kept() {
+    let file = std::env::temp_dir().join(format!("irsim-out-file-{}", std::process::id()));
+    std::fs::write(&file, b"keep me").unwrap();
+    let scenario = format!("{}/scenarios/paper_clear_sky.toml", env!("CARGO_MANIFEST_DIR"));
+    for force in [false, true] {
+        let mut args = vec!["record", scenario.as_str(), "--out", file.to_str().unwrap(), "--frames", "2"];
+        if force {
+            args.push("--force");
+        }
+        let (code, _, err) = irsim(&args);
+        assert_eq!(code, 2, "force {force}: {err}");
+        assert!(err.contains("is not a directory"), "{err}");
+        assert_eq!(std::fs::read(&file).unwrap(), b"keep me");
+    }
+    std::fs::remove_file(&file).unwrap();
+}
+
 /// Ctrl-C (SIGINT) during a recording: the process stops with exit code 130, and what it leaves is consistent —
 /// frames 0 … N−1 complete, N lines of labels, MOT rows only for those frames, no temporary files, and a
 /// manifest with status "interrupted" and `frames_written` N.

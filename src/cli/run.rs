@@ -171,7 +171,9 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
     let mut app =
         build_app(&scenario, options).map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenario.display())))?;
     prepare_dir(&a.out, a.force).map_err(|e| match e {
-        crate::record::RecordError::NotEmpty(_) => CliError::Invalid(e.to_string()),
+        crate::record::RecordError::NotEmpty(_) | crate::record::RecordError::NotADirectory(_) => {
+            CliError::Invalid(e.to_string())
+        }
         other => CliError::Failed(other.to_string()),
     })?;
     let seed = a.seed.unwrap_or(scenario.spec.run.seed);

@@ -52,6 +52,9 @@ pub enum RecordError {
     /// The output directory holds files and `--force` was not given.
     #[error("{0} is not empty; use --force to replace its contents")]
     NotEmpty(String),
+    /// The output path exists and is not a directory (never replaced, even with `--force`).
+    #[error("{0} exists and is not a directory; give --out a directory")]
+    NotADirectory(String),
     /// An I/O error, with the path.
     #[error("{path}: {message}")]
     Io {
@@ -88,8 +91,11 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
 /// outputs of an earlier run (frames, masks, labels, MOT file, manifest) and nothing else.
 ///
 /// # Errors
-/// [`RecordError::NotEmpty`] or an I/O error.
+/// [`RecordError::NotEmpty`], [`RecordError::NotADirectory`] or an I/O error.
 pub fn prepare_dir(dir: &Path, force: bool) -> Result<(), RecordError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(RecordError::NotADirectory(dir.display().to_string()));
+    }
     if dir.exists() {
         let mut entries = std::fs::read_dir(dir).map_err(|e| io_err(dir, e))?;
         if entries.next().is_some() {
