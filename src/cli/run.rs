@@ -395,9 +395,10 @@ fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliErro
     app.world_mut().insert_resource(StageTimings::default());
     let t = Instant::now();
     let (mut needed, mut blurred) = (0.0, 0.0);
+    let mut sensor_frame = app.world_mut().query::<&SensorFrame>();
     for _ in 0..frames {
         step(&mut app);
-        if let Some(sf) = app.world_mut().query::<&SensorFrame>().iter(app.world()).next() {
+        if let Some(sf) = sensor_frame.iter(app.world()).next() {
             needed += sf.blur.tiles_needed as f64 / sf.blur.tiles.max(1) as f64;
             blurred += sf.blur.tiles_blurred as f64 / sf.blur.tiles.max(1) as f64;
         }

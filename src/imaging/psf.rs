@@ -132,6 +132,8 @@ pub struct Kernel {
     values: Vec<f32>,
     /// `K ≈ Σ λ vvᵀ`.
     terms: Vec<(f32, Vec<f32>)>,
+    /// Per term, the vertical pass's taps `λ·v`.
+    vertical: Vec<Vec<f32>>,
     /// `Σ K[d]·|d|²`, px².
     second_moment_px2: f64,
 }
@@ -473,7 +475,7 @@ impl Kernel {
         order.sort_by(|&a, &b| eigenvalues[b].abs().total_cmp(&eigenvalues[a].abs()));
         let peak = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let mut approx = vec![0.0; side * side];
-        let mut terms = Vec::new();
+        let mut terms: Vec<(f32, Vec<f32>)> = Vec::new();
         for &k in &order {
             let v: Vec<f64> = (0..side).map(|i| vectors[i * side + k]).collect();
             for y in 0..side {
@@ -494,7 +496,8 @@ impl Kernel {
                 t.0 = (f64::from(t.0) * want / got) as f32;
             }
         }
-        Self { radius, values: values.iter().map(|&v| v as f32).collect(), terms, second_moment_px2 }
+        let vertical = terms.iter().map(|(lambda, v)| v.iter().map(|c| c * lambda).collect()).collect();
+        Self { radius, values: values.iter().map(|&v| v as f32).collect(), terms, vertical, second_moment_px2 }
     }
 
     /// Radius, px.
@@ -578,25 +581,27 @@ fn tile_curvature(frame: &Frame, out: &mut Vec<f32>) {
     out.clear();
     out.resize(tw * th, 0.0);
     let px = frame.pixels();
-    out.par_chunks_mut(tw).enumerate().for_each(|(ty, tiles)| {
-        let mut line = vec![0.0f32; w];
-        for y in ty * t..((ty + 1) * t).min(h) {
-            let (up, mid, down) = (&px[y.saturating_sub(1) * w..], &px[y * w..], &px[(y + 1).min(h - 1) * w..]);
-            for (x, c) in line.iter_mut().enumerate() {
-                let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                let fxx = mid[l] - 2.0 * mid[x] + mid[r];
-                let fyy = up[x] - 2.0 * mid[x] + down[x];
-                let fxy = down[r] - down[x] - mid[r] + mid[x];
-                *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
-            }
-            for (tx, tile) in tiles.iter_mut().enumerate() {
-                for &c in &line[tx * t..((tx + 1) * t).min(w)] {
-                    // NaN sticks
-                    *tile = if c.is_nan() || tile.is_nan() { f32::NAN } else { tile.max(c) };
+    out.par_chunks_mut(tw).enumerate().for_each_init(
+        || vec![0.0f32; w],
+        |line, (ty, tiles)| {
+            for y in ty * t..((ty + 1) * t).min(h) {
+                let (up, mid, down) = (&px[y.saturating_sub(1) * w..], &px[y * w..], &px[(y + 1).min(h - 1) * w..]);
+                for (x, c) in line.iter_mut().enumerate() {
+                    let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                    let fxx = mid[l] - 2.0 * mid[x] + mid[r];
+                    let fyy = up[x] - 2.0 * mid[x] + down[x];
+                    let fxy = down[r] - down[x] - mid[r] + mid[x];
+                    *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
+                }
+                for (tx, tile) in tiles.iter_mut().enumerate() {
+                    for &c in &line[tx * t..((tx + 1) * t).min(w)] {
+                        // NaN sticks
+                        *tile = if c.is_nan() || tile.is_nan() { f32::NAN } else { tile.max(c) };
+                    }
                 }
             }
-        }
-    });
+        },
+    );
 }
 
 /// Reusable buffers for applying kernels to frames of one size.
@@ -717,7 +722,7 @@ impl Convolver {
         self.acc.clear();
         self.acc.resize(w * h, 0.0);
         let rows_per_task = (8192 / w).max(1);
-        for (lambda, v) in &kernel.terms {
+        for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
             // horizontal pass into tmp
             let src = frame.pixels();
             self.tmp.par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each_init(
@@ -732,14 +737,13 @@ impl Convolver {
             );
             // vertical pass, scaled by λ, accumulated
             let tmp = &self.tmp;
-            let scaled: Vec<f32> = v.iter().map(|c| c * lambda).collect();
             self.acc.par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each(|(y, out)| {
                 let mut rows: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
                 for (k, row) in rows.iter_mut().enumerate().take(scaled.len()) {
                     let sy = (y + k).saturating_sub(r).min(h - 1);
                     *row = &tmp[sy * w..(sy + 1) * w];
                 }
-                widest(|| accumulate_rows(&rows[..scaled.len()], &scaled, out));
+                widest(|| accumulate_rows(&rows[..scaled.len()], scaled, out));
             });
         }
         frame.pixels_mut().copy_from_slice(&self.acc);
@@ -805,19 +809,18 @@ impl Convolver {
                 for tx in (0..tw).filter(|&tx| needed[ty * tw + tx]) {
                     let (x0, cols) = (tx * t, t.min(w - tx * t));
                     acc[..rows * t].fill(0.0);
-                    for (lambda, v) in &kernel.terms {
+                    for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
                         // horizontal over the band's rows and r more on each side (padded coordinates)
                         for py in 0..rows + 2 * r {
                             let src = &padded[(ty * t + py) * pw + x0..];
                             widest(|| correlate_row(src, v, &mut tmp[py * t..py * t + cols]));
                         }
-                        let scaled: Vec<f32> = v.iter().map(|c| c * lambda).collect();
                         let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
                         for y in 0..rows {
                             for (k, row) in src.iter_mut().enumerate().take(v.len()) {
                                 *row = &tmp[(y + k) * t..(y + k) * t + cols];
                             }
-                            widest(|| accumulate_rows(&src[..v.len()], &scaled, &mut acc[y * t..y * t + cols]));
+                            widest(|| accumulate_rows(&src[..v.len()], scaled, &mut acc[y * t..y * t + cols]));
                         }
                     }
                     for y in 0..rows {

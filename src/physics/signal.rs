@@ -51,12 +51,8 @@ pub struct TargetState {
 
 /// The target's internal heating, checked: finite and in `[0, 2000]` K.
 fn heating(target: &TargetState) -> Result<f64, SignalError> {
-    let h = target.heating_k;
-    if h.is_finite() && (0.0..=2000.0).contains(&h) {
-        Ok(h)
-    } else {
-        Err(SignalError::Param(ParamError { name: "heating_k", value: h, range: "[0, 2000]".into() }))
-    }
+    ParamError::check_range("heating_k", target.heating_k, 0.0, 2000.0)?;
+    Ok(target.heating_k)
 }
 
 /// Everything else that the chain needs: the scene and the sensor.
