@@ -180,8 +180,8 @@ fn the_base_scenario_is_valid() {
 fn malformed_scenarios_name_the_field_and_exit_2() {
     let b = base();
     let cases: Vec<(&str, String, &str, usize)> = vec![
-        ("wrong_type", b.replace("width = 64", "width = \"wide\""), "width", 4),
-        ("unknown_field", b.replace("aperture_mm = 50", "aperture_mm = 50\napperture = 1"), "apperture", 9),
+        ("wrong_type", b.replace("width = 64", "width = \"wide\""), "sensor.width", 4),
+        ("unknown_field", b.replace("aperture_mm = 50", "aperture_mm = 50\napperture = 1"), "sensor.apperture", 9),
         ("nan", b.replace("pixel_pitch_um = 17", "pixel_pitch_um = nan"), "sensor.pixel_pitch_um", 6),
         ("negative_range", b.replace("width_m = 4000", "width_m = -4000"), "sky.width_m", 0),
         ("bad_bit_depth", b.replace("bit_depth = 14", "bit_depth = 40"), "sensor.adc.bit_depth", 11),
@@ -192,7 +192,7 @@ fn malformed_scenarios_name_the_field_and_exit_2() {
             10,
         ),
         ("uncalibrated_image", b.replace("calibration = ", "# calibration = "), "sky.calibration", 0),
-        ("empty_band", b.replace("band_um = [8, 12]", "band_um = [12, 8]"), "band_um", 9),
+        ("empty_band", b.replace("band_um = [8, 12]", "band_um = [12, 8]"), "sensor.band_um", 9),
         ("missing_image", b.replace("clear.png", "no_such_sky.png"), "sky.image", 0),
         (
             "bad_semi_axes",
@@ -289,7 +289,7 @@ fn interrupt_recording(signal: libc::c_int, name: &str) {
     let out = temp_dir(name);
     let scenario = root().join("scenarios/paper_clear_sky.toml");
     let mut child = Command::new(env!("CARGO_BIN_EXE_irsim"))
-        .args(["record", scenario.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "1000000"])
+        .args(["record", scenario.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "100000"])
         .arg("--quiet")
         .stderr(std::process::Stdio::piped())
         .spawn()

@@ -12,8 +12,9 @@ use super::CliError;
 use crate::imaging::frame::Frame;
 use crate::imaging::sky_gen::{SkyGenSpec, SkyKind, generate};
 use crate::record::{FrameFormat, Recorder, prepare_dir, write_atomic};
+use crate::scenario::load::load_for_frames;
 use crate::scenario::{CheckedScenario, load};
-use crate::sim::{RunOptions, SensorFrame, StageTimings, build_app, step};
+use crate::sim::{RunOptions, SensorFrame, StageTimings, build_app, set_stop_flag, step};
 
 /// Flags of `irsim record`.
 #[derive(Debug, Args)]
@@ -155,11 +156,13 @@ pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
 /// [`CliError::Invalid`] for a bad scenario or a non-empty output directory; [`CliError::Failed`] for a write
 /// error during the run.
 pub fn record(a: &RecordArgs) -> Result<(), CliError> {
-    let scenario = load_scenario(&a.scenario)?;
-    let frames = a.frames.unwrap_or(scenario.spec.run.frames);
-    if frames == 0 {
-        return Err(CliError::Invalid("--frames must be at least 1".into()));
+    if let Some(n) = a.frames
+        && !(1..=100_000_000).contains(&n)
+    {
+        return Err(CliError::Invalid(format!("--frames {n} must be in 1 … 100000000")));
     }
+    let scenario = load_for_frames(&a.scenario, a.frames).map_err(|e| CliError::Invalid(e.to_string()))?;
+    let frames = scenario.spec.run.frames;
     let options = RunOptions {
         seed: a.seed,
         noise: !a.no_noise,
@@ -170,10 +173,10 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
     };
     let mut app =
         build_app(&scenario, options).map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenario.display())))?;
-    prepare_dir(&a.out, a.force).map_err(|e| match e {
-        crate::record::RecordError::NotEmpty(_) | crate::record::RecordError::NotADirectory(_) => {
-            CliError::Invalid(e.to_string())
-        }
+    let _lock = prepare_dir(&a.out, a.force).map_err(|e| match e {
+        crate::record::RecordError::NotEmpty(_)
+        | crate::record::RecordError::NotADirectory(_)
+        | crate::record::RecordError::Locked(..) => CliError::Invalid(e.to_string()),
         other => CliError::Failed(other.to_string()),
     })?;
     let seed = a.seed.unwrap_or(scenario.spec.run.seed);
@@ -199,6 +202,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         // a second handler cannot be installed in the same process (tests run record twice); ignore that
         let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
     }
+    set_stop_flag(&mut app, Arc::clone(&stop));
     let bar = if a.quiet {
         indicatif::ProgressBar::hidden()
     } else {
@@ -220,6 +224,11 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
             break;
         }
         let labels = step(&mut app);
+        if stop.load(Ordering::SeqCst) {
+            // the frame may have been cut short inside a solve: it is not written
+            interrupted = true;
+            break;
+        }
         let world = app.world_mut();
         let mask = world.resource::<crate::sim::FrameOutput>().mask.clone();
         let mut q = world.query::<&SensorFrame>();
@@ -426,7 +435,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     let frames = a.frames.max(10);
     if !a.scenarios.is_empty() {
         for path in &a.scenarios {
-            let scenario = load_scenario(path)?;
+            let scenario = load_for_frames(path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
             let fps = time_headless(&scenario, frames)?;
             println!("{:<40} {fps:>9.1} frames/s", path.display());
         }
@@ -472,7 +481,8 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             record(&args)?;
             frames as f64 / t.elapsed().as_secs_f64()
         } else {
-            time_headless(&load_scenario(&path)?, frames)?
+            let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
+            time_headless(&scenario, frames)?
         };
         let case = format!(
             "{w}x{h}, {n} target{}{}",

@@ -18,7 +18,7 @@ use crate::physics::brdf::sin_cos_deg;
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum CameraError {
     /// A parameter out of range.
-    #[error("camera parameter {name} = {value} is outside its allowed range {range}")]
+    #[error("camera parameter {name} = {} is outside its allowed range {range}", crate::physics::Num(*.value))]
     OutOfRange {
         /// Parameter name.
         name: &'static str,

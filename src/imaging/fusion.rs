@@ -22,6 +22,7 @@
 
 use std::collections::HashMap;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
@@ -84,7 +85,15 @@ pub struct FusionStats {
     pub unknowns: usize,
     /// Largest number of iterations an iterative solver used (0 for the direct solver).
     pub iterations: u32,
+    /// Regions whose iterative solve ended at the work budget ([`MAX_SWEEP_UPDATES`]) before its tolerance.
+    pub over_budget: usize,
+    /// A stop request ended a solve: the frame is incomplete.
+    pub stopped: bool,
 }
+
+/// Most pixel updates one iterative solve of one region may make (sweeps × unknowns), about 2–10 s of one
+/// core: a solve that needs more stops there, with [`FusionStats::over_budget`] counting it.
+pub const MAX_SWEEP_UPDATES: u64 = 4_000_000_000;
 
 /// A planned type-I discrete sine transform of length `n`, two real rows per complex FFT.
 ///
@@ -163,6 +172,8 @@ pub struct PoissonFusion {
     next: Vec<f64>,
     fft_buf: Vec<Complex<f64>>,
     fft_scratch: Vec<Complex<f64>>,
+    /// Looked at between sweeps of the iterative solvers: when set, they stop at once.
+    stop: Option<Arc<AtomicBool>>,
 }
 
 impl std::fmt::Debug for PoissonFusion {
@@ -191,6 +202,7 @@ impl PoissonFusion {
             next: Vec::new(),
             fft_buf: Vec::new(),
             fft_scratch: Vec::new(),
+            stop: None,
         }
     }
 
@@ -239,6 +251,12 @@ impl PoissonFusion {
         }
     }
 
+    /// A flag the iterative solvers look at between sweeps: once it is set they return at once (the frame is
+    /// then incomplete, and [`FusionStats::stopped`] says so).
+    pub fn set_stop(&mut self, flag: Arc<AtomicBool>) {
+        self.stop = Some(flag);
+    }
+
     /// Fuses `patches` into `frame` with `guidance`, solving with `solver`.
     pub fn fuse(
         &mut self,
@@ -269,7 +287,7 @@ impl PoissonFusion {
                     store(frame, rect, |i| work[(i / w - 1) * nx + (i % w - 1)], 1);
                 }
                 Solver::Jacobi { tolerance, max_iterations } => {
-                    let it = self.solve_iterative(w, h, tolerance, max_iterations, None);
+                    let it = self.solve_iterative(w, h, tolerance, max_iterations, None, &mut stats);
                     stats.iterations = stats.iterations.max(it);
                     let work = &self.work;
                     store(frame, rect, |i| work[i], 1);
@@ -277,7 +295,7 @@ impl PoissonFusion {
                 Solver::Sor { tolerance, max_iterations } => {
                     let n = (w - 2).max(h - 2) as f64;
                     let omega = 2.0 / (1.0 + (std::f64::consts::PI / (n + 1.0)).sin());
-                    let it = self.solve_iterative(w, h, tolerance, max_iterations, Some(omega));
+                    let it = self.solve_iterative(w, h, tolerance, max_iterations, Some(omega), &mut stats);
                     stats.iterations = stats.iterations.max(it);
                     let work = &self.work;
                     store(frame, rect, |i| work[i], 1);
@@ -420,8 +438,24 @@ impl PoissonFusion {
 
     /// Jacobi (eq 20, `omega = None`) or red-black SOR on the whole region layout, starting from the
     /// background; the solution is left in `work` (region layout). Returns the sweeps used.
-    fn solve_iterative(&mut self, w: usize, h: usize, tolerance: f64, max_iterations: u32, omega: Option<f64>) -> u32 {
+    fn solve_iterative(
+        &mut self,
+        w: usize,
+        h: usize,
+        tolerance: f64,
+        max_iterations: u32,
+        omega: Option<f64>,
+        stats: &mut FusionStats,
+    ) -> u32 {
         let area = w * h;
+        let unknowns = ((w - 2) * (h - 2)).max(1) as u64;
+        let budget = (MAX_SWEEP_UPDATES / unknowns).clamp(1, u64::from(u32::MAX)) as u32;
+        let max_iterations = if max_iterations > budget {
+            stats.over_budget += 1;
+            budget
+        } else {
+            max_iterations
+        };
         let (f, next, bg, guide) = (&mut self.work, &mut self.next, &self.bg, &self.work2);
         if next.len() < area {
             next.resize(area, 0.0);
@@ -429,6 +463,10 @@ impl PoissonFusion {
         f[..area].copy_from_slice(&bg[..area]);
         next[..area].copy_from_slice(&bg[..area]);
         for it in 1..=max_iterations {
+            if self.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed)) {
+                stats.stopped = true;
+                return it - 1;
+            }
             let mut max_change: f64 = 0.0;
             match omega {
                 None => {

@@ -21,6 +21,7 @@ use super::camera::Camera;
 use super::frame::Frame;
 use super::sky_gen::CloudLayer;
 use super::sky_plane::{SkyError, SkyImage, SkyPlane};
+use crate::physics::ParamError;
 use crate::physics::planck::{Band, Measure, band_radiance_in};
 use crate::physics::sky::Dome;
 use crate::physics::transmittance::PathTransmittance;
@@ -41,8 +42,10 @@ pub enum SkyCalibration {
     /// The image's `value_range` maps linearly onto the brightness temperatures `temp_range_k`.
     Temperature {
         /// Two image values.
+        #[serde(with = "crate::physics::exact::pair")]
         value_range: [f64; 2],
         /// Their brightness temperatures, K.
+        #[serde(with = "crate::physics::exact::pair")]
         temp_range_k: [f64; 2],
     },
     /// Radiance in the detector's measure: `offset + gain · value`.
@@ -71,30 +74,29 @@ impl SkyCalibration {
     ///
     /// # Errors
     /// The field and the message.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        let finite = |v: f64| v.is_finite();
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let bad = |name, value, range: &str| Err(ParamError { name, value, range: range.into() });
         match *self {
             SkyCalibration::Kelvin { scale_k, offset_k } => {
-                if !(finite(scale_k) && scale_k != 0.0 && finite(offset_k)) {
-                    return Err(("scale_k", "scale and offset must be finite, the scale non-zero".into()));
+                if !(scale_k.is_finite() && scale_k != 0.0 && scale_k.abs() <= 1e6) {
+                    return bad("scale_k", scale_k, "[−1e6, 1e6] K per unit, not 0");
                 }
+                ParamError::check_range("offset_k", offset_k, -1e6, 1e6)?;
             }
             SkyCalibration::Temperature { value_range, temp_range_k } => {
-                if !(value_range.iter().all(|v| finite(*v)) && value_range[0] != value_range[1]) {
-                    return Err(("value_range", "two different finite values".into()));
+                for v in value_range {
+                    ParamError::check_range("value_range", v, -1e30, 1e30)?;
                 }
-                if !temp_range_k.iter().all(|&t| t.is_finite() && (RadianceLut::LO_K..=RadianceLut::HI_K).contains(&t))
-                {
-                    return Err((
-                        "temp_range_k",
-                        format!("temperatures in [{}, {}] K", RadianceLut::LO_K, RadianceLut::HI_K),
-                    ));
+                if value_range[0] == value_range[1] {
+                    return bad("value_range", value_range[1], "two different values");
+                }
+                for t in temp_range_k {
+                    ParamError::check_range("temp_range_k", t, RadianceLut::LO_K, RadianceLut::HI_K)?;
                 }
             }
             SkyCalibration::Radiance { gain, offset } => {
-                if !(finite(gain) && finite(offset)) {
-                    return Err(("gain", "gain and offset must be finite".into()));
-                }
+                ParamError::check_range("gain", gain, -1e30, 1e30)?;
+                ParamError::check_range("offset", offset, -1e30, 1e30)?;
             }
         }
         Ok(())

@@ -79,6 +79,9 @@ impl SkyImage {
     /// [`SkyError::Image`] naming the file if it cannot be read or decoded.
     pub fn load(path: &Path) -> Result<Self, SkyError> {
         let err = |message: String| SkyError::Image { path: path.display().to_string(), message };
+        if let Some(gray) = load_gray_tiff(path).map_err(err)? {
+            return Ok(gray);
+        }
         let img = image::ImageReader::open(path)
             .map_err(|e| err(e.to_string()))?
             .with_guessed_format()
@@ -123,6 +126,40 @@ impl SkyImage {
         let y = y.clamp(0, self.height as isize - 1) as usize;
         self.pixels[y * self.width + x]
     }
+}
+
+/// A single-channel TIFF of any sample type (8–64-bit integers, 32- or 64-bit floats) at its values; `None` if
+/// the file is not a TIFF or not single-channel (the `image` crate reads those).
+fn load_gray_tiff(path: &Path) -> Result<Option<SkyImage>, String> {
+    use tiff::decoder::{Decoder, DecodingResult as R};
+    let mut magic = [0u8; 4];
+    {
+        use std::io::Read;
+        let mut f = std::fs::File::open(path).map_err(|e| e.to_string())?;
+        if f.read_exact(&mut magic).is_err() || !(magic == *b"II*\0" || magic == *b"MM\0*") {
+            return Ok(None);
+        }
+    }
+    let file = std::io::BufReader::new(std::fs::File::open(path).map_err(|e| e.to_string())?);
+    let mut dec = Decoder::new(file).map_err(|e| e.to_string())?;
+    if !matches!(dec.colortype().map_err(|e| e.to_string())?, tiff::ColorType::Gray(_)) {
+        return Ok(None);
+    }
+    let (w, h) = dec.dimensions().map_err(|e| e.to_string())?;
+    let pixels: Vec<f32> = match dec.read_image().map_err(|e| e.to_string())? {
+        R::U8(v) => v.into_iter().map(f32::from).collect(),
+        R::U16(v) => v.into_iter().map(f32::from).collect(),
+        R::U32(v) => v.into_iter().map(|x| x as f32).collect(),
+        R::U64(v) => v.into_iter().map(|x| x as f32).collect(),
+        R::I8(v) => v.into_iter().map(f32::from).collect(),
+        R::I16(v) => v.into_iter().map(f32::from).collect(),
+        R::I32(v) => v.into_iter().map(|x| x as f32).collect(),
+        R::I64(v) => v.into_iter().map(|x| x as f32).collect(),
+        R::F32(v) => v,
+        R::F64(v) => v.into_iter().map(|x| x as f32).collect(),
+        R::F16(v) => v.into_iter().map(f32::from).collect(),
+    };
+    SkyImage::from_f32(w as usize, h as usize, pixels).map(Some).map_err(|e| e.to_string())
 }
 
 /// How a ray's hit point is turned into a value.
@@ -231,7 +268,9 @@ impl SkyPlane {
             return Err(bad("anchor_m", "must be finite"));
         }
         let normal = match placement.normal {
-            Some(n) => n.try_normalize().ok_or_else(|| bad("normal", "must be a non-zero finite vector"))?,
+            Some(n) => (n / n.abs().max_element())
+                .try_normalize()
+                .ok_or_else(|| bad("normal", "must be a non-zero finite vector"))?,
             None => {
                 let to_cam = camera_position_m - placement.anchor_m;
                 DVec3::new(to_cam.x, to_cam.y, 0.0)
@@ -239,7 +278,7 @@ impl SkyPlane {
                     .ok_or_else(|| bad("normal", "camera is straight above or below the anchor; give a normal"))?
             }
         };
-        let up = placement.up.unwrap_or(DVec3::Z);
+        let up = placement.up.map_or(DVec3::Z, |u| u / u.abs().max_element());
         let up_in_plane = (up - normal * up.dot(normal))
             .try_normalize()
             .ok_or_else(|| bad("up", "must not be parallel to the plane's normal"))?;
@@ -291,6 +330,9 @@ impl SkyPlane {
                 MissFill::Edge => {}
             }
         }
+        // beyond the edge every value is the edge's: bring far coordinates (up to ±inf) next to the image so that
+        // the pixel arithmetic below stays small
+        let p = DVec2::new(p.x.clamp(-2.0, w + 2.0), p.y.clamp(-2.0, h + 2.0));
         match sampling {
             Sampling::Nearest => self.image.at_clamped(floor_isize(p.x), floor_isize(p.y)),
             _ => {
@@ -391,8 +433,9 @@ fn bilinear_mix(top_left: f32, top_right: f32, bottom_left: f32, bottom_right: f
 /// saturates for values beyond `isize`.
 #[inline]
 fn floor_isize(x: f64) -> isize {
+    // `as` saturates (NaN to 0); the callers keep |x| small
     let i = x as isize;
-    if (i as f64) > x { i - 1 } else { i }
+    if (i as f64) > x { i.saturating_sub(1) } else { i }
 }
 
 /// Per-frame constants of the ray cast: how the ray's dot products with the plane axes vary over the image.

@@ -59,14 +59,10 @@ impl TargetPsfSpec {
     ///
     /// # Errors
     /// The name of the parameter out of range and a message.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        if !(self.node_spacing_px.is_finite() && (0.01..=2.0).contains(&self.node_spacing_px)) {
-            return Err(("node_spacing_px", format!("{} must be in [0.01, 2]", self.node_spacing_px)));
-        }
-        if !(self.seven_point_max_px.is_finite() && (0.0..=5.0).contains(&self.seven_point_max_px)) {
-            return Err(("seven_point_max_px", format!("{} must be in [0, 5]", self.seven_point_max_px)));
-        }
-        Ok(())
+    pub fn validate(&self) -> Result<(), crate::physics::ParamError> {
+        use crate::physics::ParamError;
+        ParamError::check_range("node_spacing_px", self.node_spacing_px, 0.01, 2.0)?;
+        ParamError::check_range("seven_point_max_px", self.seven_point_max_px, 0.0, 5.0)
     }
 }
 

@@ -11,6 +11,7 @@ use rand::RngExt;
 use serde::{Deserialize, Serialize};
 
 use super::camera::Jitter;
+use crate::physics::ParamError;
 use crate::physics::noise::{stage, stream_rng};
 
 /// Vibration parameters.
@@ -52,20 +53,11 @@ impl VibrationSpec {
     ///
     /// # Errors
     /// A message naming the field out of range.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        if !(self.amplitude_deg.is_finite() && (0.0..=45.0).contains(&self.amplitude_deg)) {
-            return Err(("amplitude_deg", format!("{} must be in [0, 45]", self.amplitude_deg)));
-        }
-        if !(self.cutoff_hz.is_finite() && self.cutoff_hz > 0.0) {
-            return Err(("cutoff_hz", format!("{} must be a finite number > 0", self.cutoff_hz)));
-        }
-        if !(1..=64).contains(&self.components) {
-            return Err(("components", format!("{} must be in 1 … 64", self.components)));
-        }
-        if !(self.roll_fraction.is_finite() && (0.0..=1.0).contains(&self.roll_fraction)) {
-            return Err(("roll_fraction", format!("{} must be in [0, 1]", self.roll_fraction)));
-        }
-        Ok(())
+    pub fn validate(&self) -> Result<(), ParamError> {
+        ParamError::check_range("amplitude_deg", self.amplitude_deg, 0.0, 45.0)?;
+        ParamError::check_range("cutoff_hz", self.cutoff_hz, 1e-6, 1e6)?;
+        ParamError::check_range("components", self.components as f64, 1.0, 64.0)?;
+        ParamError::check_range("roll_fraction", self.roll_fraction, 0.0, 1.0)
     }
 
     /// Draws the sinusoids for `seed`.

@@ -28,13 +28,13 @@ const LAYERS: [(f64, f64); 8] =
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum AtmosphereError {
     /// Altitude outside [−5, 86] km or not finite.
-    #[error("altitude {altitude_m} m is outside the supported range [-5000, 86000] m")]
+    #[error("altitude {} m is outside the supported range [-5000, 86000] m", super::Num(*.altitude_m))]
     AltitudeOutOfRange {
         /// The altitude given, m.
         altitude_m: f64,
     },
     /// Sea-level temperature not finite, or so low that the profile drops to 0 K.
-    #[error("sea-level temperature {t0_k} K must be finite and above 71.5 + 1 K so that T∞ stays positive")]
+    #[error("sea-level temperature {} K must be finite and above 71.5 + 1 K so that T∞ stays positive", super::Num(*.t0_k))]
     BadSeaLevelTemperature {
         /// The temperature given, K.
         t0_k: f64,

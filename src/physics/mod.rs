@@ -6,6 +6,7 @@
 pub mod atmosphere;
 pub mod brdf;
 pub mod detector;
+pub mod exact;
 pub mod noise;
 pub mod nonideal;
 pub mod planck;
@@ -18,9 +19,25 @@ pub mod skin;
 pub mod sky;
 pub mod transmittance;
 
+/// A number as a person writes it in a message: plain for everyday magnitudes, in exponent form for tiny and
+/// huge ones (`1e-300`, not three hundred zeros).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = self.0;
+        if v == 0.0 || !v.is_finite() || (1e-4..1e15).contains(&v.abs()) {
+            write!(f, "{v}")
+        } else {
+            write!(f, "{v:e}")
+        }
+    }
+}
+
 /// A parameter outside its allowed range: the error of every `validate` in the physics layer.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("parameter {name} = {value} is outside its allowed range {range}")]
+#[error("parameter {name} = {} is outside its allowed range {range}", Num(*.value))]
 pub struct ParamError {
     /// Parameter name.
     pub name: &'static str,
@@ -39,7 +56,7 @@ impl ParamError {
         if value.is_finite() && value >= lo && value <= hi {
             Ok(())
         } else {
-            Err(ParamError { name, value, range: format!("[{lo}, {hi}]") })
+            Err(ParamError { name, value, range: format!("[{}, {}]", Num(lo), Num(hi)) })
         }
     }
 }

@@ -112,7 +112,7 @@ const BERNOULLI_COEF: [f64; 22] = [
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum BandError {
     /// A bound is zero, negative, infinite or NaN.
-    #[error("band bound {name} = {value} µm must be a finite number > 0")]
+    #[error("band bound {name} = {} µm must be a finite number > 0", super::Num(*.value))]
     NonPositive {
         /// Which bound: `lo_um` or `hi_um`.
         name: &'static str,
@@ -130,8 +130,8 @@ pub enum BandError {
 }
 
 /// A spectral band `[lo_um, hi_um]` in micrometres, validated: `0 < lo_um ≤ hi_um < ∞`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(try_from = "[f64; 2]", into = "[f64; 2]")]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(into = "[f64; 2]")]
 pub struct Band {
     lo_um: f64,
     hi_um: f64,
@@ -173,6 +173,14 @@ impl Band {
     /// Width, µm.
     pub fn width_um(&self) -> f64 {
         self.hi_um - self.lo_um
+    }
+}
+
+impl<'de> Deserialize<'de> for Band {
+    /// Exactly two numbers `[lo_um, hi_um]`, checked by [`Band::try_new`].
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let [lo, hi] = super::exact::array(d)?;
+        Band::try_new(lo, hi).map_err(serde::de::Error::custom)
     }
 }
 

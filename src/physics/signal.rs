@@ -252,7 +252,9 @@ pub fn apparent_radiance(
     ctx: &ApparentContext<'_>,
 ) -> Result<Apparent, SignalError> {
     target.brdf.validate()?;
-    let mut temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    // a scene may fly above or below the profile's range: the air there is taken at the nearest end
+    let altitude_m = target.position_m.z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M);
+    let mut temps = skin_temperatures(&ctx.stagnation, altitude_m, target.mach, ctx.t0_k)?;
     temps.skin_temp_k += heating(target)?;
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let l_self = band_radiance_in(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);

@@ -12,6 +12,9 @@ use super::planck::{Band, band_radiance};
 
 /// Ratio of specific heats of dry air used for the speed of sound (not eq 1's `k`).
 pub const AIR_GAMMA: f64 = 1.4;
+/// Largest Mach number eq 1 is evaluated for (far beyond its validity; it keeps every result finite).
+pub const MAX_MACH: f64 = 1000.0;
+
 /// Specific gas constant of dry air, J kg⁻¹ K⁻¹.
 pub const AIR_GAS_CONSTANT: f64 = 287.052_87;
 
@@ -19,7 +22,7 @@ pub const AIR_GAS_CONSTANT: f64 = 287.052_87;
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum SkinError {
     /// A parameter is outside its allowed range.
-    #[error("{name} = {value} is outside its allowed range {range}")]
+    #[error("{name} = {} is outside its allowed range {range}", super::Num(*.value))]
     OutOfRange {
         /// Parameter name.
         name: &'static str,
@@ -65,7 +68,7 @@ impl StagnationModel {
     /// [`SkinError::OutOfRange`] for a non-finite or negative Mach number or ambient temperature.
     pub fn skin_temperature_k(&self, ambient_k: f64, mach: f64) -> Result<f64, SkinError> {
         self.validate()?;
-        check("mach", mach, mach.is_finite() && mach >= 0.0, "[0, ∞)")?;
+        check("mach", mach, mach.is_finite() && (0.0..=MAX_MACH).contains(&mach), "[0, 1000]")?;
         check("ambient_temp_k", ambient_k, ambient_k.is_finite() && ambient_k > 0.0, "(0, ∞)")?;
         Ok(ambient_k * (1.0 + self.recovery * (self.gamma - 1.0) / 2.0 * mach * mach))
     }

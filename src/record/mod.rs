@@ -55,6 +55,9 @@ pub enum RecordError {
     /// The output path exists and is not a directory (never replaced, even with `--force`).
     #[error("{0} exists and is not a directory; give --out a directory")]
     NotADirectory(String),
+    /// Another recording holds the output directory's lock.
+    #[error("{0} is in use by another recording (process {1}); if none is running, remove {0}/{LOCK_FILE}")]
+    Locked(String, String),
     /// An I/O error, with the path.
     #[error("{path}: {message}")]
     Io {
@@ -87,17 +90,64 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
     })
 }
 
-/// Prepares `dir`: creates it, or refuses if it holds anything unless `force`, in which case it removes the
-/// outputs of an earlier run (frames, masks, labels, MOT file, manifest) and nothing else.
+/// Name of the lock file a recording holds in its output directory.
+pub const LOCK_FILE: &str = ".irsim.lock";
+
+/// The output directory's lock: created with the directory's first recording step, removed when dropped.
+#[derive(Debug)]
+pub struct DirLock {
+    path: PathBuf,
+}
+
+impl Drop for DirLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Takes `dir`'s lock: a file created exclusively, holding this process's id. A lock whose process no longer
+/// runs (the recording was killed) is taken over.
+fn lock_dir(dir: &Path) -> Result<DirLock, RecordError> {
+    let path = dir.join(LOCK_FILE);
+    for _ in 0..2 {
+        match std::fs::OpenOptions::new().write(true).create_new(true).open(&path) {
+            Ok(mut f) => {
+                let _ = writeln!(f, "{}", std::process::id());
+                return Ok(DirLock { path });
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                let holder = std::fs::read_to_string(&path).unwrap_or_default().trim().to_owned();
+                let alive = holder.parse::<u32>().map_or(true, |pid| {
+                    !Path::new("/proc/self").exists() || Path::new(&format!("/proc/{pid}")).exists()
+                });
+                if alive {
+                    let who = if holder.is_empty() { "unknown".to_owned() } else { holder };
+                    return Err(RecordError::Locked(dir.display().to_string(), who));
+                }
+                let _ = std::fs::remove_file(&path);
+            }
+            Err(e) => return Err(io_err(&path, e)),
+        }
+    }
+    Err(RecordError::Locked(dir.display().to_string(), "unknown".into()))
+}
+
+/// Prepares `dir`: creates it and takes its lock, or refuses if another recording holds the lock, or if the
+/// directory holds anything unless `force`, in which case it removes the outputs of an earlier run (frames,
+/// masks, labels, MOT file, manifest) and nothing else. Keep the returned lock for the whole recording.
 ///
 /// # Errors
-/// [`RecordError::NotEmpty`], [`RecordError::NotADirectory`] or an I/O error.
-pub fn prepare_dir(dir: &Path, force: bool) -> Result<(), RecordError> {
+/// [`RecordError::NotEmpty`], [`RecordError::NotADirectory`], [`RecordError::Locked`] or an I/O error.
+pub fn prepare_dir(dir: &Path, force: bool) -> Result<DirLock, RecordError> {
     if dir.exists() && !dir.is_dir() {
         return Err(RecordError::NotADirectory(dir.display().to_string()));
     }
-    if dir.exists() {
-        let mut entries = std::fs::read_dir(dir).map_err(|e| io_err(dir, e))?;
+    std::fs::create_dir_all(dir).map_err(|e| io_err(dir, e))?;
+    let lock = lock_dir(dir)?;
+    {
+        let mut entries = std::fs::read_dir(dir)
+            .map_err(|e| io_err(dir, e))?
+            .filter(|e| e.as_ref().map_or(true, |e| e.file_name() != LOCK_FILE));
         if entries.next().is_some() {
             if !force {
                 return Err(RecordError::NotEmpty(dir.display().to_string()));
@@ -116,7 +166,8 @@ pub fn prepare_dir(dir: &Path, force: bool) -> Result<(), RecordError> {
             }
         }
     }
-    std::fs::create_dir_all(dir.join("frames")).map_err(|e| io_err(dir, e))
+    std::fs::create_dir_all(dir.join("frames")).map_err(|e| io_err(dir, e))?;
+    Ok(lock)
 }
 
 /// One frame for the workers.
@@ -189,6 +240,12 @@ pub struct Recorder {
     sent: u64,
     labels_text: String,
     mot_text: String,
+    /// Ends of each committed frame's text in `labels_text` and `mot_text`.
+    ends: Vec<(usize, usize)>,
+    /// Frames whose labels and MOT lines the files on disk hold (the last successful checkpoint).
+    on_disk: u64,
+    /// Whether the label and MOT files have been written at all.
+    texts_written: bool,
     last_checkpoint: Instant,
     error: Option<RecordError>,
     manifest: serde_json::Value,
@@ -261,6 +318,9 @@ impl Recorder {
             sent: 0,
             labels_text: String::new(),
             mot_text: String::new(),
+            ends: Vec::new(),
+            on_disk: 0,
+            texts_written: false,
             last_checkpoint: Instant::now(),
             error: None,
             manifest,
@@ -343,18 +403,36 @@ impl Recorder {
                     y1 - y0
                 ));
             }
+            self.ends.push((self.labels_text.len(), self.mot_text.len()));
             self.committed += 1;
         }
     }
 
     /// Rewrites labels, MOT file and manifest atomically.
     fn checkpoint(&mut self, status: &str) -> Result<(), RecordError> {
-        write_atomic(&self.dir.join("labels.jsonl"), self.labels_text.as_bytes())?;
-        write_atomic(&self.dir.join("gt_mot.txt"), self.mot_text.as_bytes())?;
+        let mot_on_disk = if self.texts_written && self.on_disk == self.committed {
+            self.committed
+        } else {
+            // labels first: a failure between the two leaves the MOT file behind, never ahead
+            write_atomic(&self.dir.join("labels.jsonl"), self.labels_text.as_bytes())?;
+            let r = write_atomic(&self.dir.join("gt_mot.txt"), self.mot_text.as_bytes());
+            if let Err(e) = r {
+                self.on_disk = self.on_disk.min(self.committed);
+                return Err(e);
+            }
+            self.committed
+        };
+        self.texts_written = true;
+        self.on_disk = mot_on_disk;
+        self.write_manifest(status)
+    }
+
+    /// Writes the manifest with `status` and the frames on disk.
+    fn write_manifest(&mut self, status: &str) -> Result<(), RecordError> {
         let progress = Progress {
             status: status.to_owned(),
             frames_requested: self.frames_requested,
-            frames_written: self.committed,
+            frames_written: self.on_disk,
             error: self.error.as_ref().map(ToString::to_string),
         };
         let mut m = self.manifest.clone();
@@ -362,9 +440,29 @@ impl Recorder {
             obj.extend(p);
         }
         let text = serde_json::to_string_pretty(&m).expect("manifest serializes");
-        write_atomic(&self.dir.join("manifest.json"), text.as_bytes())?;
+        let path = self.dir.join("manifest.json");
+        if let Err(e) = write_atomic(&path, text.as_bytes()) {
+            // a full disk may still take the manifest in place of the old one (same size or so)
+            std::fs::write(&path, text.as_bytes()).map_err(|_| e)?;
+        }
         self.last_checkpoint = Instant::now();
         Ok(())
+    }
+
+    /// Forgets the frames after the first `n` committed ones: their files, and their label and MOT lines.
+    fn truncate_to(&mut self, n: u64) {
+        let ext = self.format.extension();
+        for i in n..self.sent {
+            let _ = std::fs::remove_file(self.dir.join("frames").join(format!("{i:06}.{ext}")));
+            let _ = std::fs::remove_file(self.dir.join("masks").join(format!("{i:06}.png")));
+        }
+        if n < self.committed {
+            let (l, m) = if n == 0 { (0, 0) } else { self.ends[n as usize - 1] };
+            self.labels_text.truncate(l);
+            self.mot_text.truncate(m);
+            self.ends.truncate(n as usize);
+            self.committed = n;
+        }
     }
 
     /// Adds or replaces a top-level manifest entry (e.g. timings) for the next checkpoint.
@@ -386,11 +484,7 @@ impl Recorder {
         }
         self.collect(false);
         // frames written after a gap (a failed frame) have no labels: remove them
-        let ext = self.format.extension();
-        for i in self.committed..self.sent {
-            let _ = std::fs::remove_file(self.dir.join("frames").join(format!("{i:06}.{ext}")));
-            let _ = std::fs::remove_file(self.dir.join("masks").join(format!("{i:06}.png")));
-        }
+        self.truncate_to(self.committed);
         let status = if self.error.is_some() {
             "failed"
         } else if interrupted || self.committed < self.frames_requested {
@@ -398,11 +492,27 @@ impl Recorder {
         } else {
             "complete"
         };
-        let final_write = self.checkpoint(status);
+        let mut status = status;
+        let mut final_write = self.checkpoint(status);
+        if let Err(e) = final_write {
+            // The labels could not be written (a full disk): keep only the frames the labels on disk describe,
+            // which also frees space, and say so in the manifest.
+            self.error.get_or_insert(e);
+            status = "failed";
+            self.truncate_to(self.on_disk);
+            final_write = self.checkpoint(status);
+            if let Err(e) = &final_write {
+                eprintln!(
+                    "error: cannot write {}: {e}; the directory holds {} frames with their labels",
+                    self.dir.join("manifest.json").display(),
+                    self.on_disk
+                );
+            }
+        }
         let progress = Progress {
             status: status.to_owned(),
             frames_requested: self.frames_requested,
-            frames_written: self.committed,
+            frames_written: self.on_disk,
             error: self.error.as_ref().map(ToString::to_string),
         };
         match self.error.take() {
@@ -436,7 +546,7 @@ mod tests {
     fn interruption_leaves_matching_frames_labels_and_manifest() {
         let dir = std::env::temp_dir().join(format!("irsim-rec-int-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        prepare_dir(&dir, false).unwrap();
+        let _lock = prepare_dir(&dir, false).unwrap();
         let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
         for k in 0..3 {
             rec.push(Frame::new(8, 8), None, labels(k));
@@ -456,7 +566,7 @@ mod tests {
     fn a_write_error_is_reported_and_recorded() {
         let dir = std::env::temp_dir().join(format!("irsim-rec-err-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        prepare_dir(&dir, false).unwrap();
+        let _lock = prepare_dir(&dir, false).unwrap();
         let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
         rec.push(Frame::new(8, 8), None, labels(0));
         // make every later frame write fail, as a full disk would

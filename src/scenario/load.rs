@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::locate::Nodes;
 use super::{CheckedScenario, FieldError, Scenario};
 
 /// A scenario that cannot be used: where and why.
@@ -58,6 +59,15 @@ impl Format {
 /// # Errors
 /// [`ScenarioError`] naming the file, line, column and field.
 pub fn load(path: &Path) -> Result<CheckedScenario, ScenarioError> {
+    load_for_frames(path, None)
+}
+
+/// [`load`], checking the scenario for `frames` frames instead of its own `run.frames` (as `record --frames`
+/// runs it: the trajectories' bounds are checked over the frames that will run).
+///
+/// # Errors
+/// [`ScenarioError`] naming the file, line, column and field.
+pub fn load_for_frames(path: &Path, frames: Option<u64>) -> Result<CheckedScenario, ScenarioError> {
     let text = std::fs::read_to_string(path).map_err(|e| ScenarioError {
         file: path.display().to_string(),
         line: 0,
@@ -66,7 +76,7 @@ pub fn load(path: &Path) -> Result<CheckedScenario, ScenarioError> {
         message: format!("cannot read: {e}"),
     })?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    load_str(&text, Format::from_path(path), path, &base)
+    load_str_for_frames(&text, Format::from_path(path), path, &base, frames)
 }
 
 /// Parses and checks scenario `text`; `source` names it in errors, `base_dir` resolves relative paths.
@@ -74,39 +84,67 @@ pub fn load(path: &Path) -> Result<CheckedScenario, ScenarioError> {
 /// # Errors
 /// [`ScenarioError`] naming the file, line, column and field.
 pub fn load_str(text: &str, format: Format, source: &Path, base_dir: &Path) -> Result<CheckedScenario, ScenarioError> {
+    load_str_for_frames(text, format, source, base_dir, None)
+}
+
+fn load_str_for_frames(
+    text: &str,
+    format: Format,
+    source: &Path,
+    base_dir: &Path,
+    frames: Option<u64>,
+) -> Result<CheckedScenario, ScenarioError> {
     let file = source.display().to_string();
+    let nodes = || match format {
+        Format::Toml => Nodes::toml(text),
+        Format::Json => Nodes::json(text),
+    };
+    let parse_error = |span: Option<(usize, usize)>, message: String| {
+        let nodes = nodes();
+        let node = match span {
+            Some(span) => nodes.at_span(span),
+            None => nodes.get(""),
+        };
+        let (field, at) = match node {
+            Some(node) => nodes.refine(node, &message),
+            None => (String::new(), None),
+        };
+        let offset = at.map(|n| n.key_start).or(span.map(|s| s.0)).unwrap_or(0);
+        let (line, column) = line_col(text, offset);
+        ScenarioError { file: file.clone(), line, column, field, message }
+    };
     let spec: Scenario = match format {
         Format::Toml => toml::from_str(text).map_err(|e| {
-            let offset = e.span().map(|s| s.start).unwrap_or(0);
-            let (line, column) = line_col(text, offset);
-            ScenarioError {
-                file: file.clone(),
-                line,
-                column,
-                field: toml_key_at(text, offset),
-                message: e.message().trim().to_owned(),
-            }
+            let span = e.span().map(|s| (s.start, s.end));
+            parse_error(span, e.message().trim().to_owned())
         })?,
         Format::Json => serde_json::from_str(text).map_err(|e| {
-            let offset = offset_of(text, e.line(), e.column());
             let message = e.to_string();
             let message = message.split(" at line ").next().unwrap_or(&message).to_owned();
-            ScenarioError {
-                file: file.clone(),
-                line: e.line(),
-                column: e.column(),
-                field: json_key_before(text, offset),
-                message,
+            if e.line() == 0 {
+                return parse_error(None, message);
             }
+            // serde_json reports the position just after the offending token
+            let offset = offset_of(text, e.line(), e.column()).saturating_sub(1);
+            parse_error(Some((offset, offset)), message)
         })?,
     };
-    let checked = spec.check(base_dir).map_err(|FieldError { path, message }| {
-        let (line, column) = match format {
-            Format::Toml => locate_toml(text, &path),
-            Format::Json => locate_json(text, &path),
+    let mut spec = spec;
+    if let Some(n) = frames {
+        spec.run.frames = n;
+    }
+    let checked = spec.check(base_dir).map_err(|FieldError { path, message, at }| {
+        if let Some(csv) = at {
+            return ScenarioError {
+                file: csv.file,
+                line: csv.line,
+                column: csv.column,
+                field: path,
+                message: format!("{message} (the trajectory file named by {file})"),
+            };
         }
-        .map(|o| line_col(text, o))
-        .unwrap_or((0, 0));
+        let nodes = nodes();
+        let (line, column) = nodes.nearest(&path).map_or((0, 0), |n| line_col(text, n.key_start));
         ScenarioError { file: file.clone(), line, column, field: path, message }
     })?;
     Ok(CheckedScenario {
@@ -121,7 +159,10 @@ pub fn load_str(text: &str, format: Format, source: &Path, base_dir: &Path) -> R
 
 /// 1-based line and column of byte `offset`.
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
-    let offset = offset.min(text.len());
+    let mut offset = offset.min(text.len());
+    while !text.is_char_boundary(offset) {
+        offset -= 1;
+    }
     let before = &text[..offset];
     let line = before.matches('\n').count() + 1;
     let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
@@ -132,86 +173,11 @@ fn offset_of(text: &str, line: usize, column: usize) -> usize {
     let mut offset = 0;
     for (i, l) in text.split_inclusive('\n').enumerate() {
         if i + 1 == line {
-            return offset + column.saturating_sub(1).min(l.len());
+            return offset + column.min(l.len());
         }
         offset += l.len();
     }
     text.len()
-}
-
-/// The key on the TOML line holding `offset` (`key = …`), or the table header there.
-fn toml_key_at(text: &str, offset: usize) -> String {
-    let start = text[..offset.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
-    let line = text[start..].lines().next().unwrap_or("");
-    let line = line.trim();
-    if let Some((key, _)) = line.split_once('=') {
-        return key.trim().trim_matches('"').to_owned();
-    }
-    line.trim_matches(|c| c == '[' || c == ']').to_owned()
-}
-
-/// The last `"key":` before `offset` in JSON text.
-fn json_key_before(text: &str, offset: usize) -> String {
-    let before = &text[..offset.min(text.len())];
-    let Some(colon) = before.rfind("\":") else { return String::new() };
-    let key_end = colon;
-    let key_start = before[..key_end].rfind('"').map_or(0, |i| i + 1);
-    before[key_start..key_end].to_owned()
-}
-
-/// Splits `a.b[2].c` into keys and indices.
-fn path_parts(path: &str) -> Vec<(String, Option<usize>)> {
-    path.split('.')
-        .filter(|p| !p.is_empty())
-        .map(|p| match p.split_once('[') {
-            Some((k, rest)) => (k.to_owned(), rest.trim_end_matches(']').parse().ok()),
-            None => (p.to_owned(), None),
-        })
-        .collect()
-}
-
-/// Byte offset of the deepest part of `path` that exists in the TOML document.
-fn locate_toml(text: &str, path: &str) -> Option<usize> {
-    use toml::de::{DeTable, DeValue};
-    let doc = DeTable::parse(text).ok()?;
-    let mut table: &DeTable = doc.get_ref();
-    let mut best = None;
-    for (key, index) in path_parts(path) {
-        let (k, v) = table.get_key_value(key.as_str())?;
-        best = Some(k.span().start);
-        let mut value = v;
-        if let Some(i) = index {
-            if let DeValue::Array(items) = value.get_ref() {
-                let item = items.get(i)?;
-                best = Some(item.span().start);
-                value = item;
-            } else {
-                return best;
-            }
-        }
-        match value.get_ref() {
-            DeValue::Table(t) => table = t,
-            _ => return best,
-        }
-    }
-    best
-}
-
-/// Byte offset of the last key of `path` found in order in the JSON text (a textual search).
-fn locate_json(text: &str, path: &str) -> Option<usize> {
-    let mut from = 0;
-    let mut best = None;
-    for (key, _) in path_parts(path) {
-        let needle = format!("\"{key}\"");
-        match text[from..].find(&needle) {
-            Some(i) => {
-                from += i + needle.len();
-                best = Some(from - needle.len());
-            }
-            None => break,
-        }
-    }
-    best
 }
 
 #[cfg(test)]
@@ -249,7 +215,7 @@ pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
         let e = load_toml(&text).unwrap_err();
         assert_eq!(e.line, 8, "{e}");
         assert!(e.message.contains("apperture"), "{e}");
-        assert_eq!(e.field, "apperture");
+        assert_eq!(e.field, "sensor.apperture");
     }
 
     #[test]
@@ -268,6 +234,6 @@ pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
             load_str("{\n  \"sensor\": {\"width\": \"wide\"}\n}", Format::Json, Path::new("s.json"), Path::new("."))
                 .unwrap_err();
         assert_eq!(e.line, 2);
-        assert_eq!(e.field, "width");
+        assert_eq!(e.field, "sensor.width");
     }
 }

@@ -5,6 +5,7 @@
 //! `docs/scenarios.md`.
 
 pub mod load;
+pub mod locate;
 pub mod sensor;
 pub mod trajectory;
 
@@ -21,14 +22,16 @@ use crate::imaging::sky_field::SkyCalibration;
 use crate::imaging::sky_gen::SkyGenSpec;
 use crate::imaging::sky_plane::{MissFill, Sampling, SkyPlacement};
 use crate::imaging::vibration::VibrationSpec;
+use crate::physics::ParamError;
 use crate::physics::brdf::CookTorrance;
+use crate::physics::planck::band_radiance_in;
 use crate::physics::reflection::{ReflectionGeometry, Sun};
 use crate::physics::skin::StagnationModel;
 use crate::physics::sky::DomeSpec;
 use crate::physics::transmittance::Transmittance;
 pub use load::{ScenarioError, load, load_str};
 pub use sensor::{BlobSpec, ResolvedSensor, SensorSpec, TargetModel};
-use trajectory::{Trajectory, TrajectorySpec};
+use trajectory::{Exceeds, MAX_COORDINATE_M, MAX_SPEED_M_S, Trajectory, TrajectorySpec};
 
 /// A whole scenario file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -109,6 +112,7 @@ pub enum Pointing {
     /// At a fixed world point.
     LookAt {
         /// The point, m.
+        #[serde(with = "crate::physics::exact::dvec3")]
         target_m: DVec3,
         /// Roll about the optical axis, degrees.
         #[serde(default)]
@@ -190,10 +194,10 @@ pub struct SkySpec {
     #[serde(default = "default_max_texels")]
     pub max_texels: usize,
     /// World position of the anchor point P, m.
-    #[serde(default)]
+    #[serde(default, with = "crate::physics::exact::opt_dvec3")]
     pub anchor_m: Option<DVec3>,
     /// Image coordinates of P, px; default the image centre.
-    #[serde(default)]
+    #[serde(default, with = "crate::physics::exact::opt_dvec2")]
     pub anchor_px: Option<DVec2>,
     /// Width of the image in the world, m.
     #[serde(default)]
@@ -202,10 +206,10 @@ pub struct SkySpec {
     #[serde(default)]
     pub height_m: Option<f64>,
     /// Plane normal toward the camera; default vertical, facing the observer's start.
-    #[serde(default)]
+    #[serde(default, with = "crate::physics::exact::opt_dvec3")]
     pub normal: Option<DVec3>,
     /// World direction of the image's up; default +z.
-    #[serde(default)]
+    #[serde(default, with = "crate::physics::exact::opt_dvec3")]
     pub up: Option<DVec3>,
     /// Sampling of the image.
     #[serde(default)]
@@ -284,6 +288,7 @@ pub struct TargetSpec {
     /// Trajectory.
     pub trajectory: TrajectorySpec,
     /// Ellipsoid semi-axes: along the velocity, across, up, m.
+    #[serde(with = "crate::physics::exact::dvec3")]
     pub semi_axes_m: DVec3,
     /// Mach number; default from the speed and the speed of sound at the altitude.
     #[serde(default)]
@@ -317,10 +322,82 @@ pub struct FieldError {
     pub path: String,
     /// What is wrong, with the allowed range.
     pub message: String,
+    /// Where in another file the fault lies (a trajectory CSV's line), if not in the scenario itself.
+    pub at: Option<TextPosition>,
+}
+
+/// A position in a file other than the scenario.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TextPosition {
+    /// The file.
+    pub file: String,
+    /// 1-based line.
+    pub line: usize,
+    /// 1-based column.
+    pub column: usize,
+}
+
+fn num(v: f64) -> crate::physics::Num {
+    crate::physics::Num(v)
+}
+
+/// Maps a [`ParamError`] of a table at `prefix` to the field error naming `prefix.name`: the one conversion of
+/// every physics and imaging `validate` into a located error.
+pub fn at(prefix: &str) -> impl Fn(ParamError) -> FieldError + '_ {
+    move |e| fe(format!("{prefix}.{}", e.name), format!("{} is outside {}", num(e.value), e.range))
 }
 
 fn fe(path: impl Into<String>, message: impl std::fmt::Display) -> FieldError {
-    FieldError { path: path.into(), message: message.to_string() }
+    FieldError { path: path.into(), message: message.to_string(), at: None }
+}
+
+/// Lowest frame rate, Hz (one frame every 1000 s).
+pub const MIN_FRAME_RATE_HZ: f64 = 1e-3;
+/// Highest frame rate, Hz.
+pub const MAX_FRAME_RATE_HZ: f64 = 1e5;
+/// Most sweeps an iterative fusion solver may be asked for (a solve also stops at
+/// [`crate::imaging::fusion::MAX_SWEEP_UPDATES`] pixel updates).
+pub const MAX_SOLVER_ITERATIONS: u32 = 100_000;
+/// Largest |time| of frame 0, s (about 32 years).
+pub const MAX_ABS_TIME_S: f64 = 1e9;
+
+/// Builds a trajectory and checks that it stays within [`MAX_COORDINATE_M`] and [`MAX_SPEED_M_S`] over the
+/// run's times `t0 ..= t1`.
+fn build_trajectory(
+    spec: &TrajectorySpec,
+    path: &str,
+    base_dir: &Path,
+    (t0, t1): (f64, f64),
+) -> Result<Trajectory, FieldError> {
+    let tr = spec.build(base_dir).map_err(|e| FieldError {
+        path: format!("{path}.{}", e.field),
+        message: e.message,
+        at: e.csv.map(|(file, line)| TextPosition { file, line, column: 1 }),
+    })?;
+    let (reach_m, speed_m_s) = tr.bounds(t0, t1);
+    let culprit = |what| match spec.culprit(what, (t0, t1)) {
+        Some(field) => format!("{path}.{field}"),
+        None => path.to_owned(),
+    };
+    if !(reach_m <= MAX_COORDINATE_M) {
+        return Err(fe(
+            culprit(Exceeds::Position),
+            format!(
+                "leaves the modelled world during the run (t = {t0} … {t1} s): a coordinate may reach {reach_m:e} m, \
+                 more than {MAX_COORDINATE_M:e} m"
+            ),
+        ));
+    }
+    if !(speed_m_s <= MAX_SPEED_M_S) {
+        return Err(fe(
+            culprit(Exceeds::Speed),
+            format!(
+                "is too fast during the run (t = {t0} … {t1} s): its speed may reach {speed_m_s:e} m/s, more than \
+                 {MAX_SPEED_M_S:e} m/s"
+            ),
+        ));
+    }
+    Ok(tr)
 }
 
 /// A checked scenario with its trajectories built and paths resolved.
@@ -360,11 +437,14 @@ impl Scenario {
     /// The first [`FieldError`] found.
     pub fn check(&self, base_dir: &Path) -> Result<Checked, FieldError> {
         let r = &self.run;
-        if !(r.frame_rate_hz.is_finite() && r.frame_rate_hz > 0.0 && r.frame_rate_hz <= 100_000.0) {
-            return Err(fe("run.frame_rate_hz", format!("{} must be in (0, 100000]", r.frame_rate_hz)));
+        if !(r.frame_rate_hz.is_finite() && (MIN_FRAME_RATE_HZ..=MAX_FRAME_RATE_HZ).contains(&r.frame_rate_hz)) {
+            return Err(fe(
+                "run.frame_rate_hz",
+                format!("{} must be in [{MIN_FRAME_RATE_HZ}, {MAX_FRAME_RATE_HZ}] Hz", num(r.frame_rate_hz)),
+            ));
         }
-        if !r.start_time_s.is_finite() {
-            return Err(fe("run.start_time_s", "must be finite"));
+        if !(r.start_time_s.is_finite() && r.start_time_s.abs() <= MAX_ABS_TIME_S) {
+            return Err(fe("run.start_time_s", format!("{} must be in [−1e9, 1e9] s", num(r.start_time_s))));
         }
         if r.frames == 0 || r.frames > 100_000_000 {
             return Err(fe("run.frames", format!("{} must be in 1 … 100000000", r.frames)));
@@ -377,16 +457,16 @@ impl Scenario {
             ));
         }
 
-        let observer = self
-            .observer
-            .trajectory
-            .build(base_dir)
-            .map_err(|e| fe(format!("observer.trajectory.{}", e.field), e.message))?;
-        self.observer.vibration.validate().map_err(|(f, m)| fe(format!("observer.vibration.{f}"), m))?;
+        let (t0, t1) = (r.start_time_s, r.start_time_s + (r.frames - 1) as f64 / r.frame_rate_hz);
+        let observer = build_trajectory(&self.observer.trajectory, "observer.trajectory", base_dir, (t0, t1))?;
+        self.observer.vibration.validate().map_err(at("observer.vibration"))?;
         match &self.observer.pointing {
             Pointing::LookAt { target_m, roll_deg } => {
-                if !target_m.is_finite() {
-                    return Err(fe("observer.pointing.target_m", "must be finite"));
+                if !(target_m.is_finite() && target_m.abs().max_element() <= MAX_COORDINATE_M) {
+                    return Err(fe(
+                        "observer.pointing.target_m",
+                        format!("each coordinate must be in [−{MAX_COORDINATE_M:e}, {MAX_COORDINATE_M:e}] m"),
+                    ));
                 }
                 if !roll_deg.is_finite() {
                     return Err(fe("observer.pointing.roll_deg", "must be finite"));
@@ -414,8 +494,13 @@ impl Scenario {
                 }
             }
             Pointing::AlongVelocity { yaw_offset_deg, pitch_offset_deg } => {
-                if !(yaw_offset_deg.is_finite() && pitch_offset_deg.is_finite()) {
-                    return Err(fe("observer.pointing", "offsets must be finite"));
+                for (n, v) in [("yaw_offset_deg", yaw_offset_deg), ("pitch_offset_deg", pitch_offset_deg)] {
+                    if !(v.is_finite() && v.abs() <= 1e6) {
+                        return Err(fe(
+                            format!("observer.pointing.{n}"),
+                            format!("{} must be in [−1e6, 1e6]°", num(*v)),
+                        ));
+                    }
                 }
             }
         }
@@ -430,15 +515,12 @@ impl Scenario {
                  temperatures in the band) or `{ mode = \"kelvin\", scale_k = … }` (docs/scenarios.md, \"Migrating\")",
             ));
         }
-        sky.dome
-            .validate()
-            .map_err(|e| fe(format!("sky.dome.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+        sky.dome.validate().map_err(at("sky.dome"))?;
         if sky.image.is_some() && sky.generate.is_some() {
             return Err(fe("sky.generate", "give either `image` or `generate`, not both"));
         }
         if let Some(g) = &sky.generate {
-            g.validate()
-                .map_err(|e| fe(format!("sky.generate.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+            g.validate().map_err(at("sky.generate"))?;
         }
         if !(sky.cloud_offset_k.is_finite() && (-100.0..=100.0).contains(&sky.cloud_offset_k)) {
             return Err(fe("sky.cloud_offset_k", format!("{} must be in [−100, 100] K", sky.cloud_offset_k)));
@@ -446,39 +528,82 @@ impl Scenario {
         if let Some(b) = sky.cloud_base_m
             && !(b.is_finite() && (-5000.0..=86000.0).contains(&b))
         {
-            return Err(fe("sky.cloud_base_m", format!("{b} must be in [−5000, 86000] m")));
+            return Err(fe("sky.cloud_base_m", format!("{} must be in [−5000, 86000] m", num(b))));
         }
         if sky.generate.is_some() && !(16..=8192).contains(&sky.max_texels) {
             return Err(fe("sky.max_texels", format!("{} must be in 16 … 8192", sky.max_texels)));
         }
         if let Some(c) = &sky.calibration {
-            c.validate().map_err(|(f, m)| fe(format!("sky.calibration.{f}"), m))?;
+            c.validate().map_err(at("sky.calibration"))?;
         }
         let sky_image = if sky.has_layer() {
             let Some(anchor) = sky.anchor_m else {
                 return Err(fe("sky.anchor_m", "is required with `image` or `generate`"));
             };
-            if !anchor.is_finite() {
-                return Err(fe("sky.anchor_m", "must be finite"));
+            if !(anchor.is_finite() && anchor.abs().max_element() <= MAX_COORDINATE_M) {
+                return Err(fe(
+                    "sky.anchor_m",
+                    format!("each coordinate must be in [−{MAX_COORDINATE_M:e}, {MAX_COORDINATE_M:e}] m"),
+                ));
+            }
+            if let Some(px) = sky.anchor_px
+                && !(px.is_finite() && px.abs().max_element() <= 1e9)
+            {
+                return Err(fe("sky.anchor_px", "each coordinate must be in [−1e9, 1e9] px"));
             }
             for (n, v) in [("width_m", sky.width_m), ("height_m", sky.height_m)] {
                 match v {
                     None => return Err(fe(format!("sky.{n}"), "is required with `image` or `generate`")),
-                    Some(v) if !(v.is_finite() && v > 0.0) => {
-                        return Err(fe(format!("sky.{n}"), format!("{v} must be a finite number > 0")));
+                    Some(v) if !(v.is_finite() && v > 0.0 && v <= MAX_COORDINATE_M) => {
+                        return Err(fe(
+                            format!("sky.{n}"),
+                            format!("{} must be in (0, {MAX_COORDINATE_M:e}] m", num(v)),
+                        ));
                     }
                     _ => {}
                 }
+            }
+            if let Some(n) = sky.normal
+                && !(n.is_finite() && (n / n.abs().max_element()).length() > 0.0)
+            {
+                return Err(fe("sky.normal", "must be a finite, non-zero vector"));
+            }
+            if let Some(up) = sky.up
+                && !(up.is_finite() && (up / up.abs().max_element()).length() > 0.0)
+            {
+                return Err(fe("sky.up", "must be a finite, non-zero vector"));
+            }
+            let unit = |v: DVec3| (v / v.abs().max_element()).normalize();
+            let normal = match sky.normal {
+                Some(n) => unit(n),
+                None => {
+                    let d = observer.state(r.start_time_s).0 - anchor;
+                    if d.x.hypot(d.y) < 1e-9 * (1.0 + d.z.abs()) {
+                        return Err(fe(
+                            "sky.anchor_m",
+                            "the observer starts straight above or below it: give `normal`",
+                        ));
+                    }
+                    DVec3::new(d.x, d.y, 0.0).normalize()
+                }
+            };
+            if unit(sky.up.unwrap_or(DVec3::Z)).cross(normal).length() < 1e-6 {
+                let which = if sky.up.is_some() { "sky.up" } else { "sky.normal" };
+                return Err(fe(which, "the image's up (default +z) must not be parallel to the plane's normal"));
             }
             if let Sampling::Supersample { n } = sky.sampling
                 && !(1..=16).contains(&n)
             {
                 return Err(fe("sky.sampling.n", format!("{n} must be in 1 … 16")));
             }
-            if let Some(n) = sky.normal
-                && (!n.is_finite() || n.length() == 0.0)
+            let largest = band_radiance_in(sensor.model.measure(), sensor.model.band, 6000.0, 1.0) as f32;
+            if let MissFill::Constant { value } = sky.miss
+                && !(value.is_finite() && (0.0..=largest).contains(&value))
             {
-                return Err(fe("sky.normal", "must be a finite, non-zero vector"));
+                return Err(fe(
+                    "sky.miss.value",
+                    format!("{value} must be a radiance in [0, {largest:e}] (0 K … a 6000 K black body in the band)"),
+                ));
             }
             match &sky.image {
                 Some(image) => {
@@ -505,9 +630,7 @@ impl Scenario {
         if !(a.t0_k.is_finite() && a.t0_k > 100.0 && a.t0_k < 400.0) {
             return Err(fe("atmosphere.t0_k", format!("{} must be in (100, 400) K", a.t0_k)));
         }
-        a.transmittance.validate().map_err(|e| {
-            fe(format!("atmosphere.transmittance.{}", e.name), format!("{} is outside {}", e.value, e.range))
-        })?;
+        a.transmittance.validate().map_err(at("atmosphere.transmittance"))?;
         a.stagnation.validate().map_err(|e| fe("atmosphere.stagnation", e))?;
         let sun = &self.sun;
         for (n, v, ok) in [
@@ -517,7 +640,7 @@ impl Scenario {
             ("elevation_deg", sun.elevation_deg, (-90.0..=90.0).contains(&sun.elevation_deg)),
         ] {
             if !(v.is_finite() && ok) {
-                return Err(fe(format!("sun.{n}"), format!("{v} is outside its allowed range")));
+                return Err(fe(format!("sun.{n}"), format!("{} is outside its allowed range", num(v))));
             }
         }
         match self.fusion.solver {
@@ -526,8 +649,11 @@ impl Scenario {
                 if !(tolerance > 0.0 && tolerance.is_finite()) {
                     return Err(fe("fusion.solver.tolerance", format!("{tolerance} must be a finite number > 0")));
                 }
-                if max_iterations == 0 {
-                    return Err(fe("fusion.solver.max_iterations", "must be ≥ 1"));
+                if !(1..=MAX_SOLVER_ITERATIONS).contains(&max_iterations) {
+                    return Err(fe(
+                        "fusion.solver.max_iterations",
+                        format!("{max_iterations} must be in 1 … {MAX_SOLVER_ITERATIONS}"),
+                    ));
                 }
             }
         }
@@ -541,15 +667,15 @@ impl Scenario {
             if self.targets[..i].iter().any(|o| o.name == t.name) {
                 return Err(fe(format!("{p}.name"), format!("`{}` is used by an earlier target", t.name)));
             }
-            trajectories
-                .push(t.trajectory.build(base_dir).map_err(|e| fe(format!("{p}.trajectory.{}", e.field), e.message))?);
-            if !(t.semi_axes_m.is_finite() && t.semi_axes_m.min_element() > 0.0) {
-                return Err(fe(format!("{p}.semi_axes_m"), "each semi-axis must be a finite number > 0"));
+            trajectories.push(build_trajectory(&t.trajectory, &format!("{p}.trajectory"), base_dir, (t0, t1))?);
+            if !(t.semi_axes_m.is_finite() && t.semi_axes_m.min_element() >= 1e-4 && t.semi_axes_m.max_element() <= 1e4)
+            {
+                return Err(fe(format!("{p}.semi_axes_m"), "each semi-axis must be in [1e-4, 1e4] m"));
             }
             if let Some(m) = t.mach
                 && !(m.is_finite() && (0.0..=30.0).contains(&m))
             {
-                return Err(fe(format!("{p}.mach"), format!("{m} must be in [0, 30]")));
+                return Err(fe(format!("{p}.mach"), format!("{} must be in [0, 30]", num(m))));
             }
             if !(0.0..=1.0).contains(&t.emissivity) {
                 return Err(fe(format!("{p}.emissivity"), format!("{} must be in [0, 1]", t.emissivity)));
@@ -557,9 +683,14 @@ impl Scenario {
             if !(t.heating_k.is_finite() && (0.0..=2000.0).contains(&t.heating_k)) {
                 return Err(fe(format!("{p}.heating_k"), format!("{} must be in [0, 2000]", t.heating_k)));
             }
-            t.brdf
-                .validate()
-                .map_err(|e| fe(format!("{p}.brdf.{}", e.name), format!("{} is outside {}", e.value, e.range)))?;
+            if let Some(a) = &t.attitude {
+                for (n, v) in [("yaw_deg", a.yaw_deg), ("pitch_deg", a.pitch_deg), ("roll_deg", a.roll_deg)] {
+                    if !(v.is_finite() && v.abs() <= 1e6) {
+                        return Err(fe(format!("{p}.attitude.{n}"), format!("{} must be in [−1e6, 1e6]°", num(v))));
+                    }
+                }
+            }
+            t.brdf.validate().map_err(at(&format!("{p}.brdf")))?;
         }
         Ok(Checked { observer, targets: trajectories, sky_image, sensor })
     }

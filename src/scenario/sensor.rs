@@ -318,6 +318,20 @@ impl SensorSpec {
             None => base.map(|b| b.optics.aperture_m).ok_or_else(|| need("aperture_mm"))?,
         };
         let band = self.band_um.or(base.map(|b| b.band)).ok_or_else(|| need("band_um"))?;
+        for (name, given, lo, hi, unit) in [
+            ("focal_length_mm", self.focal_length_mm, 0.1, 1e5, "mm"),
+            ("aperture_mm", self.aperture_mm, 0.1, 1e4, "mm"),
+            ("pixel_pitch_um", self.pixel_pitch_um, 0.1, 1e3, "µm"),
+        ] {
+            if let Some(v) = given
+                && !(v.is_finite() && (lo..=hi).contains(&v))
+            {
+                return Err(fe(
+                    format!("sensor.{name}"),
+                    format!("{} must be in [{lo}, {hi}] {unit}", crate::physics::Num(v)),
+                ));
+            }
+        }
         let intrinsics = Intrinsics::try_new(width, height, focal_m, pitch_m).map_err(|e| {
             let name = match &e {
                 crate::imaging::camera::CameraError::OutOfRange { name, .. } => match *name {
@@ -427,7 +441,7 @@ impl SensorSpec {
             ));
         }
         let psf = if self.psf.enabled {
-            self.psf.spec().validate().map_err(|e| param("sensor.psf", &e))?;
+            self.psf.spec().validate().map_err(super::at("sensor.psf"))?;
             if !(self.psf.skip_below_dn.is_finite() && (0.0..=1e6).contains(&self.psf.skip_below_dn)) {
                 return Err(fe("sensor.psf.skip_below_dn", format!("{} must be in [0, 1e6]", self.psf.skip_below_dn)));
             }
@@ -442,7 +456,7 @@ impl SensorSpec {
                 DetectorKind::Thermal => NonIdealSpec::uncooled(),
             },
         };
-        nonideal.validate().map_err(|e| param("sensor.nonideal", &e))?;
+        nonideal.validate().map_err(super::at("sensor.nonideal"))?;
         let b = &self.blob;
         if !(b.min_blur_px.is_finite() && (0.0..=100.0).contains(&b.min_blur_px)) {
             return Err(fe("sensor.blob.min_blur_px", format!("{} must be in [0, 100]", b.min_blur_px)));
@@ -468,10 +482,6 @@ impl SensorSpec {
             preset_frame_rate_hz: base.map(|b| b.frame_rate_hz),
         })
     }
-}
-
-fn param(prefix: &str, e: &ParamError) -> FieldError {
-    fe(format!("{prefix}.{}", e.name), format!("{} is outside its allowed range {}", e.value, e.range))
 }
 
 /// Maps a [`SensorModel::new`] error to the scenario field that set the value.

@@ -23,19 +23,22 @@ pub enum TrajectorySpec {
     /// Straight line at constant velocity: `p(t) = position_m + velocity_m_s·t`.
     ConstantVelocity {
         /// Position at t = 0, m.
+        #[serde(with = "crate::physics::exact::dvec3")]
         position_m: DVec3,
         /// Velocity, m/s.
-        #[serde(default)]
+        #[serde(default, with = "crate::physics::exact::dvec3")]
         velocity_m_s: DVec3,
     },
     /// Timed waypoints joined by a C¹ cubic (Catmull–Rom tangents); constant velocity beyond the ends.
     Waypoints {
         /// `[t_s, x_m, y_m, z_m]` rows with strictly increasing times (at least two).
+        #[serde(with = "crate::physics::exact::rows4")]
         points: Vec<[f64; 4]>,
     },
     /// A level (or steadily climbing) coordinated turn around a vertical axis.
     CoordinatedTurn {
         /// Centre of the circle at t = 0, m (its z is the altitude at t = 0).
+        #[serde(with = "crate::physics::exact::dvec3")]
         center_m: DVec3,
         /// Radius, m.
         radius_m: f64,
@@ -104,13 +107,59 @@ pub struct TrajectoryError {
     pub field: String,
     /// What is wrong.
     pub message: String,
+    /// For a CSV trajectory: the file and the 1-based line at fault.
+    pub csv: Option<(String, usize)>,
 }
 
 fn err(field: impl Into<String>, message: impl Into<String>) -> TrajectoryError {
-    TrajectoryError { field: field.into(), message: message.into() }
+    TrajectoryError { field: field.into(), message: message.into(), csv: None }
+}
+
+/// Which limit a trajectory passes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Exceeds {
+    /// [`MAX_COORDINATE_M`].
+    Position,
+    /// [`MAX_SPEED_M_S`].
+    Speed,
 }
 
 impl TrajectorySpec {
+    /// The field most responsible when the trajectory passes a limit over `t0 ..= t1` (`None`: the whole
+    /// trajectory, or a CSV file's rows).
+    pub fn culprit(&self, what: Exceeds, (t0, t1): (f64, f64)) -> Option<String> {
+        let big = |v: &DVec3| !(v.is_finite() && v.abs().max_element() <= MAX_COORDINATE_M);
+        let reach = t0.abs().max(t1.abs());
+        match self {
+            TrajectorySpec::ConstantVelocity { position_m, .. } => {
+                Some(if what == Exceeds::Position && big(position_m) { "position_m" } else { "velocity_m_s" }.into())
+            }
+            TrajectorySpec::CoordinatedTurn { center_m, .. } => {
+                Some(if what == Exceeds::Position && big(center_m) { "center_m" } else { "climb_m_s" }.into())
+            }
+            TrajectorySpec::Polynomial { x_m, y_m, z_m } => {
+                let mut worst = (f64::NEG_INFINITY, String::new());
+                for (name, c) in [("x_m", x_m), ("y_m", y_m), ("z_m", z_m)] {
+                    for (i, ci) in c.iter().enumerate() {
+                        let weight =
+                            if what == Exceeds::Speed && i == 0 { 0.0 } else { ci.abs() * reach.powi(i as i32) };
+                        let weight = if weight.is_nan() { f64::INFINITY } else { weight };
+                        if weight > worst.0 {
+                            worst = (weight, format!("{name}[{i}]"));
+                        }
+                    }
+                }
+                Some(worst.1)
+            }
+            TrajectorySpec::Waypoints { points } => {
+                let size = |r: &[f64; 4]| r.iter().skip(1).fold(0.0f64, |m, v| m.max(v.abs()));
+                let worst = (0..points.len()).max_by(|&a, &b| size(&points[a]).total_cmp(&size(&points[b])))?;
+                Some(format!("points[{worst}]"))
+            }
+            TrajectorySpec::Csv { .. } => Some("path".into()),
+        }
+    }
+
     /// Validates and builds the trajectory; `base_dir` resolves a CSV path.
     ///
     /// # Errors
@@ -150,11 +199,11 @@ impl TrajectorySpec {
                 if !center_m.is_finite() {
                     return Err(err("center_m", "must be finite"));
                 }
-                if !(radius_m.is_finite() && *radius_m > 0.0) {
-                    return Err(err("radius_m", format!("{radius_m} must be a finite number > 0")));
+                if !(radius_m.is_finite() && (1e-3..=MAX_COORDINATE_M).contains(radius_m)) {
+                    return Err(err("radius_m", format!("{radius_m} must be in [0.001, {MAX_COORDINATE_M:e}] m")));
                 }
-                if !(speed_m_s.is_finite() && *speed_m_s >= 0.0) {
-                    return Err(err("speed_m_s", format!("{speed_m_s} must be a finite number ≥ 0")));
+                if !(speed_m_s.is_finite() && (0.0..=MAX_SPEED_M_S).contains(speed_m_s)) {
+                    return Err(err("speed_m_s", format!("{speed_m_s} must be in [0, {MAX_SPEED_M_S:e}] m/s")));
                 }
                 if !start_bearing_deg.is_finite() {
                     return Err(err("start_bearing_deg", "must be finite"));
@@ -175,9 +224,16 @@ impl TrajectorySpec {
             }
             TrajectorySpec::Csv { path } => {
                 let full = base_dir.join(path);
+                let file = full.display().to_string();
+                let at = |line: usize, message: String| TrajectoryError {
+                    field: "path".into(),
+                    message,
+                    csv: Some((file.clone(), line)),
+                };
                 let text = std::fs::read_to_string(&full)
                     .map_err(|e| err("path", format!("cannot read {}: {e}", full.display())))?;
                 let mut rows = Vec::new();
+                let mut lines = Vec::new();
                 for (i, line) in text.lines().enumerate() {
                     let line = line.trim();
                     if line.is_empty() || line.starts_with('#') {
@@ -186,18 +242,23 @@ impl TrajectorySpec {
                     let fields: Vec<&str> = line.split(',').map(str::trim).collect();
                     let parsed: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
                     match parsed {
-                        Ok(v) if v.len() == 4 => rows.push([v[0], v[1], v[2], v[3]]),
+                        Ok(v) if v.len() == 4 => {
+                            rows.push([v[0], v[1], v[2], v[3]]);
+                            lines.push(i + 1);
+                        }
                         // a header line names the columns
                         Err(_) if rows.is_empty() && i == 0 => continue,
-                        _ => {
-                            return Err(err(
-                                "path",
-                                format!("{}: line {}: expected 4 numbers t, x, y, z", full.display(), i + 1),
-                            ));
-                        }
+                        Ok(v) => return Err(at(i + 1, format!("expected 4 numbers t, x, y, z, found {}", v.len()))),
+                        Err(_) => return Err(at(i + 1, "expected 4 numbers t, x, y, z".into())),
                     }
                 }
-                spline(rows.into_iter(), &format!("{}", full.display()))
+                if rows.len() < 2 {
+                    return Err(at(lines.last().copied().unwrap_or(1), "needs at least two rows t, x, y, z".into()));
+                }
+                spline(rows.into_iter(), "path").map_err(|e| {
+                    let row: usize = e.field.trim_start_matches("path[").trim_end_matches(']').parse().unwrap_or(0);
+                    at(lines.get(row).copied().unwrap_or(1), e.message)
+                })
             }
         }
     }
@@ -228,7 +289,57 @@ fn spline(points: impl Iterator<Item = [f64; 4]>, field: &str) -> Result<Traject
     Ok(Trajectory::Spline { t, p, m })
 }
 
+/// Largest coordinate a trajectory may reach during a run, m (|x|, |y| and |z|): six times the Moon's
+/// distance, far beyond anything a sensor resolves, and small enough that every derived quantity stays finite.
+pub const MAX_COORDINATE_M: f64 = 1e9;
+/// Largest speed a trajectory may reach during a run, m/s (about Mach 300).
+pub const MAX_SPEED_M_S: f64 = 1e5;
+
 impl Trajectory {
+    /// Upper bounds of |position| (per axis, m) and |velocity| (m/s) over `t0_s ..= t1_s`: conservative
+    /// (from the coefficients, the knots and the tangents), infinite if they overflow.
+    pub fn bounds(&self, t0_s: f64, t1_s: f64) -> (f64, f64) {
+        let reach = t0_s.abs().max(t1_s.abs());
+        match self {
+            Trajectory::Polynomial(axes) => {
+                let (mut p, mut v) = (0.0f64, 0.0f64);
+                for c in axes {
+                    let (mut pa, mut va, mut power) = (0.0, 0.0, 1.0);
+                    for (i, ci) in c.iter().enumerate() {
+                        pa += ci.abs() * power;
+                        if i + 1 < c.len() {
+                            va += (i + 1) as f64 * c[i + 1].abs() * power;
+                        }
+                        power *= reach;
+                    }
+                    p = p.max(pa);
+                    v += va * va;
+                }
+                (p, v.sqrt())
+            }
+            Trajectory::ConstantVelocity { p0, v } => {
+                ((*p0).abs().max_element() + v.abs().max_element() * reach, v.length())
+            }
+            Trajectory::Spline { t, p, m } => {
+                let (first, last) = (t[0], t[t.len() - 1]);
+                let p_max = p.iter().map(|q| q.abs().max_element()).fold(0.0, f64::max);
+                let m_max = m.iter().map(|q| q.abs().max_element()).fold(0.0, f64::max);
+                let h_max = t.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+                let h_min = t.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
+                let step_max = p.windows(2).map(|w| (w[1] - w[0]).abs().max_element()).fold(0.0, f64::max);
+                // Hermite basis: |h00|, |h01| ≤ 1 and |h10|, |h11| ≤ 4/27; beyond the ends a straight line
+                let beyond = (first - t0_s.min(t1_s)).max(t0_s.max(t1_s) - last).max(0.0);
+                let pos = p_max + m_max * (8.0 / 27.0 * h_max).max(beyond);
+                let vel = (1.5 * step_max / h_min + 2.0 * m_max) * 3f64.sqrt();
+                (pos, vel)
+            }
+            Trajectory::Turn { center, radius, omega, climb, .. } => {
+                let pos = center.abs().max_element() + radius + climb.abs() * reach;
+                (pos, (radius * omega).hypot(*climb))
+            }
+        }
+    }
+
     /// Position (m) and velocity (m/s) at time `t_s`.
     pub fn state(&self, t_s: f64) -> (DVec3, DVec3) {
         match self {

@@ -489,6 +489,10 @@ impl Default for RunOptions {
 #[error("{0}")]
 pub struct SetupError(pub String);
 
+/// Bevy's fixed timestep in every app: one step per `update()` whatever the sensor's frame rate (the
+/// simulation's own time is [`SimClock`]).
+pub const BEVY_STEP: std::time::Duration = std::time::Duration::from_millis(10);
+
 /// A headless app for `scenario`: `MinimalPlugins`, [`IrSimPlugins`], one fixed step per `update()`.
 ///
 /// # Errors
@@ -499,7 +503,9 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
     let dt = 1.0 / spec.run.frame_rate_hz;
     let mut app = App::new();
     app.add_plugins(MinimalPlugins);
-    app.insert_resource(Time::<Fixed>::from_seconds(dt));
+    // Simulated time is `SimClock`'s (t0 + k/rate, exact at any rate); Bevy's clock only has to run one fixed
+    // step per update, which a nominal step below its 250 ms maximum delta does at every frame rate.
+    app.insert_resource(Time::<Fixed>::from_duration(BEVY_STEP));
     app.insert_resource(TimeUpdateStrategy::FixedTimesteps(1));
     app.add_plugins(IrSimPlugins);
     if options.timings {
@@ -711,6 +717,12 @@ fn frame_needs_blur(psf: &Psf, cfg: &PsfToml, sky: &Sky, sensor: &ResolvedSensor
     let curvature_per_px2 = sky.dome.max_curvature_per_rad2() * ifov * ifov;
     let change_dn = 0.5 * psf.point_kernel().second_moment_px2() * curvature_per_px2 * dn_per_radiance;
     change_dn > cfg.skip_below_dn
+}
+
+/// Lets `flag` stop the run inside a frame: long iterative fusion solves look at it between sweeps. A frame
+/// computed while it was set is incomplete; the caller must not write it.
+pub fn set_stop_flag(app: &mut App, flag: std::sync::Arc<std::sync::atomic::AtomicBool>) {
+    app.world_mut().resource_mut::<Fusion>().0.set_stop(flag);
 }
 
 /// Runs one step (one frame) and returns its labels.

@@ -122,7 +122,8 @@ pub struct TargetLabel {
     pub mach: f64,
     /// Skin temperature, K.
     pub skin_temp_k: f64,
-    /// In front of the camera and overlapping the frame (geometric only; called `visible` before 0.2).
+    /// In front of the camera, drawn, and its box (the 1/e outline) covering part of the frame (geometric only;
+    /// called `visible` before 0.2). Only these targets are in the MOT file.
     pub in_frame: bool,
     /// In the frame with `snr` at least the scenario's `labels.detectable_snr`.
     pub detectable: bool,
@@ -169,10 +170,13 @@ pub fn collect_labels(
             };
             let [x0, y0, x1, y1] = ImageEllipse { a: ga, b: gb, ..e }.bbox();
             let (wf, hf) = (w as f64, h as f64);
-            label.bbox_px = [x0.clamp(0.0, wf), y0.clamp(0.0, hf), x1.clamp(0.0, wf), y1.clamp(0.0, hf)];
+            let clipped = [x0.clamp(0.0, wf), y0.clamp(0.0, hf), x1.clamp(0.0, wf), y1.clamp(0.0, hf)];
+            label.bbox_px = clipped;
             label.ellipse_px = EllipseLabel { a: e.a, b: e.b, angle_rad: e.angle_rad };
             label.fill_factor = e.fill_factor();
-            label.in_frame = fp.roi.is_some() && sig.signal.is_some();
+            // in the frame: drawn, and its 1/e box covers part of the image (a blur tail alone is not a target)
+            let has_area = clipped[2] > clipped[0] && clipped[3] > clipped[1];
+            label.in_frame = fp.roi.is_some() && sig.signal.is_some() && has_area;
         }
         if label.in_frame
             && let Some(roi) = fp.roi

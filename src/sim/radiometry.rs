@@ -6,7 +6,6 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, Skin};
-use crate::physics::atmosphere::ambient_temperature_k;
 use crate::physics::signal::{ApparentContext, TargetState, apparent_radiance};
 use crate::physics::skin::speed_of_sound_m_s;
 
@@ -47,10 +46,7 @@ pub fn update_signatures(
         }
         let mach = match skin.mach {
             Some(m) => m,
-            None => match ambient_temperature_k(p.z, scene.t0_k) {
-                Ok(t) => kin.velocity_m_s.length() / speed_of_sound_m_s(t),
-                Err(_) => 0.0,
-            },
+            None => kin.velocity_m_s.length() / speed_of_sound_m_s(scene.air_temp_k(p.z)),
         };
         let state = TargetState {
             position_m: p,
