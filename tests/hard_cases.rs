@@ -410,10 +410,7 @@ fn fixed_length_arrays_take_exactly_their_length() {
         load_toml(&with("position_m = [0, 0, 1000]", "position_m = [0, 0, 1000, 1]")),
         "observer.trajectory.position_m",
     );
-    refused(
-        load_toml(&(BASE.to_owned() + &sky.replace("[0, 20000, 2000]", "[0, 20000, 2000, 1]"))),
-        "sky.anchor_m",
-    );
+    refused(load_toml(&(BASE.to_owned() + &sky.replace("[0, 20000, 2000]", "[0, 20000, 2000, 1]"))), "sky.anchor_m");
     for (field, value) in [("anchor_px", "[1, 2, 3]"), ("normal", "[0, -1, 0, 0]"), ("up", "[0, 0, 1, 0]")] {
         refused(load_toml(&format!("{BASE}{sky}{field} = {value}\n")), &format!("sky.{field}"));
     }
@@ -620,4 +617,24 @@ fn random_scenarios_are_mostly_accepted() {
         })
         .count();
     assert!(accepted >= 20, "only {accepted} of 40 accepted");
+}
+
+#[test]
+fn calc_refuses_what_would_print_null() {
+    for args in [
+        &["calc", "skin", "--altitude-km", "5", "--mach", "1e308"][..],
+        &["calc", "skin", "--altitude-km", "5", "--mach", "2", "--t0-k", "1e308"],
+        &["calc", "signal", "--heading-deg", "nan"],
+        &["calc", "signal", "--aperture-mm", "1e308"],
+        &["calc", "signal", "--focal-mm", "1e-320"],
+        &["calc", "signal", "--pitch-um", "1e308"],
+        &["calc", "signal", "--v-low", "-1e308"],
+    ] {
+        let (code, out, err) = irsim(args);
+        assert_eq!(code, 2, "{args:?}: {out}{err}");
+        assert!(err.contains("error:") && !err.contains("000000000"), "{args:?}: {err}");
+    }
+    // and in range, a number
+    let (code, out, _) = irsim(&["calc", "skin", "--altitude-km", "500", "--mach", "2"]);
+    assert!(code == 2 || !out.contains("null"), "{out}");
 }

@@ -286,6 +286,7 @@ fn signal(a: &SignalArgs) -> Result<Value, CliError> {
             a.semi_axes_m
         )));
     }
+    finite("heading_deg", a.heading_deg, a.heading_deg.abs() <= 1e6, "[−1e6, 1e6]")?;
     let forward = direction_from_az_el(a.heading_deg, 0.0);
     let attitude = DMat3::from_cols(forward, DVec3::Z.cross(forward), DVec3::Z);
     let target = TargetState {
@@ -345,7 +346,11 @@ fn finite(name: &str, value: f64, ok: bool, range: &str) -> Result<(), CliError>
     if value.is_finite() && ok {
         Ok(())
     } else {
-        Err(CliError::Invalid(format!("--{}: {value} is outside the allowed range {range}", name.replace('_', "-"))))
+        Err(CliError::Invalid(format!(
+            "--{}: {} is outside the allowed range {range}",
+            name.replace('_', "-"),
+            crate::physics::Num(value)
+        )))
     }
 }
 

@@ -12,7 +12,7 @@ use super::CliError;
 use crate::imaging::frame::Frame;
 use crate::imaging::sky_gen::{SkyGenSpec, SkyKind, generate};
 use crate::record::{FrameFormat, Recorder, prepare_dir, write_atomic};
-use crate::scenario::load::load_for_frames;
+use crate::scenario::load::{load_for_frames, located};
 use crate::scenario::{CheckedScenario, load};
 use crate::sim::{RunOptions, SensorFrame, StageTimings, build_app, set_stop_flag, step};
 
@@ -137,7 +137,7 @@ fn load_scenario(path: &Path) -> Result<CheckedScenario, CliError> {
 pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
     let s = load_scenario(&a.scenario)?;
     let _app = build_app(&s, RunOptions::default())
-        .map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenario.display())))?;
+        .map_err(|e| CliError::Invalid(located(&a.scenario, &e.field, &e.message).to_string()))?;
     println!(
         "{}: ok ({} targets, {} frames of {}×{} at {} Hz)",
         a.scenario.display(),
@@ -171,8 +171,8 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         masks: a.masks,
         timings: true,
     };
-    let mut app =
-        build_app(&scenario, options).map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenario.display())))?;
+    let mut app = build_app(&scenario, options)
+        .map_err(|e| CliError::Invalid(located(&a.scenario, &e.field, &e.message).to_string()))?;
     let _lock = prepare_dir(&a.out, a.force).map_err(|e| match e {
         crate::record::RecordError::NotEmpty(_)
         | crate::record::RecordError::NotADirectory(_)
@@ -397,7 +397,8 @@ height_m = 4000
 /// frames; prints the time per stage to standard error.
 fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliError> {
     let options = RunOptions { timings: true, ..RunOptions::default() };
-    let mut app = build_app(scenario, options).map_err(|e| CliError::Failed(e.to_string()))?;
+    let mut app = build_app(scenario, options)
+        .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
     for _ in 0..10 {
         step(&mut app);
     }

@@ -17,6 +17,8 @@ use thiserror::Error;
 pub const STANDARD_T0_K: f64 = 288.15;
 /// Lowest supported altitude, m.
 pub const MIN_ALTITUDE_M: f64 = -5_000.0;
+/// Highest sea-level temperature the profile is evaluated for, K.
+pub const MAX_T0_K: f64 = 1000.0;
 /// Highest supported altitude, m.
 pub const MAX_ALTITUDE_M: f64 = 86_000.0;
 
@@ -34,7 +36,7 @@ pub enum AtmosphereError {
         altitude_m: f64,
     },
     /// Sea-level temperature not finite, or so low that the profile drops to 0 K.
-    #[error("sea-level temperature {} K must be finite and above 71.5 + 1 K so that T∞ stays positive", super::Num(*.t0_k))]
+    #[error("sea-level temperature {} K must be finite, above 71.5 + 1 K so that T∞ stays positive, and at most 1000 K", super::Num(*.t0_k))]
     BadSeaLevelTemperature {
         /// The temperature given, K.
         t0_k: f64,
@@ -58,7 +60,7 @@ pub fn ambient_temperature_k(altitude_m: f64, t0_k: f64) -> Result<f64, Atmosphe
         return Err(AtmosphereError::AltitudeOutOfRange { altitude_m });
     }
     // The coldest point of the profile is T0 − 288.15 + 186.946 K; keep it above 1 K.
-    if !(t0_k.is_finite() && t0_k - STANDARD_T0_K + 186.946 > 1.0) {
+    if !(t0_k.is_finite() && t0_k - STANDARD_T0_K + 186.946 > 1.0 && t0_k <= MAX_T0_K) {
         return Err(AtmosphereError::BadSeaLevelTemperature { t0_k });
     }
     let h_km = altitude_m / 1000.0;

@@ -66,15 +66,15 @@ impl Radiometer {
     /// # Errors
     /// [`SensorError`] naming the first parameter out of range.
     pub fn validate(&self) -> Result<(), SensorError> {
-        let positive = |v: f64| v.is_finite() && v > 0.0;
-        require("aperture_m", self.aperture_m, positive(self.aperture_m), "(0, ∞)")?;
-        require("focal_length_m", self.focal_length_m, positive(self.focal_length_m), "(0, ∞)")?;
-        require("pixel_pitch_m", self.pixel_pitch_m, positive(self.pixel_pitch_m), "(0, ∞)")?;
+        let within = |v: f64, lo: f64, hi: f64| v.is_finite() && (lo..=hi).contains(&v);
+        require("aperture_m", self.aperture_m, within(self.aperture_m, 1e-4, 10.0), "[1e-4, 10]")?;
+        require("focal_length_m", self.focal_length_m, within(self.focal_length_m, 1e-4, 100.0), "[1e-4, 100]")?;
+        require("pixel_pitch_m", self.pixel_pitch_m, within(self.pixel_pitch_m, 1e-7, 1e-3), "[1e-7, 1e-3]")?;
         require("detector_fill", self.detector_fill, self.detector_fill > 0.0 && self.detector_fill <= 1.0, "(0, 1]")?;
         let t = self.optics_transmittance;
         require("optics_transmittance", t, (0.0..=1.0).contains(&t), "[0, 1]")?;
         let r = self.responsivity_v_per_w;
-        require("responsivity_v_per_w", r, r.is_finite() && r >= 0.0, "[0, ∞)")
+        require("responsivity_v_per_w", r, r.is_finite() && (0.0..=1e15).contains(&r), "[0, 1e15]")
     }
 
     /// Photosensitive area of one pixel `A_d`, m².
@@ -133,8 +133,9 @@ impl GrayMapping {
     pub fn validate(&self) -> Result<(), SensorError> {
         let bits = self.bit_depth;
         require("bit_depth", bits as f64, (1..=16).contains(&bits), "1 … 16")?;
-        require("v_low", self.v_low, self.v_low.is_finite(), "finite")?;
-        require("v_high", self.v_high, self.v_high.is_finite() && self.v_high > self.v_low, "(v_low, ∞)")?;
+        require("v_low", self.v_low, self.v_low.is_finite() && self.v_low.abs() <= 1e6, "[−1e6, 1e6]")?;
+        let v_high_ok = self.v_high.is_finite() && self.v_high > self.v_low && self.v_high <= 1e6;
+        require("v_high", self.v_high, v_high_ok, "(v_low, 1e6]")?;
         let top = self.max_level();
         require("g_min", self.g_min, (0.0..top).contains(&self.g_min), format!("[0, {top})"))?;
         require("g_max", self.g_max, self.g_max > self.g_min && self.g_max <= top, format!("(g_min, {top}]"))

@@ -157,6 +157,24 @@ fn load_str_for_frames(
     })
 }
 
+/// `path:line:column: field `…`: message` for a fault found after loading (building the simulation), with
+/// the field located in the scenario's text as far as it is present.
+pub fn located(path: &Path, field: &str, message: &str) -> ScenarioError {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let nodes = match Format::from_path(path) {
+        Format::Toml => Nodes::toml(&text),
+        Format::Json => Nodes::json(&text),
+    };
+    let (line, column) = nodes.nearest(field).map_or((0, 0), |n| line_col(&text, n.key_start));
+    ScenarioError {
+        file: path.display().to_string(),
+        line,
+        column,
+        field: field.to_owned(),
+        message: message.to_owned(),
+    }
+}
+
 /// 1-based line and column of byte `offset`.
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let mut offset = offset.min(text.len());

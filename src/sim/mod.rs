@@ -486,8 +486,17 @@ impl Default for RunOptions {
 /// An error building the simulation from a checked scenario (the sky image cannot be read, calibrated or
 /// placed; the optics PSF cannot be built).
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct SetupError(pub String);
+#[error("{message}")]
+pub struct SetupError {
+    /// The scenario field at fault, as a dotted path (`sky.calibration`).
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+fn setup(field: &str) -> impl Fn(String) -> SetupError + '_ {
+    move |message| SetupError { field: field.to_owned(), message }
+}
 
 /// Bevy's fixed timestep in every app: one step per `update()` whatever the sensor's frame rate (the
 /// simulation's own time is [`SimClock`]).
@@ -597,24 +606,24 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
         t0_k: scene.t0_k,
         atmosphere: &scene.atmosphere,
     })
-    .map_err(|e| SetupError(format!("sky.dome: {} = {} is outside {}", e.name, e.value, e.range)))?;
+    .map_err(|e| SetupError { field: format!("sky.dome.{}", e.name), message: e.to_string() })?;
     let dome = Arc::new(dome);
     let lut = RadianceLut::new(band, measure);
     let placement = sky.placement();
     let plane = match (&sky.generate, &scenario.sky_image, placement) {
         (_, Some(path), Some(placement)) => {
-            let raw = SkyImage::load(path).map_err(|e| SetupError(e.to_string()))?;
-            let calibration = sky.calibration.ok_or_else(|| SetupError("sky.calibration is required".into()))?;
+            let raw = SkyImage::load(path).map_err(|e| setup("sky.image")(e.to_string()))?;
+            let calibration = sky.calibration.ok_or_else(|| setup("sky.calibration")("is required".into()))?;
             let image = calibrate(&raw, &calibration, &lut, &path.display().to_string())
-                .map_err(|e| SetupError(e.to_string()))?;
-            Some(SkyPlane::new(image, &placement, eye).map_err(|e| SetupError(e.to_string()))?)
+                .map_err(|e| setup("sky.calibration")(e.to_string()))?;
+            Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
         }
         (Some(gen_spec), None, Some(placement)) => {
             let (tw, th) = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
             let gen_spec = SkyGenSpec { seed: gen_spec.seed ^ seed.wrapping_mul(0x9E37_79B9_7F4A_7C15), ..*gen_spec };
             let layer = generate(&gen_spec, tw, th);
-            let blank = SkyImage::from_f32(tw, th, vec![0.0; tw * th]).map_err(|e| SetupError(e.to_string()))?;
-            let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| SetupError(e.to_string()))?;
+            let blank = SkyImage::from_f32(tw, th, vec![0.0; tw * th]).map_err(|e| setup("sky")(e.to_string()))?;
+            let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
             let air = |z: f64| scene.air_temp_k(z);
             let image = bake_layer(&LayerBake {
                 layer: &layer,
@@ -627,8 +636,8 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
                 cloud_offset_k: sky.cloud_offset_k,
                 cloud_base_m: sky.cloud_base_m,
             })
-            .map_err(|e| SetupError(e.to_string()))?;
-            Some(SkyPlane::new(image, &placement, eye).map_err(|e| SetupError(e.to_string()))?)
+            .map_err(|e| setup("sky.generate")(e.to_string()))?;
+            Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
         }
         _ => None,
     };
@@ -676,7 +685,7 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
                     reference_temp_k: 300.0,
                 },
             )
-            .map_err(|e| SetupError(format!("sensor.psf: {} = {} is outside {}", e.name, e.value, e.range)))?,
+            .map_err(|e| SetupError { field: format!("sensor.psf.{}", e.name), message: e.to_string() })?,
         )),
         None => None,
     };
