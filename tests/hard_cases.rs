@@ -5,12 +5,14 @@
 //! column and full field path (exit 2); a failed or interrupted recording leaves every frame on disk with its
 //! label line and a manifest that says what happened.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
+
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use common::{irsim, root, temp_dir};
 use irsim::imaging::frame::Frame;
 use irsim::imaging::fusion::{Guidance, Patch, PoissonFusion, Solver};
 use irsim::imaging::target_blob::PixelRect;
@@ -20,31 +22,12 @@ use irsim::scenario::{CheckedScenario, ScenarioError};
 use irsim::sim::{FrameLabels, RunOptions, build_app, current_frame, step};
 use proptest::prelude::*;
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
 fn load_toml(text: &str) -> Result<CheckedScenario, ScenarioError> {
     load_str(text, Format::Toml, Path::new("hard.toml"), &root().join("scenarios"))
 }
 
 fn load_json(text: &str) -> Result<CheckedScenario, ScenarioError> {
     load_str(text, Format::Json, Path::new("hard.json"), &root().join("scenarios"))
-}
-
-fn irsim(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_irsim")).args(args).output().expect("run irsim");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("irsim-hard-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
 }
 
 /// A small valid scenario: 64×48 sensor looking north, one target 3 km ahead crossing east.

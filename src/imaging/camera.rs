@@ -12,21 +12,15 @@ use glam::{DMat3, DVec2, DVec3};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::physics::ParamError;
 use crate::physics::brdf::sin_cos_deg;
 
 /// An invalid camera parameter.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum CameraError {
     /// A parameter out of range.
-    #[error("camera parameter {name} = {} is outside its allowed range {range}", crate::physics::Num(*.value))]
-    OutOfRange {
-        /// Parameter name.
-        name: &'static str,
-        /// The value given.
-        value: f64,
-        /// Allowed range, in words.
-        range: &'static str,
-    },
+    #[error("camera {0}")]
+    OutOfRange(#[from] ParamError),
     /// Look-at with the target at the eye.
     #[error("look-at target coincides with the camera position")]
     DegenerateLookAt,
@@ -53,12 +47,12 @@ impl Intrinsics {
     pub fn try_new(width: u32, height: u32, focal_length_m: f64, pixel_pitch_m: f64) -> Result<Self, CameraError> {
         for (name, v) in [("width", width), ("height", height)] {
             if !(1..=16384).contains(&v) {
-                return Err(CameraError::OutOfRange { name, value: v as f64, range: "1 … 16384" });
+                return Err(ParamError { name, value: v as f64, range: "1 … 16384".into() }.into());
             }
         }
         for (name, v) in [("focal_length_m", focal_length_m), ("pixel_pitch_m", pixel_pitch_m)] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(CameraError::OutOfRange { name, value: v, range: "(0, ∞)" });
+                return Err(ParamError { name, value: v, range: "(0, ∞)".into() }.into());
             }
         }
         Ok(Self { width, height, focal_length_m, pixel_pitch_m })

@@ -7,6 +7,7 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use super::ParamError;
 use super::atmosphere::{AtmosphereError, ambient_temperature_k};
 use super::planck::{Band, band_radiance};
 
@@ -22,15 +23,8 @@ pub const AIR_GAS_CONSTANT: f64 = 287.052_87;
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum SkinError {
     /// A parameter is outside its allowed range.
-    #[error("{name} = {} is outside its allowed range {range}", super::Num(*.value))]
-    OutOfRange {
-        /// Parameter name.
-        name: &'static str,
-        /// The value given.
-        value: f64,
-        /// The allowed range, in words.
-        range: &'static str,
-    },
+    #[error(transparent)]
+    OutOfRange(#[from] ParamError),
     /// The ambient temperature could not be computed.
     #[error(transparent)]
     Atmosphere(#[from] AtmosphereError),
@@ -113,7 +107,7 @@ pub fn self_radiance(band: Band, skin_temp_k: f64, emissivity: f64) -> Result<f6
 }
 
 fn check(name: &'static str, value: f64, ok: bool, range: &'static str) -> Result<(), SkinError> {
-    if ok { Ok(()) } else { Err(SkinError::OutOfRange { name, value, range }) }
+    if ok { Ok(()) } else { Err(ParamError { name, value, range: range.into() }.into()) }
 }
 
 #[cfg(test)]

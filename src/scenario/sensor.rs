@@ -334,7 +334,7 @@ impl SensorSpec {
         }
         let intrinsics = Intrinsics::try_new(width, height, focal_m, pitch_m).map_err(|e| {
             let name = match &e {
-                crate::imaging::camera::CameraError::OutOfRange { name, .. } => match *name {
+                crate::imaging::camera::CameraError::OutOfRange(p) => match p.name {
                     "focal_length_m" => "focal_length_mm",
                     "pixel_pitch_m" => "pixel_pitch_um",
                     other => other,
