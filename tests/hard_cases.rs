@@ -465,6 +465,13 @@ fn type_errors_name_the_full_path() {
   "targets": [{"name": "a", "trajectory": {"kind": "constant_velocity", "position_m": [0, 3000, 1000]}, "semi_axes_m": [1, 1, 1]},
               {"name": "b", "trajectory": {"kind": "constant_velocity", "position_m": [0, 3000, 1000]}, "semi_axes_m": [1, 1, 1], "brdf": {"roughness": "x"}}]
 }"#;
+    // a list or a table where a number belongs is refused on sight: the position is its first byte
+    let e =
+        load_json(&json.replacen("\"semi_axes_m\": [1, 1, 1]}", "\"semi_axes_m\": [1, 1, 1], \"emissivity\": []}", 1))
+            .unwrap_err();
+    assert_eq!(e.field, "targets[0].emissivity", "{e}");
+    let e = load_json(&json.replace("\"width\": 64", "\"width\": {}")).unwrap_err();
+    assert_eq!(e.field, "sensor.width", "{e}");
     let e = load_json(json).unwrap_err();
     assert_eq!(e.field, "targets[1].brdf.roughness", "{e}");
     assert_eq!(e.line, 5, "{e}");

@@ -10,7 +10,7 @@ recorded for a few frames as float `.npy` frames and checked:
 - an accepted run has `status: complete` in its manifest, a finite number in every frame pixel and every
   label field (no `null`), and every box inside the image.
 
-Usage: python3 tools/fuzz_scenarios.py [--bin PATH] [--frames N] [--jobs N] [--only SUBSTRING] [SCENARIO ...]
+Usage: python3 tools/fuzz_scenarios.py [--bin PATH] [--frames N] [--jobs N] [--only SUBSTRING] [--json] [SCENARIO ...]
 Needs numpy and tomli-w (`pip install numpy tomli-w`). Prints one line per failure and a summary; exit 1 if any.
 """
 
@@ -97,11 +97,11 @@ def check_run(args, base_text_dir, name, tree, path, how, value):
     m = copy.deepcopy(tree)
     try:
         set_at(m, path, value, delete=how == "delete")
-        text = tomli_w.dumps(m)
+        text = json.dumps(m, indent=1) if args.json else tomli_w.dumps(m)
     except Exception:
         return None
     with tempfile.TemporaryDirectory(dir=args.tmp) as d:
-        scen = os.path.join(base_text_dir, f".fuzz_{os.getpid()}_{next(COUNTER)}.toml")
+        scen = os.path.join(base_text_dir, f".fuzz_{os.getpid()}_{next(COUNTER)}.{'json' if args.json else 'toml'}")
         with open(scen, "w") as f:
             f.write(text)
         out = os.path.join(d, "out")
@@ -119,7 +119,7 @@ def check_run(args, base_text_dir, name, tree, path, how, value):
             os.remove(scen)
         err = p.stderr.strip().replace("\n", " | ")
         if p.returncode == 2:
-            if not re.search(r"\.toml:\d+:\d+: field `", p.stderr):
+            if not re.search(r"\.(toml|json|csv):\d+:\d+: field `", p.stderr):
                 return f"UNLOCATED {what}: {err[:300]}"
             field = re.search(r"field `([^`]*)`", p.stderr).group(1)
             if "no target named" in p.stderr:
@@ -193,6 +193,7 @@ def main():
     ap.add_argument("--timeout", type=float, default=120)
     ap.add_argument("--only", default="")
     ap.add_argument("--tmp", default=None)
+    ap.add_argument("--json", action="store_true", help="write the mutants as JSON scenarios")
     args = ap.parse_args()
     scenarios = args.scenarios or sorted(
         os.path.join("scenarios", f) for f in os.listdir("scenarios") if f.endswith(".toml")

@@ -151,6 +151,8 @@ pub fn calibrate(
     path: &str,
 ) -> Result<SkyImage, SkyError> {
     let mut out = Vec::with_capacity(image.pixels().len());
+    // the radiance a calibration may give: that of the hottest temperature the calibrations take
+    let highest = lut.radiance(RadianceLut::HI_K);
     for (i, &v) in image.pixels().iter().enumerate() {
         let l = match calibration.temperature_k(f64::from(v)) {
             Some(t) => {
@@ -173,13 +175,16 @@ pub fn calibrate(
                 _ => unreachable!("temperature calibrations return Some"),
             },
         };
-        if !(l.is_finite() && l >= 0.0 && l < f64::from(f32::MAX)) {
+        if !(l.is_finite() && l >= 0.0 && l <= highest) {
             return Err(SkyError::Image {
                 path: path.to_owned(),
                 message: format!(
-                    "pixel ({}, {}) = {v} calibrates to radiance {l}, not a finite value ≥ 0",
+                    "pixel ({}, {}) = {v} calibrates to radiance {}, outside [0, {}] (0 K … a {} K black body)",
                     i % image.width(),
-                    i / image.width()
+                    i / image.width(),
+                    crate::physics::Num(l),
+                    crate::physics::Num(highest),
+                    RadianceLut::HI_K
                 ),
             });
         }

@@ -124,8 +124,10 @@ fn load_str_for_frames(
             if e.line() == 0 {
                 return parse_error(None, message);
             }
-            // serde_json reports the position just after the offending token
-            let offset = offset_of(text, e.line(), e.column()).saturating_sub(1);
+            // serde_json's column counts the characters before its position: the byte there is the one after a
+            // value it read (a wrong string, a table missing a field) or the first of one it refused on sight (a
+            // list or a table where a number belongs); both lie in the value's span, end included
+            let offset = offset_of(text, e.line(), e.column());
             parse_error(Some((offset, offset)), message)
         })?,
     };
