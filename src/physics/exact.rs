@@ -50,7 +50,7 @@ pub mod pair {
     /// Reads exactly two numbers.
     ///
     /// # Errors
-    /// See [`array`].
+    /// See [`array()`].
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
         array(d)
     }
@@ -71,7 +71,7 @@ pub mod dvec3 {
     /// Reads exactly three numbers.
     ///
     /// # Errors
-    /// See [`array`].
+    /// See [`array()`].
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<DVec3, D::Error> {
         array::<D, 3>(d).map(DVec3::from_array)
     }
@@ -92,7 +92,7 @@ pub mod opt_dvec3 {
     /// Reads exactly three numbers.
     ///
     /// # Errors
-    /// See [`array`].
+    /// See [`array()`].
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<DVec3>, D::Error> {
         d.deserialize_option(OptionOf::<3>(PhantomData)).map(|v| v.map(DVec3::from_array))
     }
@@ -113,7 +113,7 @@ pub mod opt_dvec2 {
     /// Reads exactly two numbers.
     ///
     /// # Errors
-    /// See [`array`].
+    /// See [`array()`].
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<DVec2>, D::Error> {
         d.deserialize_option(OptionOf::<2>(PhantomData)).map(|v| v.map(DVec2::from_array))
     }
@@ -160,7 +160,7 @@ pub mod rows4 {
     /// Reads the rows.
     ///
     /// # Errors
-    /// See [`array`].
+    /// See [`array()`].
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<[f64; 4]>, D::Error> {
         d.deserialize_seq(Rows)
     }

@@ -188,7 +188,14 @@ impl Nodes {
                 .find(|n| n.path.ends_with(']') && n.kind == NodeKind::Array(0))
                 .or(arrays.first().copied())
         } else if message.contains("invalid type: map") {
-            inside(&|n| matches!(n.kind, NodeKind::Table))
+            // prefer a table with nothing in it (`{}` where a number belongs) over the tables that hold fields
+            let has_children = |n: &Node| {
+                self.0
+                    .iter()
+                    .any(|c| c.path.len() > n.path.len() && c.path.starts_with(&n.path) && c.depth == n.depth + 1)
+            };
+            inside(&|n| matches!(n.kind, NodeKind::Table) && !has_children(n))
+                .or_else(|| inside(&|n| matches!(n.kind, NodeKind::Table)))
         } else if let Some(v) = quoted("invalid type: integer ").or_else(|| quoted("invalid type: floating point ")) {
             let v: Option<f64> = v.parse().ok();
             inside(&|n| match &n.kind {
