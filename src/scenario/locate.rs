@@ -186,6 +186,7 @@ impl Nodes {
                 .iter()
                 .copied()
                 .find(|n| n.path.ends_with(']') && n.kind == NodeKind::Array(0))
+                .or_else(|| arrays.iter().copied().find(|n| n.kind == NodeKind::Array(0)))
                 .or(arrays.first().copied())
         } else if message.contains("invalid type: map") {
             // prefer a table with nothing in it (`{}` where a number belongs) over the tables that hold fields
