@@ -458,6 +458,12 @@ fn type_errors_name_the_full_path() {
         "pointing = { mode = \"yaw_pitch_roll\", yaw_deg = 0 }\n[observer.trajectory]\nkind = \"constant_velocity\"\nposition_m = [0, 0, true]",
     );
     refused(load_toml(&header), "observer.trajectory.position_m[2]");
+    // two `true`s in a buffered (internally tagged) table: the one where a number belongs is named
+    let turn = with(
+        "trajectory = { kind = \"constant_velocity\", position_m = [-20, 3000, 1005], velocity_m_s = [100, 0, 0] }",
+        "trajectory = { kind = \"coordinated_turn\", center_m = [0, 3000, 1005], radius_m = true, speed_m_s = 10, start_bearing_deg = 0, clockwise = true }",
+    );
+    refused(load_toml(&turn), "targets[0].trajectory.radius_m");
     // JSON
     let json = r#"{
   "sensor": {"width": 64, "height": 48, "pixel_pitch_um": 17, "focal_length_mm": 100, "aperture_mm": 100, "band_um": [8, 12]},

@@ -105,8 +105,26 @@ fn load_str_for_frames(
             Some(span) => nodes.at_span(span),
             None => nodes.get(""),
         };
+        // A value is the culprit if a value of the expected type in its place makes the message go away without
+        // a complaint about the stand-in itself (fields are not always read in document order).
+        let (stand_in, named) = if message.contains("expected a boolean") {
+            ("true", "boolean `true`")
+        } else if message.contains("expected a string") {
+            ("\"0\"", "string \"0\"")
+        } else {
+            ("0", "integer `0`")
+        };
+        let culprit = |n: &super::locate::Node| {
+            let mut t = text.to_owned();
+            t.replace_range(n.span.0..n.span.1, stand_in);
+            let again = match format {
+                Format::Toml => toml::from_str::<Scenario>(&t).err().map(|e| e.message().trim().to_owned()),
+                Format::Json => serde_json::from_str::<Scenario>(&t).err().map(|e| e.to_string()),
+            };
+            again.is_none_or(|m| !m.starts_with(message.as_str()) && !m.contains(named))
+        };
         let (field, at) = match node {
-            Some(node) => nodes.refine(node, &message),
+            Some(node) => nodes.refine_with(node, &message, &culprit),
             None => (String::new(), None),
         };
         let offset = at.map(|n| n.key_start).or(span.map(|s| s.0)).unwrap_or(0);

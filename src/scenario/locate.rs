@@ -127,6 +127,17 @@ impl Nodes {
     /// The field a deserializer's `message` is about, given the node it was reported at: the missing field
     /// below a table, or the value inside it whose type, content, length or key the message names.
     pub fn refine<'a>(&'a self, node: &'a Node, message: &str) -> (String, Option<&'a Node>) {
+        self.refine_with(node, message, &|_| true)
+    }
+
+    /// [`Nodes::refine`], where `culprit` settles between several values that fit the message (two `true`s in
+    /// one table, where only one should be a number): the first for which it returns true, else the first.
+    pub fn refine_with<'a>(
+        &'a self,
+        node: &'a Node,
+        message: &str,
+        culprit: &dyn Fn(&Node) -> bool,
+    ) -> (String, Option<&'a Node>) {
         let quoted = |after: &str| -> Option<String> {
             let rest = &message[message.find(after)? + after.len()..];
             let (open, close) = match rest.chars().next()? {
@@ -152,17 +163,31 @@ impl Nodes {
             }
             return (node.path.clone(), Some(node));
         }
+        let mut node = node;
         if !matches!(node.kind, NodeKind::Table | NodeKind::Array(_)) {
-            return (node.path.clone(), Some(node));
+            // a parser may point at the wrong value of a table it buffered: then look through the table
+            let parent = node.path.rfind(['.', '[']).and_then(|cut| self.get(&node.path[..cut]));
+            match parent {
+                Some(p) if !culprit(node) => node = p,
+                _ => return (node.path.clone(), Some(node)),
+            }
         }
         let inside = |pred: &dyn Fn(&Node) -> bool| {
-            self.0.iter().find(|n| {
-                // by path, not span: a TOML table's span is its header only
-                n.depth > node.depth
-                    && (node.path.is_empty()
-                        || n.path.starts_with(&node.path) && n.path[node.path.len()..].starts_with(['.', '[']))
-                    && pred(n)
-            })
+            let fits: Vec<&Node> = self
+                .0
+                .iter()
+                .filter(|n| {
+                    // by path, not span: a TOML table's span is its header only
+                    n.depth > node.depth
+                        && (node.path.is_empty()
+                            || n.path.starts_with(&node.path) && n.path[node.path.len()..].starts_with(['.', '[']))
+                        && pred(n)
+                })
+                .collect();
+            match fits.len() {
+                0 | 1 => fits.first().copied(),
+                _ => fits.iter().copied().find(|n| culprit(n)).or(fits.first().copied()),
+            }
         };
         let found = if let Some(key) = quoted("unknown field ") {
             inside(&|n| n.path.rsplit('.').next() == Some(key.as_str()))
