@@ -223,7 +223,19 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         if rec.failed() {
             break;
         }
-        let labels = step(&mut app);
+        // A bug must not leave the directory claiming to run: record it as the failure and stop there.
+        let labels = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| step(&mut app))) {
+            Ok(labels) => labels,
+            Err(panic) => {
+                let what = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| (*s).to_owned())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_default();
+                rec.fail(format!("internal error computing frame {}: {what} (please report it)", rec.frames_sent()));
+                break;
+            }
+        };
         if stop.load(Ordering::SeqCst) {
             // the frame may have been cut short inside a solve: it is not written
             interrupted = true;

@@ -336,6 +336,16 @@ impl Recorder {
         self.committed
     }
 
+    /// Marks the run failed with `message` (the frames so far are kept, with their labels).
+    pub fn fail(&mut self, message: String) {
+        self.error.get_or_insert(RecordError::Io { path: self.dir.display().to_string(), message });
+    }
+
+    /// Frames handed to the recorder so far.
+    pub fn frames_sent(&self) -> u64 {
+        self.sent
+    }
+
     /// The first write error, if one happened; the caller should stop sending frames.
     pub fn failed(&self) -> bool {
         self.error.is_some()
@@ -583,6 +593,23 @@ mod tests {
         let written = m["frames_written"].as_u64().unwrap();
         assert!(written <= 1);
         assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap().lines().count() as u64, written);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_failure_the_caller_reports_ends_the_run_as_failed() {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-fail-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let _lock = prepare_dir(&dir, false).unwrap();
+        let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
+        rec.push(Frame::new(8, 8), None, labels(0));
+        rec.fail("internal error computing frame 1".into());
+        assert!(rec.failed());
+        assert!(rec.finish(false).unwrap_err().to_string().contains("internal error"));
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
+        assert_eq!((m["status"].as_str(), m["frames_written"].as_u64()), (Some("failed"), Some(1)));
+        assert_eq!(std::fs::read_dir(dir.join("frames")).unwrap().count(), 1);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
