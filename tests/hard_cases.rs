@@ -478,6 +478,11 @@ fn type_errors_name_the_full_path() {
     assert_eq!(e.field, "targets[0].emissivity", "{e}");
     let e = load_json(&json.replace("\"width\": 64", "\"width\": {}")).unwrap_err();
     assert_eq!(e.field, "sensor.width", "{e}");
+    // a number where a name belongs ("expected value" in JSON)
+    let e =
+        load_json(&json.replacen("\"semi_axes_m\": [1, 1, 1]}", "\"semi_axes_m\": [1, 1, 1], \"reflection\": 1.5}", 1))
+            .unwrap_err();
+    assert_eq!(e.field, "targets[0].reflection", "{e}");
     let e = load_json(json).unwrap_err();
     assert_eq!(e.field, "targets[1].brdf.roughness", "{e}");
     assert_eq!(e.line, 5, "{e}");

@@ -193,6 +193,9 @@ impl Nodes {
             inside(&|n| n.path.rsplit('.').next() == Some(key.as_str()))
         } else if let Some(s) = quoted("invalid type: string ").or_else(|| quoted("unknown variant ")) {
             inside(&|n| n.kind == NodeKind::Str(s.clone()))
+        } else if message == "expected value" {
+            // JSON's word for a number where a name (an enum's variant) belongs
+            inside(&|n| matches!(n.kind, NodeKind::Scalar(_)))
         } else if let Some(b) = quoted("invalid type: boolean ") {
             inside(&|n| n.kind == NodeKind::Bool(b == "true"))
         } else if message.contains("invalid type: sequence") {
