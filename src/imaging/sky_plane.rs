@@ -232,6 +232,41 @@ impl SkyPlacement {
             up: None,
         }
     }
+
+    /// The plane's unit normal (toward the camera), and the image's right and down directions in the world,
+    /// for a camera at `camera_position_m`: the one place these are derived and checked.
+    ///
+    /// # Errors
+    /// [`SkyError::Placement`] naming `normal` or `up` (zero, non-finite, or an up along the normal; `normal`
+    /// when `up` is the default +z) or `anchor_m` (no normal given and the camera straight above or below it).
+    pub fn axes(&self, camera_position_m: DVec3) -> Result<(DVec3, DVec3, DVec3), SkyError> {
+        let bad = |name, message: &str| SkyError::Placement { name, message: message.to_owned() };
+        // scaled by the largest component first, so that huge finite vectors normalize too
+        let unit = |v: DVec3| (v / v.abs().max_element()).try_normalize();
+        let normal = match self.normal {
+            Some(n) => unit(n).ok_or_else(|| bad("normal", "must be a finite, non-zero vector"))?,
+            None => {
+                let d = camera_position_m - self.anchor_m;
+                if !(d.x.hypot(d.y) >= 1e-9 * (1.0 + d.z.abs())) {
+                    return Err(bad("anchor_m", "the camera starts straight above or below it: give `normal`"));
+                }
+                DVec3::new(d.x, d.y, 0.0).normalize()
+            }
+        };
+        let up = match self.up {
+            Some(u) => unit(u).ok_or_else(|| bad("up", "must be a finite, non-zero vector"))?,
+            None => DVec3::Z,
+        };
+        let up_in_plane = (up - normal * up.dot(normal)).try_normalize().filter(|_| up.cross(normal).length() >= 1e-6);
+        let up_in_plane = up_in_plane.ok_or_else(|| {
+            bad(
+                if self.up.is_some() { "up" } else { "normal" },
+                "the image's up (default +z) must not be parallel to the plane's normal",
+            )
+        })?;
+        // image right = up × normal (facing the camera, right is to the viewer's right); down = right × normal
+        Ok((normal, up_in_plane.cross(normal), -up_in_plane))
+    }
 }
 
 /// The sky plane, ready to be ray cast.
@@ -267,24 +302,7 @@ impl SkyPlane {
         if !placement.anchor_m.is_finite() {
             return Err(bad("anchor_m", "must be finite"));
         }
-        let normal = match placement.normal {
-            Some(n) => (n / n.abs().max_element())
-                .try_normalize()
-                .ok_or_else(|| bad("normal", "must be a non-zero finite vector"))?,
-            None => {
-                let to_cam = camera_position_m - placement.anchor_m;
-                DVec3::new(to_cam.x, to_cam.y, 0.0)
-                    .try_normalize()
-                    .ok_or_else(|| bad("normal", "camera is straight above or below the anchor; give a normal"))?
-            }
-        };
-        let up = placement.up.map_or(DVec3::Z, |u| u / u.abs().max_element());
-        let up_in_plane = (up - normal * up.dot(normal))
-            .try_normalize()
-            .ok_or_else(|| bad("up", "must not be parallel to the plane's normal"))?;
-        // image right = up × normal (facing the camera, right is to the viewer's right); down = right × normal
-        let right = up_in_plane.cross(normal);
-        let down = -up_in_plane;
+        let (normal, right, down) = placement.axes(camera_position_m)?;
         let (w, h) = (image.width as f64, image.height as f64);
         let anchor_px = placement.anchor_px.unwrap_or(DVec2::new(w / 2.0, h / 2.0));
         let px_per_m = DVec2::new(w / placement.width_m, h / placement.height_m);

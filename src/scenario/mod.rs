@@ -20,7 +20,7 @@ use crate::imaging::camera::YawPitchRoll;
 use crate::imaging::fusion::{Guidance, Solver};
 use crate::imaging::sky_field::SkyCalibration;
 use crate::imaging::sky_gen::SkyGenSpec;
-use crate::imaging::sky_plane::{MissFill, Sampling, SkyPlacement};
+use crate::imaging::sky_plane::{MissFill, Sampling, SkyError, SkyPlacement};
 use crate::imaging::vibration::VibrationSpec;
 use crate::physics::ParamError;
 use crate::physics::brdf::CookTorrance;
@@ -563,33 +563,11 @@ impl Scenario {
                     _ => {}
                 }
             }
-            if let Some(n) = sky.normal
-                && !(n.is_finite() && (n / n.abs().max_element()).length() > 0.0)
-            {
-                return Err(fe("sky.normal", "must be a finite, non-zero vector"));
-            }
-            if let Some(up) = sky.up
-                && !(up.is_finite() && (up / up.abs().max_element()).length() > 0.0)
-            {
-                return Err(fe("sky.up", "must be a finite, non-zero vector"));
-            }
-            let unit = |v: DVec3| (v / v.abs().max_element()).normalize();
-            let normal = match sky.normal {
-                Some(n) => unit(n),
-                None => {
-                    let d = observer.state(r.start_time_s).0 - anchor;
-                    if d.x.hypot(d.y) < 1e-9 * (1.0 + d.z.abs()) {
-                        return Err(fe(
-                            "sky.anchor_m",
-                            "the observer starts straight above or below it: give `normal`",
-                        ));
-                    }
-                    DVec3::new(d.x, d.y, 0.0).normalize()
-                }
-            };
-            if unit(sky.up.unwrap_or(DVec3::Z)).cross(normal).length() < 1e-6 {
-                let which = if sky.up.is_some() { "sky.up" } else { "sky.normal" };
-                return Err(fe(which, "the image's up (default +z) must not be parallel to the plane's normal"));
+            if let Some(placement) = sky.placement() {
+                placement.axes(observer.state(r.start_time_s).0).map_err(|e| match e {
+                    SkyError::Placement { name, message } => fe(format!("sky.{name}"), message),
+                    other => fe("sky", other),
+                })?;
             }
             if let Sampling::Supersample { n } = sky.sampling
                 && !(1..=16).contains(&n)
