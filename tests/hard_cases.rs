@@ -315,6 +315,12 @@ fn inputs_whose_results_would_overflow_are_refused() {
         "trajectory = { kind = \"coordinated_turn\", center_m = [0, 3000, 1005], radius_m = 1e-320, speed_m_s = 10, start_bearing_deg = 0 }",
     );
     refused(load_toml(&turn), "targets[0].trajectory.radius_m");
+    // a number or a boolean where a name belongs ("wanted string or table" in TOML), beside numbers that fit
+    for bad in ["sky_blur = 3", "method = true"] {
+        let psf =
+            with("band_um = [8, 12]\n", &format!("band_um = [8, 12]\n[sensor.psf]\nenergy_cutoff = 0.03\n{bad}\n"));
+        refused(load_toml(&psf), &format!("sensor.psf.{}", bad.split(' ').next().unwrap()));
+    }
     // a polynomial that grows past the world within the run
     let poly = with(
         &format!("trajectory = {{ kind = \"constant_velocity\", {traj} }}"),

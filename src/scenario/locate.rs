@@ -196,6 +196,9 @@ impl Nodes {
         } else if message == "expected value" {
             // JSON's word for a number where a name (an enum's variant) belongs
             inside(&|n| matches!(n.kind, NodeKind::Scalar(_)))
+        } else if message == "wanted string or table" {
+            // TOML's word for a number or boolean where a name (an enum's variant) belongs
+            inside(&|n| matches!(n.kind, NodeKind::Scalar(_) | NodeKind::Bool(_)))
         } else if let Some(b) = quoted("invalid type: boolean ") {
             inside(&|n| n.kind == NodeKind::Bool(b == "true"))
         } else if message.contains("invalid type: sequence") {
