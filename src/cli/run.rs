@@ -416,13 +416,20 @@ fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliErro
     }
     app.world_mut().insert_resource(StageTimings::default());
     let t = Instant::now();
-    let (mut needed, mut blurred) = (0.0, 0.0);
+    let (mut needed, mut blurred, mut prefiltered, mut builds) = (0.0, 0.0, 0.0, 0);
+    let plan = {
+        let mut q = app.world_mut().query::<&crate::sim::Sensor>();
+        q.iter(app.world()).next().map(|s| (s.sky_blur, s.sky_blur_plan))
+    };
     let mut sensor_frame = app.world_mut().query::<&SensorFrame>();
     for _ in 0..frames {
         step(&mut app);
         if let Some(sf) = sensor_frame.iter(app.world()).next() {
-            needed += sf.blur.tiles_needed as f64 / sf.blur.tiles.max(1) as f64;
-            blurred += sf.blur.tiles_blurred as f64 / sf.blur.tiles.max(1) as f64;
+            let b = &sf.background_stats.blur;
+            needed += b.tiles_needed as f64 / b.tiles.max(1) as f64;
+            blurred += b.tiles_blurred as f64 / b.tiles.max(1) as f64;
+            prefiltered += sf.background_stats.tiles_prefiltered as f64 / b.tiles.max(1) as f64;
+            builds = sf.background_stats.texture_builds;
         }
     }
     let fps = frames as f64 / t.elapsed().as_secs_f64();
@@ -430,11 +437,22 @@ fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliErro
         let stages: Vec<String> =
             timings.mean_ms().iter().map(|(name, ms)| format!("{name} {:.0}", ms * 1e3)).collect();
         eprintln!(
-            "  stage µs per frame: {}; background blur needed on {:.0} % of the frame, applied on {:.0} %",
+            "  stage µs per frame: {}; background: {:.0} % of the frame from the prefiltered sky ({builds} \
+             textures made), per-frame blur needed on {:.0} %, applied on {:.0} %",
             stages.join(", "),
+            100.0 * prefiltered / frames as f64,
             100.0 * needed / frames as f64,
             100.0 * blurred / frames as f64
         );
+        if let Some((choice, plan)) = plan {
+            let why = plan.map_or_else(String::new, |p| {
+                format!(
+                    " (planned: {} texture builds for {} of {} views, {:.2e} multiply–adds against {:.2e} for frame blurs)",
+                    p.texture_builds, p.views_prefiltered, p.views, p.texture_work, p.frame_work
+                )
+            });
+            eprintln!("  sky blur: {}{why}", serde_json::to_value(choice).unwrap_or_default().as_str().unwrap_or("?"));
+        }
     }
     Ok(fps)
 }

@@ -26,6 +26,27 @@ pub enum CameraError {
     DegenerateLookAt,
 }
 
+/// Where a camera points, with every target resolved to a position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Aim {
+    /// At a world point (a fixed point, or a tracked target's position).
+    At {
+        /// The point, m.
+        target_m: DVec3,
+        /// Roll about the optical axis, degrees.
+        roll_deg: f64,
+    },
+    /// A fixed attitude.
+    Attitude(YawPitchRoll),
+    /// Along the platform's velocity (north and level when it stands still), offset in yaw and pitch, degrees.
+    AlongVelocity {
+        /// Added heading, degrees.
+        yaw_offset_deg: f64,
+        /// Added elevation, degrees.
+        pitch_offset_deg: f64,
+    },
+}
+
 /// Image size and the pinhole's focal length in pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Intrinsics {
@@ -168,6 +189,27 @@ impl Camera {
             roll_deg,
         };
         Ok(Self::new(intrinsics, position_m, attitude))
+    }
+
+    /// The camera at `eye_m` moving at `velocity_m_s`, aimed as `aim` says; a look-at whose target is at the eye
+    /// looks north, level.
+    pub fn aimed(intrinsics: Intrinsics, eye_m: DVec3, velocity_m_s: DVec3, aim: Aim) -> Self {
+        match aim {
+            Aim::At { target_m, roll_deg } => Self::look_at(intrinsics, eye_m, target_m, roll_deg)
+                .unwrap_or_else(|_| Self::new(intrinsics, eye_m, YawPitchRoll::default())),
+            Aim::Attitude(attitude) => Self::new(intrinsics, eye_m, attitude),
+            Aim::AlongVelocity { yaw_offset_deg, pitch_offset_deg } => {
+                let v = velocity_m_s;
+                let (yaw, pitch) = if v.length_squared() > 0.0 {
+                    (v.x.atan2(v.y).to_degrees(), (v.z / v.length()).clamp(-1.0, 1.0).asin().to_degrees())
+                } else {
+                    (0.0, 0.0)
+                };
+                let attitude =
+                    YawPitchRoll { yaw_deg: yaw + yaw_offset_deg, pitch_deg: pitch + pitch_offset_deg, roll_deg: 0.0 };
+                Self::new(intrinsics, eye_m, attitude)
+            }
+        }
     }
 
     /// The same camera rotated by a small jitter about its own axes.

@@ -4,9 +4,11 @@
 //! and row-parallel kernels give the same result for any thread count.
 
 pub mod agc;
+pub mod background;
 pub mod camera;
 pub mod frame;
 pub mod fusion;
+pub mod prefilter;
 pub mod psd;
 pub mod psf;
 pub mod sky_field;

@@ -458,15 +458,7 @@ impl Kernel {
     pub fn from_values(radius: usize, values: &[f64]) -> Self {
         let side = 2 * radius + 1;
         assert_eq!(values.len(), side * side, "kernel size");
-        let r = radius as f64;
-        let second_moment_px2 = values
-            .iter()
-            .enumerate()
-            .map(|(i, v)| {
-                let (x, y) = ((i % side) as f64 - r, (i / side) as f64 - r);
-                v * (x * x + y * y)
-            })
-            .sum();
+        let second_moment_px2 = second_moment(radius, values);
         // symmetric part, eigen-decomposed; keep the largest terms until the worst error is 1e-4 of the peak
         let sym: Vec<f64> =
             (0..side * side).map(|i| 0.5 * (values[i] + values[(i % side) * side + i / side])).collect();
@@ -500,6 +492,19 @@ impl Kernel {
         Self { radius, values: values.iter().map(|&v| v as f32).collect(), terms, vertical, second_moment_px2 }
     }
 
+    /// A kernel from row-major `(2R+1)²` values, applied in 2D only (no separable decomposition: the separable
+    /// method applies it directly).
+    ///
+    /// # Panics
+    /// If `values.len()` is not `(2·radius + 1)²`.
+    pub fn from_values_2d(radius: usize, values: &[f64]) -> Self {
+        let side = 2 * radius + 1;
+        assert_eq!(values.len(), side * side, "kernel size");
+        let second_moment_px2 = second_moment(radius, values);
+        let values = values.iter().map(|&v| v as f32).collect();
+        Self { radius, values, terms: Vec::new(), vertical: Vec::new(), second_moment_px2 }
+    }
+
     /// Radius, px.
     pub fn radius(&self) -> usize {
         self.radius
@@ -520,6 +525,19 @@ impl Kernel {
     pub fn second_moment_px2(&self) -> f64 {
         self.second_moment_px2
     }
+}
+
+/// `Σ K[d]·|d|²` of row-major `(2R+1)²` kernel values, px².
+fn second_moment(radius: usize, values: &[f64]) -> f64 {
+    let (side, r) = (2 * radius + 1, radius as f64);
+    values
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let (x, y) = ((i % side) as f64 - r, (i / side) as f64 - r);
+            v * (x * x + y * y)
+        })
+        .sum()
 }
 
 /// Eigen-decomposition of a symmetric `n × n` matrix by cyclic Jacobi rotations: eigenvalues and the
@@ -573,8 +591,8 @@ fn jacobi_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
 
 /// Per [`BLUR_TILE_PX`] tile of `frame`, the largest `|F_xx| + |F_yy| + 2·|F_xy|` (central second differences
 /// along the axes, the forward mixed difference of the pixel's 2 × 2 cell; edges replicated) into `out`; NaN
-/// where a pixel or a neighbour is NaN.
-fn tile_curvature(frame: &Frame, out: &mut Vec<f32>) {
+/// where a pixel or a neighbour is NaN. Rows of tiles whose entry in `rows` is false are left at 0.
+fn tile_curvature(frame: &Frame, rows: &[bool], out: &mut Vec<f32>) {
     let (w, h) = (frame.width(), frame.height());
     let t = BLUR_TILE_PX;
     let (tw, th) = (w.div_ceil(t), h.div_ceil(t));
@@ -584,6 +602,9 @@ fn tile_curvature(frame: &Frame, out: &mut Vec<f32>) {
     out.par_chunks_mut(tw).enumerate().for_each_init(
         || vec![0.0f32; w],
         |line, (ty, tiles)| {
+            if !rows[ty] {
+                return;
+            }
             for y in ty * t..((ty + 1) * t).min(h) {
                 let (up, mid, down) = (&px[y.saturating_sub(1) * w..], &px[y * w..], &px[(y + 1).min(h - 1) * w..]);
                 for (x, c) in line.iter_mut().enumerate() {
@@ -699,7 +720,8 @@ impl Convolver {
         Self::default()
     }
 
-    /// Replaces `frame` by its convolution with `kernel` (edges replicated).
+    /// Replaces `frame` by its convolution with `kernel` (edges replicated); strictly, the correlation
+    /// `Σ_d K[d]·F(x + d)`, which is the convolution for an even kernel.
     pub fn apply(&mut self, kernel: &Kernel, frame: &mut Frame, method: ConvolutionMethod) {
         if kernel.radius == 0 {
             let k = kernel.values[0];
@@ -709,6 +731,7 @@ impl Convolver {
             return;
         }
         match method {
+            ConvolutionMethod::Separable if kernel.terms.is_empty() => self.direct(kernel, frame),
             ConvolutionMethod::Separable => self.separable(kernel, frame),
             ConvolutionMethod::Direct => self.direct(kernel, frame),
             ConvolutionMethod::Fft => self.fft(kernel, frame),
@@ -766,19 +789,48 @@ impl Convolver {
         method: ConvolutionMethod,
         skip_below: f32,
     ) -> BlurStats {
+        self.apply_where_needed_in(kernel, frame, method, skip_below, None)
+    }
+
+    /// As [`Convolver::apply_where_needed`], deciding only on the tiles whose entry in `candidates` (row-major,
+    /// `⌈width/BLUR_TILE_PX⌉` per row) is true: the others are not counted and may keep their values or be
+    /// blurred (when the whole-frame method is cheaper), so the caller overwrites them afterwards.
+    pub fn apply_where_needed_in(
+        &mut self,
+        kernel: &Kernel,
+        frame: &mut Frame,
+        method: ConvolutionMethod,
+        skip_below: f32,
+        candidates: Option<&[bool]>,
+    ) -> BlurStats {
         let (w, h) = (frame.width(), frame.height());
         let t = BLUR_TILE_PX;
         let (tw, th) = (w.div_ceil(t), h.div_ceil(t));
         let tiles = tw * th;
+        let candidate = |i: usize| candidates.is_none_or(|c| c[i]);
+        let considered = (0..tiles).filter(|&i| candidate(i)).count();
+        if considered == 0 {
+            return BlurStats { tiles_needed: 0, tiles_blurred: 0, tiles };
+        }
         if kernel.radius == 0 || !(skip_below > 0.0) {
             self.apply(kernel, frame, method);
-            return BlurStats { tiles_needed: tiles, tiles_blurred: tiles, tiles };
+            return BlurStats { tiles_needed: considered, tiles_blurred: considered, tiles };
         }
-        tile_curvature(frame, &mut self.rough);
-        let factor = (0.25 * kernel.second_moment_px2) as f32;
         let reach = kernel.radius.div_ceil(t) as isize;
+        // curvature only on the rows of tiles a candidate's reach covers
+        let rows: Vec<bool> = (0..th as isize)
+            .map(|ty| {
+                ((ty - reach).max(0)..=(ty + reach).min(th as isize - 1))
+                    .any(|y| (0..tw).any(|x| candidate(y as usize * tw + x)))
+            })
+            .collect();
+        tile_curvature(frame, &rows, &mut self.rough);
+        let factor = (0.25 * kernel.second_moment_px2) as f32;
         self.needed.clear();
         self.needed.extend((0..tiles).map(|i| {
+            if !candidate(i) {
+                return false;
+            }
             let (tx, ty) = ((i % tw) as isize, (i / tw) as isize);
             let mut worst = 0.0f32;
             for y in (ty - reach).max(0)..=(ty + reach).min(th as isize - 1) {
@@ -796,7 +848,7 @@ impl Convolver {
         }
         if 2 * blurred > tiles {
             self.apply(kernel, frame, method);
-            return BlurStats { tiles_needed: blurred, tiles_blurred: tiles, tiles };
+            return BlurStats { tiles_needed: blurred, tiles_blurred: considered, tiles };
         }
         let r = kernel.radius;
         let pw = self.pad(frame, r);
@@ -877,13 +929,15 @@ impl Convolver {
             None => true,
         };
         if stale {
-            // the kernel, centred at the origin of the padded grid
+            // the kernel, centred at the origin of the padded grid and mirrored, so that the product of the
+            // transforms gives the correlation `Σ K[d]·F(x + d)` as the direct and separable methods do (the
+            // same as the convolution for the PSF's even kernels)
             let mut k = vec![Complex::new(0.0f32, 0.0); pw * ph];
             let side = 2 * r + 1;
             for dy in 0..side {
                 for dx in 0..side {
-                    let x = (dx as isize - r as isize).rem_euclid(pw as isize) as usize;
-                    let y = (dy as isize - r as isize).rem_euclid(ph as isize) as usize;
+                    let x = (r as isize - dx as isize).rem_euclid(pw as isize) as usize;
+                    let y = (r as isize - dy as isize).rem_euclid(ph as isize) as usize;
                     k[y * pw + x] = Complex::new(kernel.values[dy * side + dx], 0.0);
                 }
             }

@@ -119,6 +119,16 @@ impl SkyImage {
         &self.pixels
     }
 
+    /// The `width × height` block whose top-left pixel is `(x0, y0)`, row-major; pixels beyond the image take the
+    /// nearest edge pixel's value.
+    pub fn region_clamped(&self, x0: isize, y0: isize, width: usize, height: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(width * height);
+        for y in 0..height as isize {
+            out.extend((0..width as isize).map(|x| self.at_clamped(x0 + x, y0 + y)));
+        }
+        out
+    }
+
     /// Value of pixel `(x, y)`, clamped to the image.
     #[inline]
     fn at_clamped(&self, x: isize, y: isize) -> f32 {
@@ -324,6 +334,73 @@ impl SkyPlane {
         &self.image
     }
 
+    /// The same plane holding `image`, a region of this plane's image whose top-left corner is this image's pixel
+    /// `origin_px`, at `per_px` of its pixels per pixel of this image (a crop, a filtered copy, a finer grid),
+    /// where that region lies in the world.
+    pub fn with_region(&self, image: SkyImage, origin_px: [usize; 2], per_px: usize) -> Self {
+        let origin = DVec2::new(origin_px[0] as f64, origin_px[1] as f64);
+        let m = per_px.max(1) as f64;
+        Self {
+            image,
+            anchor_m: self.anchor_m,
+            anchor_px: (self.anchor_px - origin) * m,
+            normal: self.normal,
+            du_m: self.du_m / m,
+            dv_m: self.dv_m / m,
+            px_per_m: self.px_per_m * m,
+            right: self.right,
+            down: self.down,
+        }
+    }
+
+    /// The image at image coordinates `image_px` (px), interpolated bilinearly between pixel centres; beyond the
+    /// edges, the nearest edge value.
+    pub fn value_at(&self, image_px: DVec2) -> f32 {
+        self.sample(image_px, Sampling::Bilinear, MissFill::Edge)
+    }
+
+    /// Where `camera`'s rays meet the plane, in image coordinates ([`PlaneProjection::image_point`]).
+    pub fn projection(&self, camera: &Camera) -> PlaneProjection {
+        PlaneProjection(RowGeometry::new(self, camera))
+    }
+
+    /// As [`SkyPlane::render`] with bilinear or nearest sampling, only on the `tile_px`-square tiles of the frame
+    /// whose entry in `tiles` (row-major, `⌈width/tile_px⌉` per row) is true; other pixels keep their values.
+    pub fn render_tiles(
+        &self,
+        camera: &Camera,
+        sampling: Sampling,
+        fill: MissFill,
+        tile_px: usize,
+        tiles: &[bool],
+        frame: &mut Frame,
+    ) {
+        use rayon::prelude::*;
+        let width = frame.width();
+        let tiles_x = width.div_ceil(tile_px);
+        let sampling = if matches!(sampling, Sampling::Nearest) { sampling } else { Sampling::Bilinear };
+        let geometry = RowGeometry::new(self, camera);
+        frame.pixels_mut().par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+            let flags = &tiles[(j / tile_px) * tiles_x..(j / tile_px + 1) * tiles_x];
+            let mut tx = 0;
+            while tx < tiles_x {
+                if !flags[tx] {
+                    tx += 1;
+                    continue;
+                }
+                // one cast per run of consecutive tiles
+                let start = tx;
+                while tx < tiles_x && flags[tx] {
+                    tx += 1;
+                }
+                let (x0, x1) = (start * tile_px, (tx * tile_px).min(width));
+                widest(|| {
+                    geometry.cast_row(self, j as f64 + 0.5, x0 as f64 + 0.5, sampling, fill, &mut row[x0..x1], false)
+                });
+            }
+        });
+    }
+
     /// Unit normal, toward the camera side.
     pub fn normal(&self) -> DVec3 {
         self.normal
@@ -454,6 +531,18 @@ fn floor_isize(x: f64) -> isize {
     // `as` saturates (NaN to 0); the callers keep |x| small
     let i = x as isize;
     if (i as f64) > x { i.saturating_sub(1) } else { i }
+}
+
+/// The plane as one camera sees it.
+pub struct PlaneProjection(RowGeometry);
+
+impl PlaneProjection {
+    /// Image coordinates (px) where the ray through sensor point `sensor_px` (pixel centres at `i + 0.5`) meets
+    /// the plane; `None` if it runs parallel to the plane or meets it behind the camera.
+    pub fn image_point(&self, sensor_px: DVec2) -> Option<DVec2> {
+        let g = &self.0;
+        g.coordinates(g.base + g.dv * sensor_px.y, sensor_px.x)
+    }
 }
 
 /// Per-frame constants of the ray cast: how the ray's dot products with the plane axes vary over the image.

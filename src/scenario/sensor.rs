@@ -10,6 +10,7 @@ use serde::de::IgnoredAny;
 use serde::{Deserialize, Serialize};
 
 use super::{FieldError, fe};
+use crate::imaging::background::SkyBlur;
 use crate::imaging::camera::Intrinsics;
 use crate::imaging::psf::{ConvolutionMethod, PsfSpec};
 use crate::imaging::target_blob::BlobSampling;
@@ -168,6 +169,10 @@ pub struct PsfToml {
     /// A 16 × 16 px tile of the frame is not blurred when the blur cannot change any of its pixels by more than
     /// this many DN (bounded from the background's second differences); 0 always blurs.
     pub skip_below_dn: f64,
+    /// How the blur reaches a sky image: a prefiltered texture, or the frame (the reference).
+    pub sky_blur: SkyBlur,
+    /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
+    pub prefilter_tolerance: f64,
 }
 
 impl Default for PsfToml {
@@ -182,6 +187,8 @@ impl Default for PsfToml {
             energy_cutoff: p.energy_cutoff,
             method: ConvolutionMethod::Separable,
             skip_below_dn: 0.1,
+            sky_blur: SkyBlur::Auto,
+            prefilter_tolerance: 0.05,
         }
     }
 }
@@ -444,6 +451,10 @@ impl SensorSpec {
             self.psf.spec().validate().map_err(super::at("sensor.psf"))?;
             if !(self.psf.skip_below_dn.is_finite() && (0.0..=1e6).contains(&self.psf.skip_below_dn)) {
                 return Err(fe("sensor.psf.skip_below_dn", format!("{} must be in [0, 1e6]", self.psf.skip_below_dn)));
+            }
+            let tol = self.psf.prefilter_tolerance;
+            if !(tol.is_finite() && (1e-3..=0.5).contains(&tol)) {
+                return Err(fe("sensor.psf.prefilter_tolerance", format!("{tol} must be in [0.001, 0.5]")));
             }
             Some(self.psf)
         } else {

@@ -28,10 +28,11 @@ use bevy::prelude::{FixedUpdate, MinimalPlugins};
 use bevy::time::{Fixed, Time, TimeUpdateStrategy};
 use glam::DVec3;
 
+use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, SkyBlurPlan, plan_sky_blur};
 use crate::imaging::camera::{Camera, Jitter, YawPitchRoll};
 use crate::imaging::frame::Frame;
 use crate::imaging::fusion::PoissonFusion;
-use crate::imaging::psf::{BlurStats, Convolver, Psf, PsfOptics};
+use crate::imaging::psf::{Psf, PsfOptics};
 use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate};
 use crate::imaging::sky_gen::{SkyGenSpec, generate};
 use crate::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlane};
@@ -226,6 +227,10 @@ pub struct Sensor {
     pub psf: Option<Arc<Psf>>,
     /// Blur the frame (false when the blur would change no pixel by more than the set DN).
     pub blur_frame: bool,
+    /// How the blur reaches the sky image this run (`prefilter` or `frame`, `auto` resolved).
+    pub sky_blur: SkyBlur,
+    /// The plan that resolved `auto`, if one was made.
+    pub sky_blur_plan: Option<SkyBlurPlan>,
     /// The non-idealities of this sequence.
     pub nonideal: Option<Arc<NonIdeal>>,
 }
@@ -254,9 +259,9 @@ pub struct SensorFrame {
     /// The sky as last rendered (radiance, blurred), and the camera it was rendered for.
     pub background: Frame,
     background_camera: Option<Camera>,
-    /// What the last blur of the background did.
-    pub blur: BlurStats,
-    convolver: Convolver,
+    /// What the last render of the background did.
+    pub background_stats: BackgroundStats,
+    renderer: BackgroundRenderer,
     columns: Vec<f32>,
 }
 
@@ -544,7 +549,14 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
     let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
     let sky = build_sky(scenario, &scene, p0, seed)?;
-    let sensor = build_sensor(&sensor_spec, &sky, seed)?;
+    let mut sensor = build_sensor(&sensor_spec, &sky, seed)?;
+    if let (Some(plane), Some(psf), Some(cfg), true) = (&sky.plane, &sensor.psf, sensor_spec.psf, sensor.blur_frame)
+        && cfg.sky_blur == SkyBlur::Auto
+    {
+        let plan = plan_sky_blur(plane, psf, cfg.prefilter_tolerance, (w, h), planned_views(scenario));
+        sensor.sky_blur = plan.choice;
+        sensor.sky_blur_plan = Some(plan);
+    }
     app.insert_resource(scene);
     let world = app.world_mut();
     world.spawn((
@@ -554,8 +566,8 @@ pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App,
             float_frame: None,
             background: Frame::new(w, h),
             background_camera: None,
-            blur: BlurStats::default(),
-            convolver: Convolver::new(),
+            background_stats: BackgroundStats::default(),
+            renderer: BackgroundRenderer::new(),
             columns: Vec::new(),
         },
     ));
@@ -644,6 +656,24 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
     Ok(Sky { plane: plane.map(Arc::new), sampling: sky.sampling, miss: sky.miss, dome })
 }
 
+/// The steady cameras (no vibration, no pointing noise) of the run's frames, for planning: every frame up to
+/// 4096 of them, an even sample of 4096 beyond.
+fn planned_views(scenario: &CheckedScenario) -> impl Iterator<Item = Camera> + '_ {
+    let spec = &scenario.spec;
+    let frames = spec.run.frames.max(1);
+    let stride = frames.div_ceil(4096).max(1);
+    let intrinsics = scenario.sensor.intrinsics;
+    (0..frames).step_by(stride as usize).map(move |k| {
+        let t = spec.run.start_time_s + k as f64 / spec.run.frame_rate_hz;
+        let (eye, velocity) = scenario.observer_trajectory.state(t);
+        let tracked = |name: &str, lag_s: f64| {
+            let i = spec.targets.iter().position(|target| target.name == name)?;
+            Some(scenario.target_trajectories[i].state(t - lag_s).0)
+        };
+        Camera::aimed(intrinsics, eye, velocity, camera::resolve_aim(&spec.observer.pointing, tracked))
+    })
+}
+
 /// Texels of a generated layer: at least one per sensor pixel at the plane's distance from the observer's
 /// start (its nearest point), up to `max_texels` per side.
 fn layer_size(
@@ -711,6 +741,8 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
         dn_per_radiance,
         psf,
         blur_frame,
+        sky_blur: resolved.psf.map_or(SkyBlur::Frame, |p| p.sky_blur),
+        sky_blur_plan: None,
         nonideal,
     })
 }

@@ -6,8 +6,7 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, Sky};
-use crate::imaging::sky_field::render_dome;
-use crate::imaging::sky_plane::Sampling;
+use crate::imaging::background::{BackgroundBlur, SkyView};
 
 /// Renders the background.
 pub struct RenderPlugin;
@@ -18,8 +17,8 @@ impl Plugin for RenderPlugin {
     }
 }
 
-/// Ray casts the sky into the frame and blurs it; when the camera has not moved since the last render, reuses
-/// it.
+/// Renders the blurred sky background for the vibrated camera; when the camera has not moved since the last
+/// render, reuses it.
 pub fn render_sky(
     observer: Query<&CameraPose, With<Observer>>,
     sky: Query<&Sky>,
@@ -30,21 +29,19 @@ pub fn render_sky(
     };
     let sf = &mut *sf;
     if sf.background_camera != Some(pose.current) {
-        match &sky.plane {
-            Some(plane) => {
-                plane.render(&pose.current, sky.sampling, sky.miss, &mut sf.background);
-                render_dome(&pose.current, &sky.dome, &mut sf.background, true);
-            }
-            None => render_dome(&pose.current, &sky.dome, &mut sf.background, false),
-        }
-        if let (Some(psf), Some(cfg), true) = (&sensor.psf, sensor.resolved.psf, sensor.blur_frame) {
-            // a point-sampled sky needs the pixel aperture in the kernel; an area-averaged one has it already
-            let area_sampled = sky.plane.is_some() && matches!(sky.sampling, Sampling::Supersample { n } if n > 1);
-            let kernel = if area_sampled { psf.area_kernel() } else { psf.point_kernel() };
-            // tiles where the blur changes no pixel by more than the set DN keep their values
-            let skip = (cfg.skip_below_dn / sensor.dn_per_radiance) as f32;
-            sf.blur = sf.convolver.apply_where_needed(kernel, &mut sf.background, cfg.method, skip);
-        }
+        let view = SkyView { plane: sky.plane.as_deref(), dome: &sky.dome, sampling: sky.sampling, miss: sky.miss };
+        let blur = match (&sensor.psf, sensor.resolved.psf, sensor.blur_frame) {
+            (Some(psf), Some(cfg), true) => Some(BackgroundBlur {
+                psf,
+                method: cfg.method,
+                // tiles where the blur changes no pixel by more than the set DN keep their values
+                skip_below: (cfg.skip_below_dn / sensor.dn_per_radiance) as f32,
+                sky_blur: sensor.sky_blur,
+                tolerance: cfg.prefilter_tolerance,
+            }),
+            _ => None,
+        };
+        sf.background_stats = sf.renderer.render(&view, &pose.current, blur.as_ref(), &mut sf.background);
         sf.background_camera = Some(pose.current);
     }
     sf.frame.pixels_mut().copy_from_slice(sf.background.pixels());

@@ -1,0 +1,488 @@
+//! A frame's sky background: the sky plane ray cast through the camera, the dome along every ray that misses
+//! it, and the optics blur, in radiance.
+//!
+//! Two ways to blur, selected by [`SkyBlur`] (`Auto` picks one per run, [`plan_sky_blur`]):
+//! - `Frame`: ray cast the raw image, fill the misses from the dome, convolve the frame with the PSF's pixel
+//!   kernel (tiles whose change would stay below a threshold are skipped, [`Convolver`]). Exact for a frame that
+//!   is linear between pixel centres, it errs at edges sharper than a pixel.
+//! - `Prefilter`: ray cast an image already convolved with the PSF mapped into its texels, on a grid of at most
+//!   [`super::prefilter::TEXTURE_SPACING_PX`] ([`super::prefilter`]), one sample per pixel and no per-frame blur. It serves the 16 × 16 px tiles whose
+//!   blur footprint (the tile widened by the PSF radius plus one pixel) lies entirely on the image, 1.5 texels
+//!   in from its edges, and whose own Jacobian is within `tolerance` of the texture's; the other tiles (near the
+//!   horizon where the plane ends, near the image's edges, at strongly varying perspective) are made the
+//!   reference way in the same frame. When the frame's centre does not see the image, or the texture kernel
+//!   would be too wide (a strongly minified image), the whole frame is.
+//!
+//! A frame's result depends only on its own camera: the texture's Jacobian is a lattice point chosen from the
+//! camera's view, and a prefiltered crop's values do not depend on its extent.
+
+use glam::{DMat2, DVec2};
+use serde::{Deserialize, Serialize};
+
+use super::camera::Camera;
+use super::frame::Frame;
+use super::prefilter::{JacobianKey, PrefilterCache};
+use super::psf::{BLUR_TILE_PX, BlurStats, ConvolutionMethod, Convolver, Psf};
+use super::sky_field::render_dome;
+use super::sky_plane::{MissFill, Sampling, SkyPlane};
+use crate::physics::sky::Dome;
+
+/// How the optics blur reaches a sky image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SkyBlur {
+    /// `prefilter` when the run's planned views make it cheaper than `frame` ([`plan_sky_blur`]).
+    #[default]
+    Auto,
+    /// Convolve the image once with the PSF mapped into its texels, then ray cast it.
+    Prefilter,
+    /// Ray cast the raw image and convolve every frame (the reference).
+    Frame,
+}
+
+/// What blurring a run's sky each way would cost, and the choice made.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SkyBlurPlan {
+    /// `prefilter` or `frame`.
+    pub choice: SkyBlur,
+    /// Views planned.
+    pub views: usize,
+    /// Views with tiles the prefiltered texture can serve.
+    pub views_prefiltered: usize,
+    /// Texture crops the run would prefilter.
+    pub texture_builds: u64,
+    /// Multiply–adds of those builds.
+    pub texture_work: f64,
+    /// Multiply–adds of blurring the frames of those views instead (separable kernel, every tile).
+    pub frame_work: f64,
+}
+
+/// Plans the sky blur of a run whose steady views are `cameras` (every frame, or a sample of them in order):
+/// simulates the prefiltered-texture cache over them and chooses `prefilter` when its builds take fewer
+/// multiply–adds than blurring the frames that can use it (on the shipped scenarios this picks the faster way in
+/// each of the eight, docs/accuracy.md). A function of the views alone, so every frame
+/// of the run is rendered the same way whatever came before it.
+pub fn plan_sky_blur(
+    plane: &SkyPlane,
+    psf: &Psf,
+    tolerance: f64,
+    (width, height): (usize, usize),
+    cameras: impl IntoIterator<Item = Camera>,
+) -> SkyBlurPlan {
+    let mut cache = PrefilterCache::new();
+    let mut clean = Vec::new();
+    let (mut views, mut views_prefiltered) = (0, 0);
+    for camera in cameras {
+        views += 1;
+        if let Some((key, need)) = classify(plane, &camera, psf.radius_px(), tolerance, (width, height), &mut clean)
+            && cache.plan(plane, psf, key, tolerance, need)
+        {
+            views_prefiltered += 1;
+        }
+    }
+    let kernel = psf.point_kernel();
+    let taps = (2 * (2 * kernel.radius() + 1) * kernel.rank()) as f64;
+    let frame_work = views_prefiltered as f64 * (width * height) as f64 * taps;
+    let texture_work = cache.work();
+    let choice = if views_prefiltered > 0 && texture_work < frame_work { SkyBlur::Prefilter } else { SkyBlur::Frame };
+    SkyBlurPlan { choice, views, views_prefiltered, texture_builds: cache.builds(), texture_work, frame_work }
+}
+
+/// The sky as the renderer sees it.
+#[derive(Debug, Clone, Copy)]
+pub struct SkyView<'a> {
+    /// The placed radiance image, if any.
+    pub plane: Option<&'a SkyPlane>,
+    /// The clear sky and ground.
+    pub dome: &'a Dome,
+    /// How the image is sampled.
+    pub sampling: Sampling,
+    /// What rays that miss the image get.
+    pub miss: MissFill,
+}
+
+/// The optics blur of the background.
+#[derive(Debug, Clone, Copy)]
+pub struct BackgroundBlur<'a> {
+    /// The PSF.
+    pub psf: &'a Psf,
+    /// How the frame kernel is applied.
+    pub method: ConvolutionMethod,
+    /// A tile blurred the reference way keeps its values when the blur cannot change any of them by more than
+    /// this (radiance units); 0 blurs every such tile.
+    pub skip_below: f32,
+    /// Prefiltered texture or per-frame blur.
+    pub sky_blur: SkyBlur,
+    /// Largest relative (Frobenius) difference between a tile's Jacobian and its prefiltered texture's.
+    pub tolerance: f64,
+}
+
+/// What rendering a background did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct BackgroundStats {
+    /// The reference blur on the tiles made that way.
+    pub blur: BlurStats,
+    /// Tiles read from the prefiltered texture.
+    pub tiles_prefiltered: usize,
+    /// Prefiltered crops made since the renderer was created.
+    pub texture_builds: u64,
+}
+
+/// Renders backgrounds; holds the buffers and the prefiltered textures between frames.
+#[derive(Debug, Default)]
+pub struct BackgroundRenderer {
+    convolver: Convolver,
+    cache: PrefilterCache,
+    /// Per tile: read from the prefiltered texture.
+    clean: Vec<bool>,
+    /// Per tile: the negation of `clean`.
+    rest: Vec<bool>,
+    /// Per tile: in `rest` or within the frame kernel's reach of a tile that is.
+    near: Vec<bool>,
+}
+
+impl BackgroundRenderer {
+    /// A renderer with no buffers yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Renders the background of `camera`'s view of `sky` into `frame`, blurred by `blur` if given.
+    pub fn render(
+        &mut self,
+        sky: &SkyView<'_>,
+        camera: &Camera,
+        blur: Option<&BackgroundBlur<'_>>,
+        frame: &mut Frame,
+    ) -> BackgroundStats {
+        let stats = self.render_frame(sky, camera, blur, frame);
+        BackgroundStats { texture_builds: self.cache.builds(), ..stats }
+    }
+
+    fn render_frame(
+        &mut self,
+        sky: &SkyView<'_>,
+        camera: &Camera,
+        blur: Option<&BackgroundBlur<'_>>,
+        frame: &mut Frame,
+    ) -> BackgroundStats {
+        let mut stats = BackgroundStats::default();
+        let Some(plane) = sky.plane else {
+            render_dome(camera, sky.dome, frame, false);
+            if let Some(b) = blur {
+                stats.blur = self.convolver.apply_where_needed(b.psf.point_kernel(), frame, b.method, b.skip_below);
+            }
+            return stats;
+        };
+        let Some(b) = blur else {
+            render_raw(plane, sky, camera, frame);
+            return stats;
+        };
+        // a point-sampled sky needs the pixel aperture in the kernel; an area-averaged one has it already
+        let area_sampled = matches!(sky.sampling, Sampling::Supersample { n } if n > 1);
+        let kernel = if area_sampled { b.psf.area_kernel() } else { b.psf.point_kernel() };
+        let prefiltered = if b.sky_blur != SkyBlur::Frame && sky.sampling != Sampling::Nearest {
+            let size = (frame.width(), frame.height());
+            classify(plane, camera, b.psf.radius_px(), b.tolerance, size, &mut self.clean)
+        } else {
+            None
+        };
+        let Some((key, need)) = prefiltered else {
+            render_raw(plane, sky, camera, frame);
+            stats.blur = self.convolver.apply_where_needed(kernel, frame, b.method, b.skip_below);
+            return stats;
+        };
+        let Some(texture) = self.cache.plane(plane, b.psf, key, b.tolerance, need) else {
+            render_raw(plane, sky, camera, frame);
+            stats.blur = self.convolver.apply_where_needed(kernel, frame, b.method, b.skip_below);
+            return stats;
+        };
+        stats.tiles_prefiltered = self.clean.iter().filter(|&&c| c).count();
+        if stats.tiles_prefiltered == self.clean.len() {
+            // every ray meets the image: no misses, nothing made the reference way
+            texture.render(camera, Sampling::Bilinear, sky.miss, frame);
+            stats.blur.tiles = self.clean.len();
+            return stats;
+        }
+        // the reference on the other tiles, from the raw sky on them and on the tiles their blur reaches; then
+        // the prefiltered tiles over everything else
+        let t = BLUR_TILE_PX;
+        let (tw, th) = (frame.width().div_ceil(t), frame.height().div_ceil(t));
+        let reach = kernel.radius().div_ceil(t);
+        self.rest.clear();
+        self.rest.extend(self.clean.iter().map(|c| !c));
+        self.near.clear();
+        self.near.extend((0..tw * th).map(|i| {
+            let (tx, ty) = (i % tw, i / tw);
+            (ty.saturating_sub(reach)..=(ty + reach).min(th - 1))
+                .any(|y| (tx.saturating_sub(reach)..=(tx + reach).min(tw - 1)).any(|x| self.rest[y * tw + x]))
+        }));
+        if area_sampled {
+            plane.render(camera, sky.sampling, sky.miss, frame);
+        } else {
+            plane.render_tiles(camera, sky.sampling, sky.miss, t, &self.near, frame);
+        }
+        if sky.miss == MissFill::Dome {
+            render_dome(camera, sky.dome, frame, true);
+        }
+        stats.blur = self.convolver.apply_where_needed_in(kernel, frame, b.method, b.skip_below, Some(&self.rest));
+        texture.render_tiles(camera, Sampling::Bilinear, sky.miss, t, &self.clean, frame);
+        stats
+    }
+}
+
+/// Marks in `clean` (row-major tiles) the tiles a prefiltered texture can serve; returns the texture's key and
+/// the image-coordinate box those tiles read, or `None` if the frame's centre does not see the image well
+/// inside its edges.
+fn classify(
+    plane: &SkyPlane,
+    camera: &Camera,
+    psf_radius_px: usize,
+    tolerance: f64,
+    (width, height): (usize, usize),
+    clean: &mut Vec<bool>,
+) -> Option<(JacobianKey, [f64; 4])> {
+    let t = BLUR_TILE_PX;
+    let (tw, th) = (width.div_ceil(t), height.div_ceil(t));
+    let image = plane.image();
+    let inset = 1.5;
+    let (iw, ih) = (image.width() as f64 - inset, image.height() as f64 - inset);
+    let projection = plane.projection(camera);
+    // the tile widened by the PSF's reach and one pixel; its corners' image points and mean Jacobian
+    let margin = (psf_radius_px + 1) as f64;
+    let footprint = |x0: f64, y0: f64, x1: f64, y1: f64| -> Option<([DVec2; 4], DMat2)> {
+        let (x0, y0, x1, y1) = (x0 - margin, y0 - margin, x1 + margin, y1 + margin);
+        let p = [
+            projection.image_point(DVec2::new(x0, y0))?,
+            projection.image_point(DVec2::new(x1, y0))?,
+            projection.image_point(DVec2::new(x0, y1))?,
+            projection.image_point(DVec2::new(x1, y1))?,
+        ];
+        // the convex footprint lies in the image iff its corners do
+        if !p.iter().all(|q| q.x >= inset && q.y >= inset && q.x <= iw && q.y <= ih) {
+            return None;
+        }
+        let du = ((p[1] - p[0]) + (p[3] - p[2])) / (2.0 * (x1 - x0));
+        let dv = ((p[2] - p[0]) + (p[3] - p[1])) / (2.0 * (y1 - y0));
+        Some((p, DMat2::from_cols(du, dv)))
+    };
+    clean.clear();
+    let (cx, cy) = (width as f64 / 2.0, height as f64 / 2.0);
+    let half = t as f64 / 2.0;
+    let (_, centre) = footprint(cx - half, cy - half, cx + half, cy + half)?;
+    let key = JacobianKey::new(centre, tolerance)?;
+    let reference = key.jacobian(tolerance);
+    let norm = |m: DMat2| m.to_cols_array().iter().map(|v| v * v).sum::<f64>().sqrt();
+    let limit = tolerance * norm(reference);
+    let mut need = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    for ty in 0..th {
+        for tx in 0..tw {
+            let (x0, y0) = ((tx * t) as f64, (ty * t) as f64);
+            let (x1, y1) = (((tx + 1) * t).min(width) as f64, ((ty + 1) * t).min(height) as f64);
+            let ok = match footprint(x0, y0, x1, y1) {
+                Some((corners, j)) if norm(j - reference) <= limit => {
+                    for q in corners {
+                        need = [need[0].min(q.x), need[1].min(q.y), need[2].max(q.x), need[3].max(q.y)];
+                    }
+                    true
+                }
+                _ => false,
+            };
+            clean.push(ok);
+        }
+    }
+    clean.iter().any(|&c| c).then_some((key, need))
+}
+
+/// Pixel `(x, y)` of `camera`'s view of `plane` blurred by `psf`, by brute force: the PSF times the bilinear
+/// image along the ray through every point of a grid of `per_px` × `per_px` points per pixel over the PSF's
+/// support (midpoint rule). The reference the fast methods are measured against; `None` if a ray of the
+/// support misses the image (the dome would be seen there).
+pub fn exact_blurred_pixel(
+    plane: &SkyPlane,
+    camera: &Camera,
+    psf: &Psf,
+    x: usize,
+    y: usize,
+    per_px: usize,
+) -> Option<f64> {
+    let projection = plane.projection(camera);
+    let reach = psf.radius_px() as f64 + 0.5;
+    let n = (2.0 * reach * per_px as f64).ceil() as usize;
+    let h = 2.0 * reach / n as f64;
+    let centre = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+    let size = DVec2::new(plane.image().width() as f64, plane.image().height() as f64);
+    let mut sum = 0.0;
+    for b in 0..n {
+        for a in 0..n {
+            let d = DVec2::new(-reach + (a as f64 + 0.5) * h, -reach + (b as f64 + 0.5) * h);
+            let w = f64::from(psf.value(d.x, d.y));
+            if w != 0.0 {
+                let p = projection.image_point(centre + d)?;
+                if !(p.x >= 0.0 && p.y >= 0.0 && p.x <= size.x && p.y <= size.y) {
+                    return None;
+                }
+                sum += w * h * h * f64::from(plane.value_at(p));
+            }
+        }
+    }
+    Some(sum)
+}
+
+/// The raw image ray cast and the dome along the rays that miss it (for the dome fill).
+fn render_raw(plane: &SkyPlane, sky: &SkyView<'_>, camera: &Camera, frame: &mut Frame) {
+    plane.render(camera, sky.sampling, sky.miss, frame);
+    if sky.miss == MissFill::Dome {
+        render_dome(camera, sky.dome, frame, true);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::*;
+    use crate::imaging::camera::Intrinsics;
+    use crate::imaging::psf::{PsfOptics, PsfSpec};
+    use crate::imaging::sky_plane::{SkyImage, SkyPlacement};
+    use crate::physics::planck::{Band, Measure};
+    use crate::physics::sky::{DomeInputs, DomeSpec};
+    use crate::physics::transmittance::Transmittance;
+
+    fn psf() -> Psf {
+        let optics = PsfOptics {
+            f_number: 1.0,
+            pixel_pitch_m: 17e-6,
+            fill_factor: 1.0,
+            band: Band::LWIR_8_12,
+            measure: Measure::Energy,
+            reference_temp_k: 300.0,
+        };
+        Psf::new(&PsfSpec::default(), &optics).unwrap()
+    }
+
+    fn dome() -> Dome {
+        let atmosphere = Transmittance::BeerLambert { extinction_per_km: 0.15, scale_height_km: 2.0 };
+        Dome::new(&DomeInputs {
+            spec: DomeSpec::default(),
+            band: Band::LWIR_8_12,
+            measure: Measure::Energy,
+            observer_altitude_m: 8000.0,
+            t0_k: 288.15,
+            atmosphere: &atmosphere,
+        })
+        .unwrap()
+    }
+
+    /// The paper's 4 km plane 30 km away holding 512² texels of texture at 3–40 texel periods and sharp-edged
+    /// "clouds" (radiance units, about the dome's).
+    fn plane() -> SkyPlane {
+        let n = 512;
+        let mut px = Vec::with_capacity(n * n);
+        for y in 0..n {
+            for x in 0..n {
+                let (xf, yf) = (x as f64, y as f64);
+                let waves = 1.5 * (xf / 5.3 + 0.3 * yf / 7.0).sin() + (yf / 3.1).cos() + 2.0 * (xf / 40.0).sin();
+                let cloud = if (xf - 260.0).hypot(yf - 250.0) < 60.0 + 10.0 * (xf / 9.0).sin() { 4.0 } else { 0.0 };
+                px.push((20.0 + waves + cloud) as f32);
+            }
+        }
+        let image = SkyImage::from_f32(n, n, px).unwrap();
+        SkyPlane::new(image, &SkyPlacement::paper_fig8(), DVec3::new(0.0, 0.0, 8000.0)).unwrap()
+    }
+
+    fn camera(plane: &SkyPlane, look_px: DVec2, roll_deg: f64) -> Camera {
+        let intrinsics = Intrinsics::try_new(128, 96, 0.1, 17e-6).unwrap();
+        Camera::look_at(intrinsics, DVec3::new(0.0, 0.0, 8000.0), plane.world_point(look_px), roll_deg).unwrap()
+    }
+
+    fn render(r: &mut BackgroundRenderer, plane: &SkyPlane, dome: &Dome, cam: &Camera, how: SkyBlur) -> Frame {
+        let sky = SkyView { plane: Some(plane), dome, sampling: Sampling::Bilinear, miss: MissFill::Dome };
+        let p = psf();
+        let blur = BackgroundBlur {
+            psf: &p,
+            method: ConvolutionMethod::Separable,
+            skip_below: 0.0,
+            sky_blur: how,
+            tolerance: 0.05,
+        };
+        let mut f = Frame::new(128, 96);
+        r.render(&sky, cam, Some(&blur), &mut f);
+        f
+    }
+
+    #[test]
+    fn prefiltered_sky_is_closer_to_the_exact_blur_than_the_frame_blur() {
+        let (plane, dome, p) = (plane(), dome(), psf());
+        let r_px = p.radius_px();
+        for (look, roll) in [(DVec2::new(256.0, 250.0), 0.0), (DVec2::new(200.0, 300.0), 17.0)] {
+            let cam = camera(&plane, look, roll);
+            let mut renderer = BackgroundRenderer::new();
+            let pre = render(&mut renderer, &plane, &dome, &cam, SkyBlur::Prefilter);
+            assert!(renderer.clean.iter().all(|&c| c), "every tile sees the image");
+            let reference = render(&mut BackgroundRenderer::new(), &plane, &dome, &cam, SkyBlur::Frame);
+            let sky = SkyView { plane: Some(&plane), dome: &dome, sampling: Sampling::Bilinear, miss: MissFill::Dome };
+            let mut raw = Frame::new(128, 96);
+            BackgroundRenderer::new().render(&sky, &cam, None, &mut raw);
+            // pixels away from the frame's edge (the frame blur replicates it), on a coarse grid
+            let (mut effect, mut err_pre, mut err_ref) = (0.0f64, 0.0f64, 0.0f64);
+            for y in (r_px..96 - r_px).step_by(5) {
+                for x in (r_px..128 - r_px).step_by(5) {
+                    let exact = exact_blurred_pixel(&plane, &cam, &p, x, y, 8).unwrap();
+                    effect = effect.max((exact - f64::from(raw.get(x, y))).abs());
+                    err_pre = err_pre.max((f64::from(pre.get(x, y)) - exact).abs());
+                    err_ref = err_ref.max((f64::from(reference.get(x, y)) - exact).abs());
+                }
+            }
+            eprintln!(
+                "roll {roll}: the blur changes up to {effect:.4}; error prefilter {err_pre:.4}, frame {err_ref:.4}"
+            );
+            assert!(effect > 0.2, "the texture must need the blur ({effect})");
+            assert!(err_pre < 0.1 * effect, "prefilter error {err_pre} where the blur changes {effect}");
+            assert!(err_pre < 0.5 * err_ref, "prefilter {err_pre} vs frame {err_ref}");
+        }
+    }
+
+    #[test]
+    fn tiles_near_the_image_edge_get_the_reference() {
+        let (plane, dome) = (plane(), dome());
+        // the image's top edge crosses the frame: the dome above it
+        let cam = camera(&plane, DVec2::new(256.0, 28.0), 5.0);
+        let mut renderer = BackgroundRenderer::new();
+        let pre = render(&mut renderer, &plane, &dome, &cam, SkyBlur::Prefilter);
+        let clean = renderer.clean.clone();
+        let (some, all) = (clean.iter().any(|&c| c), clean.iter().all(|&c| c));
+        assert!(some && !all, "a mixed frame");
+        let reference = render(&mut BackgroundRenderer::new(), &plane, &dome, &cam, SkyBlur::Frame);
+        let tw = 128usize.div_ceil(BLUR_TILE_PX);
+        for y in 0..96 {
+            for x in 0..128 {
+                let (a, b) = (pre.get(x, y), reference.get(x, y));
+                assert!(a.is_finite());
+                if !clean[(y / BLUR_TILE_PX) * tw + x / BLUR_TILE_PX] {
+                    assert!((a - b).abs() <= 1e-4 * b.abs(), "({x}, {y}): {a} vs {b}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_frame_does_not_depend_on_the_frames_before_it() {
+        let (plane, dome) = (plane(), dome());
+        let views = [(DVec2::new(256.0, 250.0), 0.0), (DVec2::new(100.0, 400.0), 30.0), (DVec2::new(256.0, 28.0), 5.0)];
+        let fresh: Vec<Frame> = views
+            .iter()
+            .map(|&(l, r)| {
+                render(&mut BackgroundRenderer::new(), &plane, &dome, &camera(&plane, l, r), SkyBlur::Prefilter)
+            })
+            .collect();
+        let mut renderer = BackgroundRenderer::new();
+        for order in [[0, 1, 2], [2, 1, 0], [1, 0, 2]] {
+            for i in order {
+                let (l, r) = views[i];
+                let f = render(&mut renderer, &plane, &dome, &camera(&plane, l, r), SkyBlur::Prefilter);
+                assert_eq!(f.pixels(), fresh[i].pixels(), "view {i}");
+            }
+        }
+    }
+}
