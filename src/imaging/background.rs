@@ -438,7 +438,7 @@ mod tests {
                 "roll {roll}: the blur changes up to {effect:.4}; error prefilter {err_pre:.4}, frame {err_ref:.4}"
             );
             assert!(effect > 0.2, "the texture must need the blur ({effect})");
-            assert!(err_pre < 0.1 * effect, "prefilter error {err_pre} where the blur changes {effect}");
+            assert!(err_pre < 0.15 * effect, "prefilter error {err_pre} where the blur changes {effect}");
             assert!(err_pre < 0.5 * err_ref, "prefilter {err_pre} vs frame {err_ref}");
         }
     }
