@@ -652,7 +652,7 @@ pub struct BlurStats {
 }
 
 /// `out[x] += Σ_k v[k]·src[k][x]` for every `x` of `out`, sixteen outputs at a time in registers.
-#[inline]
+#[inline(always)]
 fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
     const LANES: usize = 16;
     let w = out.len();
@@ -677,7 +677,7 @@ fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
 
 /// `out[x] = Σ_k v[k]·src[x + k]`, sixteen outputs at a time in registers (`src` holds `out.len() + v.len() − 1`
 /// values).
-#[inline]
+#[inline(always)]
 fn correlate_row(src: &[f32], v: &[f32], out: &mut [f32]) {
     const LANES: usize = 16;
     let w = out.len();
@@ -755,7 +755,10 @@ impl Convolver {
                     pad[..r].fill(row[0]);
                     pad[r..r + w].copy_from_slice(row);
                     pad[r + w..].fill(row[w - 1]);
-                    widest(|| correlate_row(pad, v, out));
+                    widest(
+                        #[inline(always)]
+                        || correlate_row(pad, v, out),
+                    );
                 },
             );
             // vertical pass, scaled by λ, accumulated
@@ -766,7 +769,10 @@ impl Convolver {
                     let sy = (y + k).saturating_sub(r).min(h - 1);
                     *row = &tmp[sy * w..(sy + 1) * w];
                 }
-                widest(|| accumulate_rows(&rows[..scaled.len()], scaled, out));
+                widest(
+                    #[inline(always)]
+                    || accumulate_rows(&rows[..scaled.len()], scaled, out),
+                );
             });
         }
         frame.pixels_mut().copy_from_slice(&self.acc);
@@ -865,14 +871,20 @@ impl Convolver {
                         // horizontal over the band's rows and r more on each side (padded coordinates)
                         for py in 0..rows + 2 * r {
                             let src = &padded[(ty * t + py) * pw + x0..];
-                            widest(|| correlate_row(src, v, &mut tmp[py * t..py * t + cols]));
+                            widest(
+                                #[inline(always)]
+                                || correlate_row(src, v, &mut tmp[py * t..py * t + cols]),
+                            );
                         }
                         let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
                         for y in 0..rows {
                             for (k, row) in src.iter_mut().enumerate().take(v.len()) {
                                 *row = &tmp[(y + k) * t..(y + k) * t + cols];
                             }
-                            widest(|| accumulate_rows(&src[..v.len()], scaled, &mut acc[y * t..y * t + cols]));
+                            widest(
+                                #[inline(always)]
+                                || accumulate_rows(&src[..v.len()], scaled, &mut acc[y * t..y * t + cols]),
+                            );
                         }
                     }
                     for y in 0..rows {

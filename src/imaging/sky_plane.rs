@@ -394,9 +394,20 @@ impl SkyPlane {
                     tx += 1;
                 }
                 let (x0, x1) = (start * tile_px, (tx * tile_px).min(width));
-                widest(|| {
-                    geometry.cast_row(self, j as f64 + 0.5, x0 as f64 + 0.5, sampling, fill, &mut row[x0..x1], false)
-                });
+                widest(
+                    #[inline(always)]
+                    || {
+                        geometry.cast_row(
+                            self,
+                            j as f64 + 0.5,
+                            x0 as f64 + 0.5,
+                            sampling,
+                            fill,
+                            &mut row[x0..x1],
+                            false,
+                        )
+                    },
+                );
             }
         });
     }
@@ -492,7 +503,10 @@ impl SkyPlane {
         let rows_per_task = (8_192 / (width * n * n)).max(1);
         frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
             if n == 1 {
-                widest(|| geometry.cast_row(self, j as f64 + 0.5, 0.5, point_sampling, fill, row, false));
+                widest(
+                    #[inline(always)]
+                    || geometry.cast_row(self, j as f64 + 0.5, 0.5, point_sampling, fill, row, false),
+                );
             } else {
                 row.fill(0.0);
                 for sy in 0..n {
@@ -582,6 +596,7 @@ impl RowGeometry {
     /// Casts the rays of one sensor row at `v`, pixel `i` at `u = i + u0`, writing (or adding, if `accumulate`)
     /// into `out`.
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn cast_row(
         &self,
         plane: &SkyPlane,
@@ -672,6 +687,7 @@ impl RowGeometry {
     /// Samples the span's pixels in 32.32 fixed point, stepping the quadratic by forward differences, when
     /// every sample (with its bilinear neighbours) lies inside the image, so no pixel needs a bounds test or a
     /// float-to-int conversion; returns false, touching nothing, otherwise.
+    #[inline(always)]
     fn fast_span(&self, img: &SkyImage, span: &Quadratic, bilinear: bool, out: &mut [f32], accumulate: bool) -> bool {
         const ONE: f64 = 4_294_967_296.0; // 2³²
         let (w, h) = (img.width, img.height);

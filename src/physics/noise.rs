@@ -126,13 +126,17 @@ impl Readout {
             let span = row * width..(row + 1) * width;
             let gain = maps.gain.map(|g| &g[span.clone()]);
             let offset = maps.offset_dn.map(|o| &o[span]);
-            widest(|| self.apply_row(line, gain, offset, maps.column_dn, noise, key, row as u64, max_level));
+            widest(
+                #[inline(always)]
+                || self.apply_row(line, gain, offset, maps.column_dn, noise, key, row as u64, max_level),
+            );
         });
     }
 
     /// One row: the mean signal in blocks, the normal deviates, a branch-free pass for blocks on the normal path
     /// (or without noise), the per-pixel path where some pixel needs an exact Poisson count.
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn apply_row(
         &self,
         line: &mut [f32],

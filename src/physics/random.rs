@@ -143,7 +143,7 @@ impl Ziggurat {
 
     /// A standard normal deviate from the 32 random bits `bits`; `rng` supplies more bits in the rare case
     /// (about 1.2 %) that the first draw is rejected.
-    #[inline]
+    #[inline(always)]
     pub fn sample(&self, bits: u32, rng: &mut SplitMix64) -> f32 {
         let layer = (bits & 127) as usize;
         // Bits 8…31 as a signed 24-bit value m; the deviate is (m + ½)·w, symmetric about 0, with magnitude
@@ -160,7 +160,7 @@ impl Ziggurat {
     }
 
     /// Fills `out` with standard normal deviates, two per 64-bit draw.
-    #[inline]
+    #[inline(always)]
     pub fn fill(&self, rng: &mut SplitMix64, out: &mut [f32]) {
         let mut pairs = out.chunks_exact_mut(2);
         for pair in &mut pairs {

@@ -2,6 +2,8 @@
 //!
 //! The crate is built for baseline x86-64 (SSE2, four f32 lanes). [`widest`] runs a closure inside a function
 //! compiled with AVX2 (eight lanes) when the CPU has it, so the loops inlined into it vectorize twice as wide.
+//! Only code inlined into that function is compiled with AVX2: the per-pixel functions a closure calls are
+//! `#[inline(always)]`, or they run the baseline code (LLVM does not inline large functions on its own).
 //! Fused multiply–add is not enabled: Rust never contracts `a·b + c`, so every lane does the same operations in
 //! the same order as on the baseline path and the results are bit-identical whichever path runs.
 
@@ -18,9 +20,11 @@ pub fn widest<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
-/// `f` inlined into a function compiled with AVX2.
+/// `f` inlined into a function compiled with AVX2. Never inlined itself: inlined into its (baseline) caller,
+/// its body would lose the AVX2 code generation.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
+#[inline(never)]
 unsafe fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
