@@ -280,6 +280,14 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
 /// [`CliError::Invalid`] for bad sizes or an existing file without --force; [`CliError::Failed`] on a write
 /// error.
 pub fn sky(a: &SkyArgs) -> Result<(), CliError> {
+    write_sky(a)?;
+    println!("{}", a.out.display());
+    println!("calibration = {{ mode = \"kelvin\", scale_k = 0.01 }}");
+    Ok(())
+}
+
+/// Generates the sky `a` describes and writes it to `a.out`.
+fn write_sky(a: &SkyArgs) -> Result<(), CliError> {
     use crate::imaging::sky_field::RadianceLut;
     use crate::physics::planck::{Band, Measure, brightness_temperature};
     use crate::physics::sky::{Dome, DomeInputs, DomeSpec};
@@ -359,10 +367,7 @@ pub fn sky(a: &SkyArgs) -> Result<(), CliError> {
     let frame = Frame::from_pixels(a.width, a.height, pixels);
     let mut bytes = Vec::new();
     frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
-    write_atomic(&a.out, &bytes).map_err(|e| CliError::Failed(e.to_string()))?;
-    println!("{}", a.out.display());
-    println!("calibration = {{ mode = \"kelvin\", scale_k = 0.01 }}");
-    Ok(())
+    write_atomic(&a.out, &bytes).map_err(|e| CliError::Failed(e.to_string()))
 }
 
 fn bench_scenario(width: u32, height: u32, targets: usize) -> String {
@@ -406,8 +411,8 @@ height_m = 4000
 }
 
 /// Frames per second of `scenario` run headless without disk writes, over `frames` frames after 10 warm-up
-/// frames; prints the time per stage to standard error.
-fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliError> {
+/// frames, and lines on where the time went (per stage, the sky blur).
+fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<(f64, Vec<String>), CliError> {
     let options = RunOptions { timings: true, ..RunOptions::default() };
     let mut app = build_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
@@ -433,17 +438,18 @@ fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliErro
         }
     }
     let fps = frames as f64 / t.elapsed().as_secs_f64();
+    let mut details = Vec::new();
     if let Some(timings) = app.world().get_resource::<StageTimings>() {
         let stages: Vec<String> =
             timings.mean_ms().iter().map(|(name, ms)| format!("{name} {:.0}", ms * 1e3)).collect();
-        eprintln!(
+        details.push(format!(
             "  stage µs per frame: {}; background: {:.0} % of the frame from the prefiltered sky ({builds} \
              textures made), per-frame blur needed on {:.0} %, applied on {:.0} %",
             stages.join(", "),
             100.0 * prefiltered / frames as f64,
             100.0 * needed / frames as f64,
             100.0 * blurred / frames as f64
-        );
+        ));
         if let Some((choice, plan)) = plan {
             let why = plan.map_or_else(String::new, |p| {
                 format!(
@@ -451,10 +457,12 @@ fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<f64, CliErro
                     p.texture_builds, p.views_prefiltered, p.views, p.texture_work, p.frame_work
                 )
             });
-            eprintln!("  sky blur: {}{why}", serde_json::to_value(choice).unwrap_or_default().as_str().unwrap_or("?"));
+            let name =
+                serde_json::to_value(choice).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default();
+            details.push(format!("  sky blur: {name}{why}"));
         }
     }
-    Ok(fps)
+    Ok((fps, details))
 }
 
 /// `irsim bench`: frames per second of the whole pipeline without disk writes, and with 16-bit PNG recording,
@@ -467,14 +475,15 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     if !a.scenarios.is_empty() {
         for path in &a.scenarios {
             let scenario = load_for_frames(path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
-            let fps = time_headless(&scenario, frames)?;
+            let (fps, details) = time_headless(&scenario, frames)?;
             println!("{:<40} {fps:>9.1} frames/s", path.display());
+            details.iter().for_each(|d| eprintln!("{d}"));
         }
         return Ok(());
     }
     let dir = std::env::temp_dir().join(format!("irsim-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| CliError::Failed(e.to_string()))?;
-    sky(&SkyArgs {
+    write_sky(&SkyArgs {
         kind: SkyKindArg::Clear,
         out: dir.join("clear.png"),
         width: 512,
@@ -494,7 +503,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     for (w, h, n, recording) in [(256, 256, 1, false), (640, 512, 8, false), (256, 256, 1, true)] {
         let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
         std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;
-        let fps = if recording {
+        let (fps, details) = if recording {
             let out = dir.join("out");
             let args = RecordArgs {
                 scenario: path.clone(),
@@ -510,7 +519,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             };
             let t = Instant::now();
             record(&args)?;
-            frames as f64 / t.elapsed().as_secs_f64()
+            (frames as f64 / t.elapsed().as_secs_f64(), Vec::new())
         } else {
             let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
             time_headless(&scenario, frames)?
@@ -521,6 +530,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             if recording { ", png16 recording" } else { ", no disk" }
         );
         println!("{case:<40} {fps:>9.1} frames/s");
+        details.iter().for_each(|d| eprintln!("{d}"));
     }
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
