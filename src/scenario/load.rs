@@ -107,7 +107,7 @@ fn load_str_for_frames(
         };
         // A value is the culprit if a value of the expected type in its place makes the message go away without
         // a complaint about the stand-in itself (fields are not always read in document order).
-        let (stand_in, named) = if message == "expected value" {
+        let (stand_in, named) = if message == "expected value" || message == "wanted string or table" {
             // a name in place of the number: the field that takes names then says the name is unknown
             ("\"0\"", "invalid type: string \"0\"")
         } else if message.contains("expected a boolean") {
