@@ -9,13 +9,15 @@
 //! Layers, dependencies pointing down only:
 //! - [`physics`]: radiometry, atmosphere, sensor and noise — pure numerics, no Bevy;
 //! - [`imaging`]: camera, sky-plane ray casting, target blob, Poisson fusion, frames — pure, no Bevy;
-//! - [`scenario`]: the scenario schema, validation and trajectories — pure, no Bevy;
+//! - [`labels`]: ground truth of a frame (labels, MOT lines, masks) — pure, no Bevy;
+//! - [`scenario`]: the scenario schema, validation and trajectory building — pure, no Bevy;
 //! - [`sim`]: the Bevy ECS simulation — entities, system sets, plugins, the headless app;
 //! - [`record`]: writers of frames, labels, MOT ground truth and manifest;
 //! - [`cli`]: the `irsim` command line.
 
 pub mod cli;
 pub mod imaging;
+pub mod labels;
 pub mod physics;
 pub mod record;
 pub mod scenario;

@@ -341,3 +341,41 @@ fn no_cloud_below_the_cloud_base() {
     .to_string();
     assert!(err.contains("sky.cloud_base_m"), "{err}");
 }
+
+/// A second front end drives the same world: its own app with the plugin group and the spawned scenario, stepped
+/// by hand, reading `FrameReady` messages, gets exactly the frames and labels of the headless app.
+#[test]
+fn frames_leave_the_schedule_as_frame_ready_messages() {
+    use bevy::app::App;
+    use bevy::prelude::MinimalPlugins;
+    use bevy::time::{Fixed, Time, TimeUpdateStrategy};
+    use irsim::sim::{BEVY_STEP, IrSimPlugins, drain_frames, headless_app, spawn_scenario};
+
+    let s = scenario(CONSTANT_VELOCITY);
+    let options = RunOptions { masks: true, keep_float: true, ..RunOptions::default() };
+    let mut headless = headless_app(&s, options).unwrap();
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins)
+        .insert_resource(Time::<Fixed>::from_duration(BEVY_STEP))
+        .insert_resource(TimeUpdateStrategy::FixedTimesteps(1))
+        .add_plugins(IrSimPlugins);
+    spawn_scenario(app.world_mut(), &s, options).unwrap();
+    app.update();
+    assert!(drain_frames(&mut app).is_empty(), "the first update runs Startup only");
+    for k in 0..5 {
+        app.update();
+        let mut got = drain_frames(&mut app);
+        assert_eq!(got.len(), 1, "one frame per step");
+        let ready = got.pop().unwrap();
+        assert_eq!(ready.labels.frame, k);
+        let labels = step(&mut headless);
+        assert_eq!(ready.labels, labels);
+        assert_eq!(ready.frame.pixels(), current_frame(&mut headless).pixels());
+        let mask = ready.mask.expect("masks were asked for");
+        assert_eq!(mask.len(), 128 * 96);
+        assert!(mask.contains(&1), "frame {k}: the target is in the mask");
+        let float = ready.float_frame.expect("the float frame was asked for");
+        // quantization moves a value by at most half a level
+        assert!(float.pixels().iter().zip(ready.frame.pixels()).all(|(f, q)| (f - q).abs() <= 0.5 + 1e-3));
+    }
+}

@@ -14,7 +14,7 @@ use crate::imaging::sky_gen::{SkyGenSpec, SkyKind, generate};
 use crate::record::{FrameFormat, Recorder, prepare_dir, write_atomic};
 use crate::scenario::load::{load_for_frames, located};
 use crate::scenario::{CheckedScenario, load};
-use crate::sim::{RunOptions, SensorFrame, StageTimings, build_app, set_stop_flag, step};
+use crate::sim::{FrameReady, RunOptions, SensorFrame, StageTimings, drain_frames, headless_app, set_stop_flag, step};
 
 /// Flags of `irsim record`.
 #[derive(Debug, Args)]
@@ -136,7 +136,7 @@ fn load_scenario(path: &Path) -> Result<CheckedScenario, CliError> {
 /// [`CliError::Invalid`] with the located error.
 pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
     let s = load_scenario(&a.scenario)?;
-    let _app = build_app(&s, RunOptions::default())
+    let _app = headless_app(&s, RunOptions::default())
         .map_err(|e| CliError::Invalid(located(&a.scenario, &e.field, &e.message).to_string()))?;
     println!(
         "{}: ok ({} targets, {} frames of {}×{} at {} Hz)",
@@ -171,7 +171,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         masks: a.masks,
         timings: true,
     };
-    let mut app = build_app(&scenario, options)
+    let mut app = headless_app(&scenario, options)
         .map_err(|e| CliError::Invalid(located(&a.scenario, &e.field, &e.message).to_string()))?;
     let _lock = prepare_dir(&a.out, a.force).map_err(|e| match e {
         crate::record::RecordError::NotEmpty(_)
@@ -224,8 +224,15 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
             break;
         }
         // A bug must not leave the directory claiming to run: record it as the failure and stop there.
-        let labels = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| step(&mut app))) {
-            Ok(labels) => labels,
+        let ready = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            app.update();
+            drain_frames(&mut app).pop()
+        })) {
+            Ok(Some(ready)) => ready,
+            Ok(None) => {
+                rec.fail(format!("internal error: frame {} was not completed (please report it)", rec.frames_sent()));
+                break;
+            }
             Err(panic) => {
                 let what = panic
                     .downcast_ref::<&str>()
@@ -241,13 +248,10 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
             interrupted = true;
             break;
         }
-        let world = app.world_mut();
-        let mask = world.resource::<crate::sim::FrameOutput>().mask.clone();
-        let mut q = world.query::<&SensorFrame>();
-        let sf = q.single(world).expect("one sensor");
-        let frame: Frame = match (a.format, &sf.float_frame) {
-            (FrameFormat::Npy, Some(f)) => f.clone(),
-            _ => sf.frame.clone(),
+        let FrameReady { frame, float_frame, mask, labels } = ready;
+        let frame: Frame = match (a.format, float_frame) {
+            (FrameFormat::Npy, Some(f)) => f,
+            _ => frame,
         };
         rec.push(frame, mask, labels);
         bar.inc(1);
@@ -414,7 +418,7 @@ height_m = 4000
 /// frames, and lines on where the time went (per stage, the sky blur).
 fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<(f64, Vec<String>), CliError> {
     let options = RunOptions { timings: true, ..RunOptions::default() };
-    let mut app = build_app(scenario, options)
+    let mut app = headless_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
     for _ in 0..10 {
         step(&mut app);

@@ -33,6 +33,19 @@ pub struct Ellipsoid {
     pub body_to_world: DMat3,
 }
 
+/// Body-to-world rotation of a target (columns: x forward, y left, z up): a fixed `attitude` (yaw, pitch, roll
+/// of the body's forward axis, as a camera's), or, without one, the long axis along `velocity`.
+pub fn body_to_world(attitude: Option<crate::imaging::camera::YawPitchRoll>, velocity: DVec3) -> DMat3 {
+    match attitude {
+        Some(a) => {
+            // camera axes are (right, down, forward); the body's are (forward, left, up)
+            let c = a.camera_to_world();
+            DMat3::from_cols(c.z_axis, -c.x_axis, -c.y_axis)
+        }
+        None => attitude_from_velocity(velocity),
+    }
+}
+
 /// Body attitude with x along `velocity`, z as close to world up as possible; level flight if `velocity` is 0.
 pub fn attitude_from_velocity(velocity: DVec3) -> DMat3 {
     let x = velocity.try_normalize().unwrap_or(DVec3::Y);

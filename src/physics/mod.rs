@@ -17,6 +17,7 @@ pub mod signal;
 pub mod simd;
 pub mod skin;
 pub mod sky;
+pub mod trajectory;
 pub mod transmittance;
 
 /// A number as a person writes it in a message: plain for everyday magnitudes, in exponent form for tiny and

@@ -101,6 +101,12 @@ impl Readout {
         (shot + f64::from(self.read_variance)).sqrt() * f64::from(self.dn_per_signal)
     }
 
+    /// Temporal noise σ in DN of a pixel whose (noise-free, on-axis) radiance is `radiance`: its signal and the
+    /// dark signal, through [`Readout::noise_dn`].
+    pub fn noise_dn_at_radiance(&self, radiance: f64) -> f64 {
+        self.noise_dn(f64::from(self.signal_per_radiance) * radiance + f64::from(self.dark_signal))
+    }
+
     /// Replaces each radiance in `pixels` (row-major, `width` wide) by its DN: with noise if `noise`, rounded and
     /// clamped to `[0, max_level]` if `max_level` is given. Row `r` draws from sub-streams of
     /// `(seed, SENSOR_NOISE, frame)`, so the result does not depend on how rows are scheduled.

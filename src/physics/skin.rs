@@ -97,6 +97,11 @@ pub fn speed_of_sound_m_s(temp_k: f64) -> f64 {
     (AIR_GAMMA * AIR_GAS_CONSTANT * temp_k.max(0.0)).sqrt()
 }
 
+/// Mach number of a flight at `speed_m_s` through air at `air_temp_k`.
+pub fn mach_number(speed_m_s: f64, air_temp_k: f64) -> f64 {
+    speed_m_s / speed_of_sound_m_s(air_temp_k)
+}
+
 /// Self-emitted band radiance of a grey skin, W m⁻² sr⁻¹ (eq 3).
 ///
 /// # Errors

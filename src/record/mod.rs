@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::imaging::agc::{Agc, AgcSpec};
 use crate::imaging::frame::Frame;
-use crate::sim::FrameLabels;
+use crate::labels::FrameLabels;
 
 /// How frames are written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -400,19 +400,7 @@ impl Recorder {
         while let Some(labels) = self.pending.remove(&self.committed) {
             self.labels_text.push_str(&serde_json::to_string(&labels).expect("labels serialize"));
             self.labels_text.push('\n');
-            for t in labels.targets.iter().filter(|t| t.in_frame) {
-                let [x0, y0, x1, y1] = t.bbox_px;
-                // MOTChallenge: frame (1-based), id, left, top, width, height, conf, class, visibility
-                self.mot_text.push_str(&format!(
-                    "{},{},{:.3},{:.3},{:.3},{:.3},1,1,1\n",
-                    labels.frame + 1,
-                    t.id,
-                    x0,
-                    y0,
-                    x1 - x0,
-                    y1 - y0
-                ));
-            }
+            labels.push_mot_lines(&mut self.mot_text);
             self.ends.push((self.labels_text.len(), self.mot_text.len()));
             self.committed += 1;
         }

@@ -4,17 +4,15 @@ use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
-use super::{
-    Aim, Aircraft, CameraPose, FlightPath, Kinematics, Observer, Shake, SimClock, SimSettings, VibrationSystems,
-};
+use super::{Aim, CameraPose, FlightPath, Kinematics, Observer, Shake, SimClock, SimSettings, VibrationSystems};
 use crate::imaging::camera::{Aim as AimAt, Camera, Intrinsics, Jitter, YawPitchRoll};
 use crate::physics::noise::{stage, standard_normal, stream_rng};
 use crate::scenario::Pointing;
 
 /// Points and shakes the camera.
-pub struct CameraPlugin;
+pub struct VibrationPlugin;
 
-impl Plugin for CameraPlugin {
+impl Plugin for VibrationPlugin {
     fn build(&self, app: &mut App) {
         app.add_systems(FixedUpdate, shake_camera.in_set(VibrationSystems));
     }
@@ -25,19 +23,18 @@ pub fn shake_camera(
     clock: Res<SimClock>,
     settings: Res<SimSettings>,
     mut observer: Query<(&Kinematics, &Aim, &Shake, &mut CameraPose), With<Observer>>,
-    targets: Query<(&Aircraft, &Kinematics, &FlightPath), Without<Observer>>,
+    targets: Query<(&Kinematics, &FlightPath), Without<Observer>>,
 ) {
     let Ok((kin, aim, shake, mut pose)) = observer.single_mut() else { return };
     let intrinsics: Intrinsics = pose.steady.intrinsics;
     let t = clock.t_s();
-    let tracked = |name: &str, lag_s: f64| {
-        targets.iter().find(|(a, _, _)| a.name == name).map(|(_, k, path)| {
-            // the loop aims where the target was `lag_s` ago
-            if lag_s > 0.0 { path.0.state(t - lag_s).0 } else { k.position_m }
-        })
+    // the loop aims where the tracked target was `lag_s` ago
+    let tracked = |_: &str, lag_s: f64| {
+        let (k, path) = targets.get(aim.tracked?).ok()?;
+        Some(if lag_s > 0.0 { path.0.state(t - lag_s).0 } else { k.position_m })
     };
-    let steady = Camera::aimed(intrinsics, kin.position_m, kin.velocity_m_s, resolve_aim(&aim.0, tracked));
-    let steady = match &aim.0 {
+    let steady = Camera::aimed(intrinsics, kin.position_m, kin.velocity_m_s, resolve_aim(&aim.pointing, tracked));
+    let steady = match &aim.pointing {
         Pointing::Track { noise_urad, .. } if *noise_urad > 0.0 => {
             // white pointing noise per frame
             let mut rng = stream_rng(settings.seed, stage::TRACKING, clock.frame, 0);

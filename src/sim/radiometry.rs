@@ -7,7 +7,7 @@ use bevy::prelude::FixedUpdate;
 
 use super::{Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, Skin};
 use crate::physics::signal::{ApparentContext, TargetState, apparent_radiance};
-use crate::physics::skin::speed_of_sound_m_s;
+use crate::physics::skin::mach_number;
 
 /// Computes each target's signature.
 pub struct RadiometryPlugin;
@@ -46,7 +46,7 @@ pub fn update_signatures(
         }
         let mach = match skin.mach {
             Some(m) => m,
-            None => kin.velocity_m_s.length() / speed_of_sound_m_s(scene.air_temp_k(p.z)),
+            None => mach_number(kin.velocity_m_s.length(), scene.air_temp_k(p.z)),
         };
         let state = TargetState {
             position_m: p,

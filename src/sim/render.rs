@@ -9,9 +9,9 @@ use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, S
 use crate::imaging::background::{BackgroundBlur, SkyView};
 
 /// Renders the background.
-pub struct RenderPlugin;
+pub struct RenderToTexturePlugin;
 
-impl Plugin for RenderPlugin {
+impl Plugin for RenderToTexturePlugin {
     fn build(&self, app: &mut App) {
         app.add_systems(FixedUpdate, render_sky.in_set(RenderToTextureSystems));
     }

@@ -1,0 +1,187 @@
+//! Ground truth of a frame, as recorded: per-target labels, the MOTChallenge lines, the clutter window and the
+//! target mask. Plain data and pure functions (no Bevy), shared by every front end.
+
+use serde::Serialize;
+
+use crate::imaging::frame::Frame;
+use crate::imaging::target_blob::PixelRect;
+
+/// Ground truth of one frame.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct FrameLabels {
+    /// Frame index, from 0.
+    pub frame: u64,
+    /// Time, s.
+    pub t_s: f64,
+    /// One entry per target, in scenario order.
+    pub targets: Vec<TargetLabel>,
+}
+
+/// The image ellipse of a target's outline, px.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct EllipseLabel {
+    /// Semi-major axis, px.
+    pub a: f64,
+    /// Semi-minor axis, px.
+    pub b: f64,
+    /// Angle of the major axis from +u toward +v, rad.
+    pub angle_rad: f64,
+}
+
+/// Ground truth of one target in one frame.
+///
+/// Signals are in DN above the target's background (on axis, before non-uniformity); `snr`, `scr` and
+/// `local_contrast` are 0 for a target not in the frame.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct TargetLabel {
+    /// 1-based id.
+    pub id: u32,
+    /// Name.
+    pub name: String,
+    /// Centre of the image ellipse (u, v), px; pixel (i, j) covers [i, i+1) × [j, j+1).
+    pub center_px: [f64; 2],
+    /// Box `[x0, y0, x1, y1]` of the drawn target to its 1/e level (the outline grown by the blur), px,
+    /// clipped to the frame.
+    pub bbox_px: [f64; 4],
+    /// Exact image ellipse of the outline.
+    pub ellipse_px: EllipseLabel,
+    /// Distance from the camera, m.
+    pub range_m: f64,
+    /// Largest signal the target adds over its background, DN (signed: a target colder than the sky is
+    /// negative).
+    pub peak_dn: f64,
+    /// `|peak_dn|` over the temporal noise σ (DN) at the target's background.
+    pub snr: f64,
+    /// Signal-to-clutter ratio: `|peak_dn|` over the standard deviation of the noise-free background (DN) in a
+    /// window around the target (its own region left out), with σ floored at 0.001 DN.
+    pub scr: f64,
+    /// Radiance contrast `ΔL / L_background` at the target's centre.
+    pub local_contrast: f64,
+    /// Apparent brightness temperature of a pixel filled by the target (with the path), K.
+    pub apparent_temp_k: f64,
+    /// Fraction of a pixel the outline covers, min(1, area) (eq 13's fill factor).
+    pub fill_factor: f64,
+    /// Mach number used for the skin temperature.
+    pub mach: f64,
+    /// Skin temperature, K.
+    pub skin_temp_k: f64,
+    /// In front of the camera, drawn, and its box (the 1/e outline) covering part of the frame (geometric only;
+    /// called `visible` before 0.2). Only these targets are in the MOT file.
+    pub in_frame: bool,
+    /// In the frame with `snr` at least the scenario's `labels.detectable_snr`.
+    pub detectable: bool,
+}
+
+impl FrameLabels {
+    /// Appends this frame's MOTChallenge lines (`frame (1-based), id, left, top, width, height, conf, class,
+    /// visibility`) for the targets in the frame.
+    pub fn push_mot_lines(&self, out: &mut String) {
+        use std::fmt::Write as _;
+        for t in self.targets.iter().filter(|t| t.in_frame) {
+            let [x0, y0, x1, y1] = t.bbox_px;
+            writeln!(out, "{},{},{:.3},{:.3},{:.3},{:.3},1,1,1", self.frame + 1, t.id, x0, y0, x1 - x0, y1 - y0)
+                .expect("writing to a String");
+        }
+    }
+}
+
+/// `|peak|` over the temporal noise σ (both DN); a noiseless sensor divides by 0.001 DN.
+pub fn snr(peak_dn: f64, sigma_dn: f64) -> f64 {
+    if sigma_dn > 0.0 { peak_dn.abs() / sigma_dn } else { peak_dn.abs() / 1e-3 }
+}
+
+/// Standard deviation of `background` (its units) in a window around `roi` (the region grown by 10 px on each
+/// side, at least 31 px wide), the region itself left out; `buf` is scratch.
+pub fn clutter_sigma(background: &Frame, roi: PixelRect, buf: &mut Vec<f32>) -> f64 {
+    let (w, h) = (background.width(), background.height());
+    let grow_x = 10 + 15usize.saturating_sub(roi.width() / 2);
+    let grow_y = 10 + 15usize.saturating_sub(roi.height() / 2);
+    let (x0, y0) = (roi.x0.saturating_sub(grow_x), roi.y0.saturating_sub(grow_y));
+    let (x1, y1) = ((roi.x1 + grow_x).min(w), (roi.y1 + grow_y).min(h));
+    buf.clear();
+    for y in y0..y1 {
+        for x in x0..x1 {
+            if !(roi.x0..roi.x1).contains(&x) || !(roi.y0..roi.y1).contains(&y) {
+                buf.push(background.get(x, y));
+            }
+        }
+    }
+    if buf.len() < 2 {
+        return 0.0;
+    }
+    let n = buf.len() as f64;
+    let mean = buf.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+    let var = buf.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    var.sqrt()
+}
+
+/// One target's drawn patch, for the mask.
+#[derive(Debug, Clone, Copy)]
+pub struct MaskPatch<'a> {
+    /// Label id (clamped to 255 in the mask).
+    pub id: u32,
+    /// Distance from the camera, m: nearer targets are painted last and win.
+    pub range_m: f64,
+    /// The patch's pixels.
+    pub rect: PixelRect,
+    /// Its values, row-major over `rect`.
+    pub values: &'a [f32],
+    /// The value at its brightest pixel (signed).
+    pub peak: f64,
+}
+
+/// Paints the target mask (`width`-wide, row-major, 0 = sky): a pixel belongs to a target where its patch
+/// reaches 10 % of the patch's peak; where targets overlap the nearest wins.
+pub fn paint_mask(mask: &mut Vec<u8>, width: usize, height: usize, patches: &mut [MaskPatch<'_>]) {
+    mask.clear();
+    mask.resize(width * height, 0);
+    patches.sort_by(|a, b| b.range_m.total_cmp(&a.range_m));
+    for p in patches.iter() {
+        let peak = p.peak.abs() as f32;
+        if !(peak > 0.0) {
+            continue;
+        }
+        let threshold = 0.1 * peak;
+        let rw = p.rect.width();
+        for y in p.rect.y0..p.rect.y1 {
+            for x in p.rect.x0..p.rect.x1 {
+                if p.values[(y - p.rect.y0) * rw + x - p.rect.x0].abs() >= threshold {
+                    mask[y * width + x] = p.id.min(255) as u8;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mot_lines_list_the_targets_in_the_frame() {
+        let target = |id: u32, in_frame: bool| TargetLabel {
+            id,
+            bbox_px: [1.0, 2.0, 4.5, 8.0],
+            in_frame,
+            ..TargetLabel::default()
+        };
+        let labels = FrameLabels { frame: 6, t_s: 0.2, targets: vec![target(1, true), target(2, false)] };
+        let mut text = String::new();
+        labels.push_mot_lines(&mut text);
+        assert_eq!(text, "7,1,1.000,2.000,3.500,6.000,1,1,1\n");
+    }
+
+    #[test]
+    fn nearer_targets_win_the_mask() {
+        let rect = PixelRect { x0: 1, y0: 1, x1: 3, y1: 2 };
+        let far = [1.0f32, 0.05];
+        let near = [0.0f32, 2.0];
+        let mut patches = [
+            MaskPatch { id: 2, range_m: 10.0, rect, values: &near, peak: 2.0 },
+            MaskPatch { id: 1, range_m: 90.0, rect, values: &far, peak: 1.0 },
+        ];
+        let mut mask = Vec::new();
+        paint_mask(&mut mask, 4, 3, &mut patches);
+        assert_eq!(mask, vec![0, 0, 0, 0, 0, 1, 2, 0, 0, 0, 0, 0]);
+    }
+}

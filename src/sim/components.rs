@@ -1,0 +1,201 @@
+//! The components of the simulation's entities: aircraft, observer, sky and sensor.
+
+use std::sync::Arc;
+
+use bevy::ecs::prelude::*;
+use glam::DVec3;
+
+use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, SkyBlurPlan};
+use crate::imaging::camera::{Camera, Jitter, YawPitchRoll};
+use crate::imaging::frame::Frame;
+use crate::imaging::psf::Psf;
+use crate::imaging::sky_plane::{MissFill, Sampling, SkyPlane};
+use crate::imaging::target_blob::{GeneralizedGaussian, ImageEllipse, PixelRect};
+use crate::imaging::vibration::Vibration;
+use crate::physics::brdf::CookTorrance;
+use crate::physics::noise::Readout;
+use crate::physics::nonideal::NonIdeal;
+use crate::physics::planck::Measure;
+use crate::physics::reflection::ReflectionGeometry;
+use crate::physics::signal::Apparent;
+use crate::physics::sky::Dome;
+use crate::physics::trajectory::Trajectory;
+use crate::scenario::Pointing;
+use crate::scenario::sensor::ResolvedSensor;
+
+/// An aircraft: its index in the scenario (the label id is `index + 1`) and name.
+#[derive(Component, Debug, Clone)]
+pub struct Aircraft {
+    /// Label id, 1-based.
+    pub id: u32,
+    /// Name from the scenario.
+    pub name: String,
+}
+
+/// The camera's platform.
+#[derive(Component, Debug, Clone, Copy, Default)]
+pub struct Observer;
+
+/// A trajectory, evaluated analytically each frame.
+#[derive(Component, Debug, Clone)]
+pub struct FlightPath(pub Trajectory);
+
+/// Position and velocity at the current frame's time.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
+pub struct Kinematics {
+    /// Position, m (world: x east, y north, z up).
+    pub position_m: DVec3,
+    /// Velocity, m/s.
+    pub velocity_m_s: DVec3,
+}
+
+/// The target's ellipsoid: semi-axes along its long axis, across, up, and a fixed attitude if one is given.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct Body {
+    /// Semi-axes, m.
+    pub semi_axes_m: DVec3,
+    /// Fixed attitude; `None` points the long axis along the velocity.
+    pub attitude: Option<YawPitchRoll>,
+}
+
+impl Body {
+    /// Body-to-world rotation for velocity `velocity_m_s` (x forward, y left, z up).
+    pub fn body_to_world(&self, velocity_m_s: DVec3) -> glam::DMat3 {
+        crate::imaging::target_blob::body_to_world(self.attitude, velocity_m_s)
+    }
+}
+
+/// Skin material and flight condition.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct Skin {
+    /// Emissivity.
+    pub emissivity: f64,
+    /// Reflectance.
+    pub brdf: CookTorrance,
+    /// Facet or ellipsoid-averaged reflection.
+    pub reflection: ReflectionGeometry,
+    /// Mach number if fixed; otherwise from speed and the local speed of sound.
+    pub mach: Option<f64>,
+    /// Skin temperature above the stagnation temperature from internal heat, K.
+    pub heating_k: f64,
+}
+
+/// Radiometric result of a target, recomputed only when its inputs change.
+#[derive(Component, Debug, Clone, Default)]
+pub struct Signature {
+    /// The chain's values, if they could be computed (the altitude may leave the model's range).
+    pub signal: Option<Apparent>,
+    /// Mach number used.
+    pub mach: f64,
+    /// Why `signal` is missing.
+    pub error: Option<String>,
+    /// Inputs of the last computation.
+    pub(super) key: Option<[f64; 10]>,
+}
+
+/// Where a target falls in the image this frame.
+#[derive(Component, Debug, Clone, Default)]
+pub struct Footprint {
+    /// The exact image ellipse of its outline, if entirely in front of the camera.
+    pub ellipse: Option<ImageEllipse>,
+    /// The paper model's blob (unit peak until the targets stage scales it).
+    pub blob: Option<GeneralizedGaussian>,
+    /// Its region of interest, clipped to the frame; `None` if off-frame.
+    pub roi: Option<PixelRect>,
+    /// Range from the camera, m.
+    pub range_m: f64,
+    /// Radiance added at the brightest pixel (signed), in the detector's measure; set by the targets stage.
+    pub peak_radiance: f64,
+    /// Background radiance at the target's centre (noise-free, blurred), in the detector's measure.
+    pub background_radiance: f64,
+    /// Index of its patch in [`TargetPatches`] this frame.
+    pub patch: Option<usize>,
+}
+
+/// Where the camera points.
+#[derive(Component, Debug, Clone)]
+pub struct Aim {
+    /// The scenario's pointing mode.
+    pub pointing: Pointing,
+    /// The aircraft a `track` pointing follows, resolved from its name when the scenario is spawned.
+    pub tracked: Option<Entity>,
+}
+
+/// The observer's vibration.
+#[derive(Component, Debug, Clone)]
+pub struct Shake(pub Vibration);
+
+/// The camera this frame: before and after vibration.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct CameraPose {
+    /// Without vibration.
+    pub steady: Camera,
+    /// With this frame's jitter.
+    pub current: Camera,
+    /// The jitter.
+    pub jitter: Jitter,
+}
+
+/// The sky: the clear-sky dome and, optionally, a radiance image placed as a plane.
+#[derive(Component, Debug, Clone)]
+pub struct Sky {
+    /// The placed radiance image.
+    pub plane: Option<Arc<SkyPlane>>,
+    /// Sampling.
+    pub sampling: Sampling,
+    /// Fill for rays that miss the plane.
+    pub miss: MissFill,
+    /// The clear sky and ground.
+    pub dome: Arc<Dome>,
+}
+
+/// The sensor: radiometry, optics blur, readout, non-idealities.
+#[derive(Component, Debug, Clone)]
+pub struct Sensor {
+    /// Band, optics, detector, ADC.
+    pub resolved: ResolvedSensor,
+    /// The readout (noise and ADC) of a frame, before drift.
+    pub readout: Readout,
+    /// Highest DN.
+    pub max_level: f32,
+    /// DN per unit radiance on axis.
+    pub dn_per_radiance: f64,
+    /// The optics PSF, if on.
+    pub psf: Option<Arc<Psf>>,
+    /// Blur the frame (false when the blur would change no pixel by more than the set DN).
+    pub blur_frame: bool,
+    /// How the blur reaches the sky image this run (`prefilter` or `frame`, `auto` resolved).
+    pub sky_blur: SkyBlur,
+    /// The plan that resolved `auto`, if one was made.
+    pub sky_blur_plan: Option<SkyBlurPlan>,
+    /// The non-idealities of this sequence.
+    pub nonideal: Option<Arc<NonIdeal>>,
+}
+
+impl Sensor {
+    /// The detector's measure.
+    pub fn measure(&self) -> Measure {
+        self.resolved.model.measure()
+    }
+
+    /// Temporal noise in DN of a pixel whose background radiance is `radiance`.
+    pub fn noise_dn(&self, radiance: f64) -> f64 {
+        self.readout.noise_dn_at_radiance(radiance)
+    }
+}
+
+/// The sensor's frame and its cached sky background.
+#[derive(Component, Debug)]
+pub struct SensorFrame {
+    /// The frame being built: radiance until the Noise set, then DN.
+    pub frame: Frame,
+    /// The frame before quantization, DN (kept only when asked for).
+    pub float_frame: Option<Frame>,
+    /// The sky as last rendered (radiance, blurred), and the camera it was rendered for.
+    pub background: Frame,
+    pub(super) background_camera: Option<Camera>,
+    /// What the last render of the background did.
+    pub background_stats: BackgroundStats,
+    pub(super) renderer: BackgroundRenderer,
+    pub(super) columns: Vec<f32>,
+}

@@ -1,0 +1,86 @@
+//! The headless front end: an [`App`] with `MinimalPlugins` that computes one sensor frame per `update()`, and
+//! the helpers tests, the recorder and the benchmark drive it with.
+
+use bevy::app::App;
+use bevy::ecs::message::Messages;
+use bevy::ecs::prelude::*;
+use bevy::prelude::MinimalPlugins;
+use bevy::time::{Fixed, Time, TimeUpdateStrategy};
+
+use super::{FramePool, FrameReady, Fusion, IrSimPlugins, RunOptions, SetupError, TimingPlugin, spawn_scenario};
+use crate::imaging::frame::Frame;
+use crate::labels::FrameLabels;
+use crate::scenario::CheckedScenario;
+
+/// Bevy's fixed timestep in every app: one step per `update()` whatever the sensor's frame rate (the
+/// simulation's own time is [`SimClock`](super::SimClock)).
+pub const BEVY_STEP: std::time::Duration = std::time::Duration::from_millis(10);
+
+/// A headless app for `scenario`: `MinimalPlugins`, [`IrSimPlugins`] (and [`TimingPlugin`] if asked), the
+/// scenario spawned, one fixed step per `update()`, warmed up (the first update runs Startup and no fixed step),
+/// so each further `update()` computes one frame and writes one [`FrameReady`].
+///
+/// # Errors
+/// [`SetupError`] if the sky image cannot be loaded or placed, or the PSF built.
+pub fn headless_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App, SetupError> {
+    let mut app = App::new();
+    app.add_plugins(MinimalPlugins);
+    // Simulated time is `SimClock`'s (t0 + k/rate, exact at any rate); Bevy's clock only has to run one fixed
+    // step per update, which a nominal step below its 250 ms maximum delta does at every frame rate.
+    app.insert_resource(Time::<Fixed>::from_duration(BEVY_STEP));
+    app.insert_resource(TimeUpdateStrategy::FixedTimesteps(1));
+    app.add_plugins(IrSimPlugins);
+    if options.timings {
+        app.add_plugins(TimingPlugin);
+    }
+    spawn_scenario(app.world_mut(), scenario, options)?;
+    app.update();
+    Ok(app)
+}
+
+/// [`headless_app`] under its earlier name.
+///
+/// # Errors
+/// As [`headless_app`].
+pub fn build_app(scenario: &CheckedScenario, options: RunOptions) -> Result<App, SetupError> {
+    headless_app(scenario, options)
+}
+
+/// Lets `flag` stop the run inside a frame: long iterative fusion solves look at it between sweeps. A frame
+/// computed while it was set is incomplete; the caller must not write it.
+pub fn set_stop_flag(app: &mut App, flag: std::sync::Arc<std::sync::atomic::AtomicBool>) {
+    app.world_mut().resource_mut::<Fusion>().0.set_stop(flag);
+}
+
+/// The frames [`FrameReady`] carried out of the schedule since the last call, oldest first.
+pub fn drain_frames(app: &mut App) -> Vec<FrameReady> {
+    app.world_mut().resource_mut::<Messages<FrameReady>>().drain().collect()
+}
+
+/// The frame [`step`] read last (its buffer goes back to the [`FramePool`] when the next one arrives).
+#[derive(Resource, Debug, Default)]
+pub struct LatestFrame(pub Option<FrameReady>);
+
+/// Runs one step (one frame) and returns its labels; the frame stays readable through [`current_frame`].
+///
+/// # Panics
+/// If the step produced no frame (the scenario's entities are missing).
+pub fn step(app: &mut App) -> FrameLabels {
+    app.update();
+    let ready = drain_frames(app).pop().expect("each step completes one frame");
+    let labels = ready.labels.clone();
+    let world = app.world_mut();
+    let previous = world.get_resource_or_init::<LatestFrame>().0.replace(ready);
+    if let Some(old) = previous {
+        world.get_resource_or_init::<FramePool>().give_back(old.frame);
+    }
+    labels
+}
+
+/// The sensor frame of the last [`step`] (quantized DN as f32).
+///
+/// # Panics
+/// Before the first [`step`].
+pub fn current_frame(app: &mut App) -> &Frame {
+    &app.world().resource::<LatestFrame>().0.as_ref().expect("a step has run").frame
+}

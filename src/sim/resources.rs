@@ -1,0 +1,123 @@
+//! The simulation's resources: clock, run settings, scene physics, per-frame scratch.
+
+use bevy::ecs::prelude::*;
+
+use crate::imaging::frame::Frame;
+use crate::imaging::fusion::PoissonFusion;
+use crate::imaging::target_blob::PixelRect;
+use crate::labels::FrameLabels;
+use crate::physics::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
+use crate::physics::reflection::{SphereQuadrature, Sun};
+use crate::physics::skin::StagnationModel;
+use crate::physics::transmittance::Transmittance;
+use crate::scenario::{BlobSpec, FusionSpec};
+
+/// Frame counter and time step.
+#[derive(Resource, Debug, Clone, Copy)]
+pub struct SimClock {
+    /// Index of the frame the current step computes.
+    pub frame: u64,
+    /// Time of frame 0, s.
+    pub start_s: f64,
+    /// Seconds per frame.
+    pub dt_s: f64,
+}
+
+impl SimClock {
+    /// Time of the current frame, s (analytic: start + frame · dt).
+    pub fn t_s(&self) -> f64 {
+        self.start_s + self.frame as f64 * self.dt_s
+    }
+}
+
+/// Run-wide settings.
+#[derive(Resource, Debug, Clone, Copy)]
+pub struct SimSettings {
+    /// Seed of every random stream.
+    pub seed: u64,
+    /// Add sensor noise.
+    pub noise: bool,
+    /// Apply camera vibration.
+    pub vibration: bool,
+    /// Keep the unquantized frame.
+    pub keep_float: bool,
+    /// Produce per-frame target masks.
+    pub masks: bool,
+    /// Fusion mode and solver.
+    pub fusion: FusionSpec,
+    /// How targets are drawn.
+    pub blob: BlobSpec,
+    /// SNR from which a target is `detectable`.
+    pub detectable_snr: f64,
+}
+
+/// The scene's physics.
+#[derive(Resource, Debug, Clone)]
+pub struct SceneParams {
+    /// Sea-level temperature, K.
+    pub t0_k: f64,
+    /// Stagnation constants.
+    pub stagnation: StagnationModel,
+    /// The sun.
+    pub sun: Sun,
+    /// Transmittance.
+    pub atmosphere: Transmittance,
+    /// Quadrature for ellipsoid-averaged reflection.
+    pub quadrature: SphereQuadrature,
+}
+
+impl SceneParams {
+    /// Air temperature at `altitude_m` (clamped to the model's range), K.
+    pub fn air_temp_k(&self, altitude_m: f64) -> f64 {
+        ambient_temperature_k(altitude_m.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), self.t0_k).unwrap_or(self.t0_k)
+    }
+}
+
+/// Reusable buffers of target patches for the fusion stage.
+#[derive(Resource, Debug, Default)]
+pub struct TargetPatches {
+    /// `(rect, values)` per visible target; the vectors are reused.
+    pub patches: Vec<(PixelRect, Vec<f32>)>,
+    /// How many entries of `patches` are in use this frame.
+    pub used: usize,
+}
+
+/// The fusion engine (planned transforms, buffers).
+#[derive(Resource, Debug, Default)]
+pub struct Fusion(pub PoissonFusion);
+
+/// The ground truth of the frame being completed, until [`FrameReady`](super::FrameReady) carries it away.
+#[derive(Resource, Debug, Default, Clone)]
+pub struct FrameOutput {
+    /// Ground truth.
+    pub labels: FrameLabels,
+    /// Per-pixel target id (0 = sky), when masks are on.
+    pub mask: Option<Vec<u8>>,
+}
+
+/// Frame buffers given back by a consumer of [`FrameReady`](super::FrameReady), reused for the next frames so
+/// that a run that only looks at its frames allocates none.
+#[derive(Resource, Debug, Default)]
+pub struct FramePool(pub Vec<Frame>);
+
+impl FramePool {
+    /// A buffer of `width × height` (contents unspecified), from the pool or new.
+    pub fn take(&mut self, width: usize, height: usize) -> Frame {
+        match self.0.iter().position(|f| f.width() == width && f.height() == height) {
+            Some(i) => self.0.swap_remove(i),
+            None => Frame::new(width, height),
+        }
+    }
+
+    /// Gives `frame` back for reuse (a few are kept).
+    pub fn give_back(&mut self, frame: Frame) {
+        if self.0.len() < 4 {
+            self.0.push(frame);
+        }
+    }
+}
+
+/// Reusable target-rendering state: the tracking loop's pointing noise stream is keyed per frame, so it needs
+/// no state; this holds the SCR window buffer.
+#[derive(Resource, Debug, Default)]
+pub struct LabelScratch(pub Vec<f32>);

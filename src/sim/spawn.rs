@@ -1,0 +1,318 @@
+//! A checked scenario turned into entities and resources: the sensor (readout, PSF, non-idealities, the sky
+//! blur's plan), the observer, the sky (calibrated image or baked layer over the dome) and the aircraft.
+
+use std::sync::Arc;
+
+use bevy::ecs::prelude::*;
+use glam::DVec3;
+
+use super::camera::resolve_aim;
+use super::{
+    Aim, Aircraft, Body, CameraPose, FlightPath, Footprint, Kinematics, Observer, SceneParams, Sensor, SensorFrame,
+    Shake, Signature, SimClock, SimSettings, Skin, Sky,
+};
+use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, plan_sky_blur};
+use crate::imaging::camera::{Camera, Jitter};
+use crate::imaging::frame::Frame;
+use crate::imaging::psf::{Psf, PsfOptics};
+use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate};
+use crate::imaging::sky_gen::{SkyGenSpec, generate};
+use crate::imaging::sky_plane::{SkyImage, SkyPlane};
+use crate::imaging::vibration::Vibration;
+use crate::physics::nonideal::{FocalPlane, NonIdeal};
+use crate::physics::random::SplitMix64;
+use crate::physics::reflection::SphereQuadrature;
+use crate::physics::sky::{Dome, DomeInputs};
+use crate::scenario::sensor::{PsfToml, ResolvedSensor};
+use crate::scenario::{CheckedScenario, Pointing};
+
+/// Switches for a run.
+#[derive(Debug, Clone, Copy)]
+pub struct RunOptions {
+    /// Seed override.
+    pub seed: Option<u64>,
+    /// Add sensor noise (if the scenario enables it).
+    pub noise: bool,
+    /// Apply vibration.
+    pub vibration: bool,
+    /// Keep the unquantized frame.
+    pub keep_float: bool,
+    /// Produce masks.
+    pub masks: bool,
+    /// Time each stage ([`StageTimings`]).
+    pub timings: bool,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        Self { seed: None, noise: true, vibration: true, keep_float: false, masks: false, timings: false }
+    }
+}
+
+/// An error building the simulation from a checked scenario (the sky image cannot be read, calibrated or
+/// placed; the optics PSF cannot be built).
+#[derive(Debug, thiserror::Error)]
+#[error("{message}")]
+pub struct SetupError {
+    /// The scenario field at fault, as a dotted path (`sky.calibration`).
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+fn setup(field: &str) -> impl Fn(String) -> SetupError + '_ {
+    move |message| SetupError { field: field.to_owned(), message }
+}
+
+/// Spawns `scenario`'s entities into `world` and inserts the resources its systems read ([`SimClock`],
+/// [`SimSettings`], [`SceneParams`]); the plugins of [`IrSimPlugins`](super::IrSimPlugins) must be added to its
+/// app. Every front end (headless runs, the recorder, a window) builds its world this way.
+///
+/// # Errors
+/// [`SetupError`] if the sky image cannot be loaded, calibrated or placed, or the optics PSF cannot be built.
+pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: RunOptions) -> Result<(), SetupError> {
+    let spec = &scenario.spec;
+    let seed = options.seed.unwrap_or(spec.run.seed);
+    let dt = 1.0 / spec.run.frame_rate_hz;
+    let sensor_spec = scenario.sensor;
+    world.insert_resource(SimClock { frame: 0, start_s: spec.run.start_time_s, dt_s: dt });
+    world.insert_resource(SimSettings {
+        seed,
+        noise: options.noise && sensor_spec.noise.enabled,
+        vibration: options.vibration,
+        keep_float: options.keep_float,
+        masks: options.masks,
+        fusion: spec.fusion,
+        blob: sensor_spec.blob,
+        detectable_snr: spec.labels.detectable_snr,
+    });
+    let scene = SceneParams {
+        t0_k: spec.atmosphere.t0_k,
+        stagnation: spec.atmosphere.stagnation,
+        sun: spec.sun,
+        atmosphere: spec.atmosphere.transmittance,
+        quadrature: SphereQuadrature::default(),
+    };
+
+    let intrinsics = sensor_spec.intrinsics;
+    let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
+    let sky = build_sky(scenario, &scene, p0, seed)?;
+    let mut sensor = build_sensor(&sensor_spec, &sky, seed)?;
+    if let (Some(plane), Some(psf), Some(cfg), true) = (&sky.plane, &sensor.psf, sensor_spec.psf, sensor.blur_frame)
+        && cfg.sky_blur == SkyBlur::Auto
+    {
+        let plan = plan_sky_blur(plane, psf, cfg.prefilter_tolerance, (w, h), planned_views(scenario));
+        sensor.sky_blur = plan.choice;
+        sensor.sky_blur_plan = Some(plan);
+    }
+    world.insert_resource(scene);
+    world.spawn((
+        sensor,
+        SensorFrame {
+            frame: Frame::new(w, h),
+            float_frame: None,
+            background: Frame::new(w, h),
+            background_camera: None,
+            background_stats: BackgroundStats::default(),
+            renderer: BackgroundRenderer::new(),
+            columns: Vec::new(),
+        },
+    ));
+    let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
+    let placeholder = Camera::new(intrinsics, p0, Default::default());
+    let observer = world
+        .spawn((
+            Observer,
+            FlightPath(scenario.observer_trajectory.clone()),
+            Kinematics { position_m: p0, velocity_m_s: v0 },
+            Aim { pointing: spec.observer.pointing.clone(), tracked: None },
+            Shake(vibration),
+            CameraPose { steady: placeholder, current: placeholder, jitter: Jitter::default() },
+        ))
+        .id();
+    world.spawn(sky);
+    let mut tracked = None;
+    for (i, (t, tr)) in spec.targets.iter().zip(&scenario.target_trajectories).enumerate() {
+        let (p, v) = tr.state(spec.run.start_time_s);
+        let entity = world
+            .spawn((
+                Aircraft { id: i as u32 + 1, name: t.name.clone() },
+                FlightPath(tr.clone()),
+                Kinematics { position_m: p, velocity_m_s: v },
+                Body { semi_axes_m: t.semi_axes_m, attitude: t.attitude },
+                Skin {
+                    emissivity: t.emissivity,
+                    brdf: t.brdf,
+                    reflection: t.reflection,
+                    mach: t.mach,
+                    heating_k: t.heating_k,
+                },
+                Signature::default(),
+                Footprint::default(),
+            ))
+            .id();
+        if matches!(&spec.observer.pointing, Pointing::Track { target, .. } if *target == t.name) && tracked.is_none() {
+            tracked = Some(entity);
+        }
+    }
+    if let Some(mut aim) = world.get_mut::<Aim>(observer) {
+        aim.tracked = tracked;
+    }
+    Ok(())
+}
+
+/// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
+fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: u64) -> Result<Sky, SetupError> {
+    let sky = &scenario.spec.sky;
+    let model = &scenario.sensor.model;
+    let (band, measure) = (model.band, model.measure());
+    let dome = Dome::new(&DomeInputs {
+        spec: sky.dome,
+        band,
+        measure,
+        observer_altitude_m: eye.z,
+        t0_k: scene.t0_k,
+        atmosphere: &scene.atmosphere,
+    })
+    .map_err(|e| SetupError { field: format!("sky.dome.{}", e.name), message: e.to_string() })?;
+    let dome = Arc::new(dome);
+    let lut = RadianceLut::new(band, measure);
+    let placement = sky.placement();
+    let plane = match (&sky.generate, &scenario.sky_image, placement) {
+        (_, Some(path), Some(placement)) => {
+            let raw = SkyImage::load(path).map_err(|e| setup("sky.image")(e.to_string()))?;
+            let calibration = sky.calibration.ok_or_else(|| setup("sky.calibration")("is required".into()))?;
+            let image = calibrate(&raw, &calibration, &lut, &path.display().to_string())
+                .map_err(|e| setup("sky.calibration")(e.to_string()))?;
+            Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
+        }
+        (Some(gen_spec), None, Some(placement)) => {
+            let (tw, th) = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
+            let gen_spec = SkyGenSpec { seed: gen_spec.seed ^ seed.wrapping_mul(SplitMix64::GAMMA), ..*gen_spec };
+            let layer = generate(&gen_spec, tw, th);
+            let blank = SkyImage::from_f32(tw, th, vec![0.0; tw * th]).map_err(|e| setup("sky")(e.to_string()))?;
+            let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
+            let air = |z: f64| scene.air_temp_k(z);
+            let image = bake_layer(&LayerBake {
+                layer: &layer,
+                plane: &geometry,
+                eye_m: eye,
+                dome: &dome,
+                air_temp_k: &air,
+                atmosphere: &scene.atmosphere,
+                lut: &lut,
+                cloud_offset_k: sky.cloud_offset_k,
+                cloud_base_m: sky.cloud_base_m,
+            })
+            .map_err(|e| setup("sky.generate")(e.to_string()))?;
+            Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
+        }
+        _ => None,
+    };
+    Ok(Sky { plane: plane.map(Arc::new), sampling: sky.sampling, miss: sky.miss, dome })
+}
+
+/// The steady cameras (no vibration, no pointing noise) of the run's frames, for planning: every frame up to
+/// 4096 of them, an even sample of 4096 beyond.
+pub(crate) fn planned_views(scenario: &CheckedScenario) -> impl Iterator<Item = Camera> + '_ {
+    let spec = &scenario.spec;
+    let frames = spec.run.frames.max(1);
+    let stride = frames.div_ceil(4096).max(1);
+    let intrinsics = scenario.sensor.intrinsics;
+    (0..frames).step_by(stride as usize).map(move |k| {
+        let t = spec.run.start_time_s + k as f64 / spec.run.frame_rate_hz;
+        let (eye, velocity) = scenario.observer_trajectory.state(t);
+        let tracked = |name: &str, lag_s: f64| {
+            let i = spec.targets.iter().position(|target| target.name == name)?;
+            Some(scenario.target_trajectories[i].state(t - lag_s).0)
+        };
+        Camera::aimed(intrinsics, eye, velocity, resolve_aim(&spec.observer.pointing, tracked))
+    })
+}
+
+/// Texels of a generated layer: at least one per sensor pixel at the plane's distance from the observer's
+/// start (its nearest point), up to `max_texels` per side.
+fn layer_size(
+    sensor: &ResolvedSensor,
+    placement: &crate::imaging::sky_plane::SkyPlacement,
+    eye: DVec3,
+    max_texels: usize,
+) -> (usize, usize) {
+    let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
+    let normal = placement.normal.map_or_else(
+        || {
+            let d = eye - placement.anchor_m;
+            DVec3::new(d.x, d.y, 0.0).normalize_or(DVec3::Y)
+        },
+        |n| n.normalize_or(DVec3::Y),
+    );
+    let distance = (eye - placement.anchor_m).dot(normal).abs().max(1.0);
+    let texel_m = ifov * distance;
+    let side = |extent_m: f64| ((extent_m / texel_m).ceil() as usize).clamp(16, max_texels);
+    (side(placement.width_m), side(placement.height_m))
+}
+
+/// The sensor component: readout, PSF (and whether the frame needs it), non-idealities.
+fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Sensor, SetupError> {
+    let model = &resolved.model;
+    let k = model.signal_per_radiance();
+    let readout = model.readout(resolved.noise.poisson_normal_threshold);
+    let dn_per_radiance = k / model.adc.gain;
+    let psf = match resolved.psf {
+        Some(p) => Some(Arc::new(
+            Psf::new(
+                &p.spec(),
+                &PsfOptics {
+                    f_number: model.optics.f_number(),
+                    pixel_pitch_m: model.detector.pixel_pitch_m,
+                    fill_factor: model.detector.fill_factor,
+                    band: model.band,
+                    measure: model.measure(),
+                    reference_temp_k: 300.0,
+                },
+            )
+            .map_err(|e| SetupError { field: format!("sensor.psf.{}", e.name), message: e.to_string() })?,
+        )),
+        None => None,
+    };
+    let blur_frame = match (&psf, resolved.psf) {
+        (Some(psf), Some(cfg)) => frame_needs_blur(psf, &cfg, sky, resolved, dn_per_radiance),
+        _ => false,
+    };
+    let report = model.report(300.0);
+    let nonideal = if resolved.nonideal.is_ideal() {
+        None
+    } else {
+        let plane = FocalPlane {
+            width: resolved.intrinsics.width as usize,
+            height: resolved.intrinsics.height as usize,
+            focal_px: resolved.intrinsics.focal_px(),
+        };
+        Some(Arc::new(NonIdeal::new(&resolved.nonideal, plane, report.noise_dn, seed)))
+    };
+    Ok(Sensor {
+        resolved: *resolved,
+        readout,
+        max_level: model.adc.max_level() as f32,
+        dn_per_radiance,
+        psf,
+        blur_frame,
+        sky_blur: resolved.psf.map_or(SkyBlur::Frame, |p| p.sky_blur),
+        sky_blur_plan: None,
+        nonideal,
+    })
+}
+
+/// Whether blurring the background can change a pixel by more than `skip_below_dn`: always for an image
+/// layer; for the dome alone, the blur of a smooth field changes it by `½·M₂·|L''|` (M₂ the kernel's second
+/// moment in px², L'' the largest curvature per px²), which is compared with the threshold.
+fn frame_needs_blur(psf: &Psf, cfg: &PsfToml, sky: &Sky, sensor: &ResolvedSensor, dn_per_radiance: f64) -> bool {
+    if sky.plane.is_some() || cfg.skip_below_dn <= 0.0 {
+        return true;
+    }
+    let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
+    let curvature_per_px2 = sky.dome.max_curvature_per_rad2() * ifov * ifov;
+    let change_dn = 0.5 * psf.point_kernel().second_moment_px2() * curvature_per_px2 * dn_per_radiance;
+    change_dn > cfg.skip_below_dn
+}
