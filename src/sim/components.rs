@@ -108,7 +108,7 @@ pub struct Footprint {
     pub peak_radiance: f64,
     /// Background radiance at the target's centre (noise-free, blurred), in the detector's measure.
     pub background_radiance: f64,
-    /// Index of its patch in [`TargetPatches`] this frame.
+    /// Index of its patch in [`TargetPatches`](super::TargetPatches) this frame.
     pub patch: Option<usize>,
 }
 

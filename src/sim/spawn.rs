@@ -39,7 +39,7 @@ pub struct RunOptions {
     pub keep_float: bool,
     /// Produce masks.
     pub masks: bool,
-    /// Time each stage ([`StageTimings`]).
+    /// Time each stage ([`StageTimings`](super::StageTimings)).
     pub timings: bool,
 }
 
