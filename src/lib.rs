@@ -13,6 +13,7 @@
 //! - [`scenario`]: the scenario schema, validation and trajectory building — pure, no Bevy;
 //! - [`sim`]: the Bevy ECS simulation — entities, system sets, plugins, the headless app;
 //! - [`record`]: writers of frames, labels, MOT ground truth and manifest;
+//! - `ui` (feature `gui`, on by default): `irsim view`, the window — Bevy's renderer and egui;
 //! - [`cli`]: the `irsim` command line.
 
 pub mod cli;
@@ -22,3 +23,5 @@ pub mod physics;
 pub mod record;
 pub mod scenario;
 pub mod sim;
+#[cfg(feature = "gui")]
+pub mod ui;

@@ -60,6 +60,9 @@ pub enum Command {
     Sky(run::SkyArgs),
     /// Frames per second of the whole pipeline on built-in scenarios.
     Bench(run::BenchArgs),
+    /// Fly a scenario in a window: the live sensor image, a 3D view of the encounter, play/pause/step/seek.
+    #[cfg(feature = "gui")]
+    View(crate::ui::ViewArgs),
 }
 
 /// Parses `args`, runs the command and returns the process exit code.
@@ -85,6 +88,8 @@ where
         Command::Validate(a) => run::validate(a),
         Command::Sky(a) => run::sky(a),
         Command::Bench(a) => run::bench(a),
+        #[cfg(feature = "gui")]
+        Command::View(a) => crate::ui::view(a),
     };
     match result {
         Ok(()) => 0,

@@ -14,7 +14,9 @@ use crate::imaging::sky_gen::{SkyGenSpec, SkyKind, generate};
 use crate::record::{FrameFormat, Recorder, prepare_dir, write_atomic};
 use crate::scenario::load::{load_for_frames, located};
 use crate::scenario::{CheckedScenario, load};
-use crate::sim::{FrameReady, RunOptions, SensorFrame, StageTimings, drain_frames, headless_app, set_stop_flag, step};
+use crate::sim::{
+    FrameReady, RunOptions, SensorFrame, SimClock, StageTimings, drain_frames, headless_app, set_stop_flag, step,
+};
 
 /// Flags of `irsim record`.
 #[derive(Debug, Args)]
@@ -162,57 +164,126 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         return Err(CliError::Invalid(format!("--frames {n} must be in 1 … 100000000")));
     }
     let scenario = load_for_frames(&a.scenario, a.frames).map_err(|e| CliError::Invalid(e.to_string()))?;
-    let frames = scenario.spec.run.frames;
-    let options = RunOptions {
+    let plan = RecordPlan {
+        out: a.out.clone(),
+        first_frame: 0,
+        frames: scenario.spec.run.frames,
         seed: a.seed,
+        force: a.force,
         noise: !a.no_noise,
         vibration: !a.no_vibration,
-        keep_float: a.format == FrameFormat::Npy,
+        format: a.format,
         masks: a.masks,
-        timings: true,
     };
-    let mut app = headless_app(&scenario, options)
-        .map_err(|e| CliError::Invalid(located(&a.scenario, &e.field, &e.message).to_string()))?;
-    let _lock = prepare_dir(&a.out, a.force).map_err(|e| match e {
-        crate::record::RecordError::NotEmpty(_)
-        | crate::record::RecordError::NotADirectory(_)
-        | crate::record::RecordError::Locked(..) => CliError::Invalid(e.to_string()),
-        other => CliError::Failed(other.to_string()),
-    })?;
-    let seed = a.seed.unwrap_or(scenario.spec.run.seed);
-    let mut spec_as_run = scenario.spec.clone();
-    spec_as_run.run.frames = frames;
-    spec_as_run.run.seed = seed;
-    let manifest = json!({
-        "program": "irsim",
-        "version": env!("CARGO_PKG_VERSION"),
-        "scenario_file": a.scenario.display().to_string(),
-        "scenario": spec_as_run,
-        "seed": seed,
-        "options": { "noise": !a.no_noise, "vibration": !a.no_vibration, "format": a.format, "masks": a.masks },
-    });
-    let max_level = scenario.sensor.model.adc.max_level() as u16;
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
-    let mut rec = Recorder::new(&a.out, a.format, a.masks, max_level, threads, manifest, frames)
-        .map_err(|e| CliError::Failed(e.to_string()))?;
-
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = Arc::clone(&stop);
         // a second handler cannot be installed in the same process (tests run record twice); ignore that
         let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
     }
-    set_stop_flag(&mut app, Arc::clone(&stop));
     let bar = if a.quiet {
         indicatif::ProgressBar::hidden()
     } else {
-        let b = indicatif::ProgressBar::new(frames);
+        let b = indicatif::ProgressBar::new(plan.frames);
         b.set_style(
             indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {per_sec}, eta {eta}")
                 .expect("valid template"),
         );
         b
     };
+    let done = record_scenario(&scenario, &plan, &stop, &mut |written, _| bar.set_position(written));
+    bar.finish_and_clear();
+    let done = done?;
+    eprintln!("{}", done.summary);
+    if done.interrupted {
+        return Err(CliError::Interrupted);
+    }
+    Ok(())
+}
+
+/// What [`record_scenario`] writes: the flags of `irsim record`, and the frames `first_frame ..
+/// first_frame + frames` (written as 000000, 000001, … with their true frame index in the labels).
+#[derive(Debug, Clone)]
+pub struct RecordPlan {
+    /// Output directory; refused if not empty unless `force`.
+    pub out: PathBuf,
+    /// The first frame's index.
+    pub first_frame: u64,
+    /// How many frames.
+    pub frames: u64,
+    /// Seed (default: the scenario's).
+    pub seed: Option<u64>,
+    /// Replace the outputs of an earlier run.
+    pub force: bool,
+    /// Sensor noise.
+    pub noise: bool,
+    /// Camera vibration.
+    pub vibration: bool,
+    /// Frame file format.
+    pub format: FrameFormat,
+    /// Per-frame target masks.
+    pub masks: bool,
+}
+
+/// How a recording ended.
+#[derive(Debug, Clone)]
+pub struct RecordDone {
+    /// `complete: 10 of 10 frames written to DIR (41.3 frames/s)` or the like.
+    pub summary: String,
+    /// Stopped by the flag before the last frame.
+    pub interrupted: bool,
+}
+
+/// Records `scenario` as `plan` says: what `irsim record` does, for any front end. `progress(written, total)` is
+/// called after each frame; setting `stop` ends the run after the frame in hand (the directory says so).
+///
+/// # Errors
+/// [`CliError::Invalid`] for a simulation that cannot be built or a non-empty output directory;
+/// [`CliError::Failed`] for a write error during the run.
+pub fn record_scenario(
+    scenario: &CheckedScenario,
+    plan: &RecordPlan,
+    stop: &Arc<AtomicBool>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<RecordDone, CliError> {
+    let frames = plan.frames;
+    let options = RunOptions {
+        seed: plan.seed,
+        noise: plan.noise,
+        vibration: plan.vibration,
+        keep_float: plan.format == FrameFormat::Npy,
+        masks: plan.masks,
+        timings: true,
+    };
+    let mut app = headless_app(scenario, options)
+        .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
+    let _lock = prepare_dir(&plan.out, plan.force).map_err(|e| match e {
+        crate::record::RecordError::NotEmpty(_)
+        | crate::record::RecordError::NotADirectory(_)
+        | crate::record::RecordError::Locked(..) => CliError::Invalid(e.to_string()),
+        other => CliError::Failed(other.to_string()),
+    })?;
+    let seed = plan.seed.unwrap_or(scenario.spec.run.seed);
+    let mut spec_as_run = scenario.spec.clone();
+    spec_as_run.run.frames = frames;
+    spec_as_run.run.seed = seed;
+    let mut manifest = json!({
+        "program": "irsim",
+        "version": env!("CARGO_PKG_VERSION"),
+        "scenario_file": scenario.source.display().to_string(),
+        "scenario": spec_as_run,
+        "seed": seed,
+        "options": { "noise": plan.noise, "vibration": plan.vibration, "format": plan.format, "masks": plan.masks },
+    });
+    if plan.first_frame > 0 {
+        manifest["first_frame"] = json!(plan.first_frame);
+        app.world_mut().resource_mut::<SimClock>().frame = plan.first_frame;
+    }
+    let max_level = scenario.sensor.model.adc.max_level() as u16;
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
+    let mut rec = Recorder::new(&plan.out, plan.format, plan.masks, max_level, threads, manifest, frames)
+        .map_err(|e| CliError::Failed(e.to_string()))?;
+    set_stop_flag(&mut app, Arc::clone(stop));
     let started = Instant::now();
     let mut interrupted = false;
     for _ in 0..frames {
@@ -249,14 +320,13 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
             break;
         }
         let FrameReady { frame, float_frame, mask, labels } = ready;
-        let frame: Frame = match (a.format, float_frame) {
+        let frame: Frame = match (plan.format, float_frame) {
             (FrameFormat::Npy, Some(f)) => f,
             _ => frame,
         };
         rec.push(frame, mask, labels);
-        bar.inc(1);
+        progress(rec.frames_sent(), frames);
     }
-    bar.finish_and_clear();
     let elapsed = started.elapsed().as_secs_f64();
     if let Some(t) = app.world().get_resource::<StageTimings>() {
         let stages: serde_json::Map<String, serde_json::Value> =
@@ -264,18 +334,15 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         rec.set_manifest("timings", json!({ "wall_s": elapsed, "stage_ms_per_frame": stages }));
     }
     let progress = rec.finish(interrupted).map_err(|e| CliError::Failed(format!("recording stopped: {e}")))?;
-    eprintln!(
+    let summary = format!(
         "{}: {} of {} frames written to {} ({:.1} frames/s)",
         progress.status,
         progress.frames_written,
         progress.frames_requested,
-        a.out.display(),
+        plan.out.display(),
         progress.frames_written as f64 / elapsed.max(1e-9)
     );
-    if interrupted {
-        return Err(CliError::Interrupted);
-    }
-    Ok(())
+    Ok(RecordDone { summary, interrupted })
 }
 
 /// `irsim sky`: writes a generated 16-bit sky.

@@ -1,6 +1,6 @@
 //! Reading scenario files, with errors that name file, line, column and field.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use super::locate::Nodes;
 use super::{CheckedScenario, FieldError, Scenario};
@@ -156,7 +156,7 @@ fn load_str_for_frames(
     if let Some(n) = frames {
         spec.run.frames = n;
     }
-    let checked = spec.check(base_dir).map_err(|FieldError { path, message, at }| {
+    spec.checked_in(source, base_dir).map_err(|FieldError { path, message, at }| {
         if let Some(csv) = at {
             return ScenarioError {
                 file: csv.file,
@@ -169,14 +169,6 @@ fn load_str_for_frames(
         let nodes = nodes();
         let (line, column) = nodes.nearest(&path).map_or((0, 0), |n| line_col(text, n.key_start));
         ScenarioError { file: file.clone(), line, column, field: path, message }
-    })?;
-    Ok(CheckedScenario {
-        spec,
-        source: PathBuf::from(source),
-        observer_trajectory: checked.observer,
-        target_trajectories: checked.targets,
-        sky_image: checked.sky_image,
-        sensor: checked.sensor,
     })
 }
 

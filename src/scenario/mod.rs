@@ -4,6 +4,7 @@
 //! [`ScenarioError`] that names the file, line, column and field. The schema is documented field by field in
 //! `docs/scenarios.md`.
 
+pub mod edit;
 pub mod load;
 pub mod locate;
 pub mod sensor;
@@ -431,6 +432,63 @@ pub struct Checked {
 }
 
 impl Scenario {
+    /// [`Scenario::check`] in the directory of `source` (the file it came from, or will be saved as), keeping
+    /// what it built: the one way from a scenario value to a [`CheckedScenario`], for files and for edits alike.
+    ///
+    /// # Errors
+    /// The first [`FieldError`] found.
+    pub fn checked(self, source: &Path) -> Result<CheckedScenario, FieldError> {
+        let base = source.parent().map(Path::to_path_buf).unwrap_or_default();
+        self.checked_in(source, &base)
+    }
+
+    /// [`Scenario::checked`] with relative paths resolved in `base_dir`.
+    ///
+    /// # Errors
+    /// The first [`FieldError`] found.
+    pub fn checked_in(self, source: &Path, base_dir: &Path) -> Result<CheckedScenario, FieldError> {
+        let checked = self.check(base_dir)?;
+        Ok(CheckedScenario {
+            spec: self,
+            source: PathBuf::from(source),
+            observer_trajectory: checked.observer,
+            target_trajectories: checked.targets,
+            sky_image: checked.sky_image,
+            sensor: checked.sensor,
+        })
+    }
+
+    /// Rewrites the relative file paths (the sky image, CSV trajectories) that resolve in `from_dir` so that
+    /// they resolve the same from `to_dir`: unchanged when the directories are the same, absolute otherwise.
+    pub fn rebase_paths(&mut self, from_dir: &Path, to_dir: &Path) {
+        let same = |a: &Path, b: &Path| {
+            let canon =
+                |p: &Path| std::fs::canonicalize(if p.as_os_str().is_empty() { Path::new(".") } else { p }).ok();
+            canon(a).is_some_and(|a| Some(a) == canon(b))
+        };
+        if same(from_dir, to_dir) {
+            return;
+        }
+        let rebase = |p: &mut String| {
+            if Path::new(p.as_str()).is_relative() {
+                let joined = from_dir.join(p.as_str());
+                let absolute =
+                    std::fs::canonicalize(&joined).or_else(|_| std::path::absolute(&joined)).unwrap_or(joined);
+                *p = absolute.display().to_string();
+            }
+        };
+        if let Some(image) = &mut self.sky.image {
+            rebase(image);
+        }
+        let trajectories =
+            std::iter::once(&mut self.observer.trajectory).chain(self.targets.iter_mut().map(|t| &mut t.trajectory));
+        for tr in trajectories {
+            if let TrajectorySpec::Csv { path } = tr {
+                rebase(path);
+            }
+        }
+    }
+
     /// Checks every value and builds the trajectories; `base_dir` resolves relative paths.
     ///
     /// # Errors

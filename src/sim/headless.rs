@@ -54,7 +54,21 @@ pub fn set_stop_flag(app: &mut App, flag: std::sync::Arc<std::sync::atomic::Atom
 
 /// The frames [`FrameReady`] carried out of the schedule since the last call, oldest first.
 pub fn drain_frames(app: &mut App) -> Vec<FrameReady> {
-    app.world_mut().resource_mut::<Messages<FrameReady>>().drain().collect()
+    drain_frames_world(app.world_mut())
+}
+
+/// [`drain_frames`] on a world.
+pub fn drain_frames_world(world: &mut World) -> Vec<FrameReady> {
+    world.resource_mut::<Messages<FrameReady>>().drain().collect()
+}
+
+/// Computes frame `k` directly and returns it: the clock is set to `k` and one step runs. Trajectories and
+/// vibration are analytic in time and the noise of frame `k` is drawn from its own stream, so this is the frame
+/// a run from frame 0 writes as frame `k` (the viewer's seek, and its tests, rely on it).
+pub fn frame_at(app: &mut App, k: u64) -> Option<FrameReady> {
+    app.world_mut().resource_mut::<super::SimClock>().frame = k;
+    app.update();
+    drain_frames(app).pop()
 }
 
 /// The frame [`step`] read last (its buffer goes back to the [`FramePool`] when the next one arrives).

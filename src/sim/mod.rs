@@ -37,7 +37,10 @@ pub use components::{
     Signature, Skin, Sky,
 };
 pub use fusion::{FusionPlugin, fuse_targets};
-pub use headless::{BEVY_STEP, LatestFrame, build_app, current_frame, drain_frames, headless_app, set_stop_flag, step};
+pub use headless::{
+    BEVY_STEP, LatestFrame, build_app, current_frame, drain_frames, drain_frames_world, frame_at, headless_app,
+    set_stop_flag, step,
+};
 pub use motion::{MotionPlugin, advance_trajectories};
 pub use noise::{NoisePlugin, read_out};
 pub use output::{
@@ -47,7 +50,7 @@ pub use projection::{ProjectionPlugin, project_targets};
 pub use radiometry::{RadiometryPlugin, update_signatures};
 pub use render::{RenderToTexturePlugin, render_sky};
 pub use resources::{FrameOutput, FramePool, Fusion, LabelScratch, SceneParams, SimClock, SimSettings, TargetPatches};
-pub use spawn::{RunOptions, SetupError, spawn_scenario};
+pub use spawn::{RunOptions, SetupError, despawn_scenario, spawn_scenario};
 pub use targets::{TargetsPlugin, draw_targets};
 pub use timing::{StageTimings, TimingPlugin};
 

@@ -162,6 +162,19 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     Ok(())
 }
 
+/// Removes what [`spawn_scenario`] spawned (the sensor, observer, sky and aircraft entities), so that a changed
+/// scenario can be spawned into the same world; the resources are replaced by the next [`spawn_scenario`].
+pub fn despawn_scenario(world: &mut World) {
+    let mut entities: Vec<Entity> = Vec::new();
+    entities.extend(world.query_filtered::<Entity, With<Sensor>>().iter(world));
+    entities.extend(world.query_filtered::<Entity, With<Observer>>().iter(world));
+    entities.extend(world.query_filtered::<Entity, With<Sky>>().iter(world));
+    entities.extend(world.query_filtered::<Entity, With<Aircraft>>().iter(world));
+    for e in entities {
+        world.despawn(e);
+    }
+}
+
 /// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
 fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: u64) -> Result<Sky, SetupError> {
     let sky = &scenario.spec.sky;

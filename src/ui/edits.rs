@@ -1,0 +1,265 @@
+//! The edit panel: per-target trajectory, body and skin; the sensor's band, noise, vibration, target sampling and
+//! fusion; the sun. Widgets change the [`Session`](crate::scenario::edit::Session)'s draft; the draft is validated
+//! like a file and put in use when the mouse button is up (a drag changes it once, at the end), and a refused
+//! draft shows the validator's message while the last good scenario stays in use.
+
+use bevy_egui::egui;
+use glam::DVec3;
+
+use super::Viewer;
+use crate::imaging::fusion::{Guidance, Solver};
+use crate::imaging::target_blob::BlobSampling;
+use crate::physics::planck::Band;
+use crate::physics::reflection::ReflectionGeometry;
+use crate::scenario::edit::shift_altitude;
+use crate::scenario::trajectory::TrajectorySpec;
+use crate::scenario::{FieldError, TargetModel};
+
+/// Where a new target goes: the next click on the sensor image places it at `range_m` along that pixel's line
+/// of sight, flying level at `speed_m_s` on `heading_deg`.
+#[derive(Debug, Clone, Copy)]
+pub struct NewTarget {
+    /// Waiting for the click.
+    pub armed: bool,
+    /// Distance from the camera, m.
+    pub range_m: f64,
+    /// Speed, m/s.
+    pub speed_m_s: f64,
+    /// Heading, degrees clockwise from north.
+    pub heading_deg: f64,
+}
+
+impl Default for NewTarget {
+    fn default() -> Self {
+        Self { armed: false, range_m: 1500.0, speed_m_s: 20.0, heading_deg: 90.0 }
+    }
+}
+
+fn num(ui: &mut egui::Ui, label: &str, value: &mut f64, speed: f64, unit: &str) -> bool {
+    ui.horizontal(|ui| {
+        let r = ui.add(egui::DragValue::new(value).speed(speed).suffix(unit));
+        ui.label(label);
+        r.changed()
+    })
+    .inner
+}
+
+fn vec3(ui: &mut egui::Ui, label: &str, v: &mut DVec3, speed: f64, unit: &str) -> bool {
+    ui.horizontal(|ui| {
+        let mut changed = false;
+        for c in [&mut v.x, &mut v.y, &mut v.z] {
+            changed |= ui.add(egui::DragValue::new(c).speed(speed).suffix(unit)).changed();
+        }
+        ui.label(label);
+        changed
+    })
+    .inner
+}
+
+/// An optional value: unticked is the preset's or default value (`None`), ticked sets it.
+fn opt_num(ui: &mut egui::Ui, label: &str, value: &mut Option<f64>, fallback: f64, speed: f64, unit: &str) {
+    ui.horizontal(|ui| {
+        let mut set = value.is_some();
+        if ui.checkbox(&mut set, "").on_hover_text("unticked: the preset's value").changed() {
+            *value = set.then_some(value.unwrap_or(fallback));
+        }
+        match value {
+            Some(v) => {
+                ui.add(egui::DragValue::new(v).speed(speed).suffix(unit));
+            }
+            None => {
+                ui.weak("preset");
+            }
+        }
+        ui.label(label);
+    });
+}
+
+/// Draws the edit panel and puts the draft in use when it changed and the mouse is up.
+pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
+    let mut local_error: Option<FieldError> = None;
+    let n = v.session.draft.targets.len();
+    ui.horizontal(|ui| {
+        ui.label("target");
+        let name = v.session.draft.targets.get(v.selected).map_or("—".to_owned(), |t| t.name.clone());
+        egui::ComboBox::from_id_salt("edit_target").selected_text(name).show_ui(ui, |ui| {
+            for (i, t) in v.session.draft.targets.iter().enumerate() {
+                ui.selectable_value(&mut v.selected, i, format!("{} {}", i + 1, t.name));
+            }
+        });
+        if n > 0 && ui.button("remove").clicked() {
+            let i = v.selected.min(n - 1);
+            if v.session.remove_target(i).is_ok() {
+                v.selected = v.selected.saturating_sub(1);
+            }
+        }
+    });
+    if let Some(t) = v.session.draft.targets.get_mut(v.selected) {
+        egui::CollapsingHeader::new("trajectory").default_open(true).show(ui, |ui| {
+            match &mut t.trajectory {
+                TrajectorySpec::ConstantVelocity { position_m, velocity_m_s } => {
+                    ui.weak("constant velocity");
+                    vec3(ui, "position at t = 0", position_m, 1.0, " m");
+                    vec3(ui, "velocity", velocity_m_s, 0.1, " m/s");
+                    let mut speed = velocity_m_s.length();
+                    if num(ui, "speed", &mut speed, 0.1, " m/s") {
+                        let dir = velocity_m_s.try_normalize().unwrap_or(DVec3::X);
+                        *velocity_m_s = dir * speed;
+                    }
+                }
+                TrajectorySpec::CoordinatedTurn {
+                    center_m,
+                    radius_m,
+                    speed_m_s,
+                    start_bearing_deg,
+                    clockwise,
+                    climb_m_s,
+                } => {
+                    ui.weak("coordinated turn");
+                    vec3(ui, "centre at t = 0", center_m, 1.0, " m");
+                    num(ui, "radius", radius_m, 1.0, " m");
+                    num(ui, "speed", speed_m_s, 0.1, " m/s");
+                    num(ui, "start bearing", start_bearing_deg, 0.5, "°");
+                    num(ui, "climb", climb_m_s, 0.1, " m/s");
+                    ui.checkbox(clockwise, "clockwise");
+                }
+                TrajectorySpec::Polynomial { x_m, y_m, z_m } => {
+                    ui.weak("polynomial coefficients (m, m/s, m/s², …)");
+                    for (axis, c) in [("x", x_m), ("y", y_m), ("z", z_m)] {
+                        ui.horizontal(|ui| {
+                            ui.label(axis);
+                            for a in c.iter_mut() {
+                                ui.add(egui::DragValue::new(a).speed(0.1));
+                            }
+                        });
+                    }
+                }
+                TrajectorySpec::Waypoints { points } => {
+                    ui.weak("waypoints: t s, x, y, z m");
+                    for p in points.iter_mut() {
+                        ui.horizontal(|ui| {
+                            for a in p.iter_mut() {
+                                ui.add(egui::DragValue::new(a).speed(0.5));
+                            }
+                        });
+                    }
+                }
+                TrajectorySpec::Csv { path } => {
+                    ui.weak(format!("samples from {path} (edit the file)"));
+                }
+            }
+            ui.horizontal(|ui| {
+                ui.label("altitude");
+                for dz in [-100.0, -10.0, 10.0, 100.0] {
+                    if ui.button(format!("{dz:+}")).clicked() {
+                        shift_altitude(&mut t.trajectory, dz);
+                    }
+                }
+                ui.label("m");
+            });
+        });
+        egui::CollapsingHeader::new("body and skin").default_open(false).show(ui, |ui| {
+            vec3(ui, "semi-axes", &mut t.semi_axes_m, 0.01, " m");
+            opt_num(ui, "Mach (unticked: from the speed)", &mut t.mach, 0.1, 0.001, "");
+            num(ui, "emissivity", &mut t.emissivity, 0.005, "");
+            num(ui, "internal heating", &mut t.heating_k, 0.5, " K");
+            num(ui, "BRDF diffuse kd", &mut t.brdf.kd, 0.005, "");
+            num(ui, "BRDF specular ks", &mut t.brdf.ks, 0.005, "");
+            num(ui, "BRDF Fresnel f0", &mut t.brdf.f0, 0.005, "");
+            num(ui, "BRDF roughness", &mut t.brdf.roughness, 0.005, "");
+            ui.horizontal(|ui| {
+                ui.selectable_value(&mut t.reflection, ReflectionGeometry::Facet, "facet");
+                ui.selectable_value(&mut t.reflection, ReflectionGeometry::Ellipsoid, "ellipsoid");
+                ui.label("reflection");
+            });
+        });
+    }
+    egui::CollapsingHeader::new("add a target").default_open(false).show(ui, |ui| {
+        let a = &mut v.new_target;
+        num(ui, "range", &mut a.range_m, 10.0, " m");
+        num(ui, "speed", &mut a.speed_m_s, 0.5, " m/s");
+        num(ui, "heading", &mut a.heading_deg, 1.0, "°");
+        let label = if a.armed { "click the sensor image … (Esc cancels)" } else { "place it with a click" };
+        if ui.selectable_label(a.armed, label).clicked() {
+            a.armed = !a.armed;
+        }
+    });
+    let draft = &mut v.session.draft;
+    egui::CollapsingHeader::new("sensor").default_open(false).show(ui, |ui| {
+        let band = draft.sensor.band_um.unwrap_or(v.session.applied.sensor.model.band);
+        let (mut lo, mut hi) = (band.lo_um(), band.hi_um());
+        let changed = ui
+            .horizontal(|ui| {
+                let a = ui.add(egui::DragValue::new(&mut lo).speed(0.05).suffix(" µm")).changed();
+                let b = ui.add(egui::DragValue::new(&mut hi).speed(0.05).suffix(" µm")).changed();
+                ui.label("band");
+                a || b
+            })
+            .inner;
+        if changed {
+            match Band::try_new(lo, hi) {
+                Ok(b) => draft.sensor.band_um = Some(b),
+                Err(e) => {
+                    local_error = Some(FieldError { path: "sensor.band_um".into(), message: e.to_string(), at: None });
+                }
+            }
+        }
+        ui.checkbox(&mut draft.sensor.noise.enabled, "temporal noise");
+        opt_num(ui, "NETD", &mut draft.sensor.detector.netd_mk, 40.0, 0.5, " mK");
+        num(ui, "vibration amplitude", &mut draft.observer.vibration.amplitude_deg, 0.001, "°");
+        num(ui, "vibration cutoff", &mut draft.observer.vibration.cutoff_hz, 0.1, " Hz");
+        ui.horizontal(|ui| {
+            let b = &mut draft.sensor.blob;
+            ui.selectable_value(&mut b.model, TargetModel::Psf, "ellipse ⊗ PSF");
+            ui.selectable_value(&mut b.model, TargetModel::Paper, "paper blob");
+            ui.label("target model");
+        });
+        ui.horizontal(|ui| {
+            let s = &mut draft.sensor.blob.sampling;
+            ui.selectable_value(s, BlobSampling::Auto, "auto");
+            ui.selectable_value(s, BlobSampling::Point, "point");
+            ui.selectable_value(s, BlobSampling::Integrated { n: 4 }, "4×4");
+            ui.label("sampling (paper blob)");
+        });
+        ui.horizontal(|ui| {
+            let g = &mut draft.fusion.guidance;
+            ui.selectable_value(g, Guidance::Normal, "normal");
+            ui.selectable_value(g, Guidance::Mixed, "mixed");
+            ui.selectable_value(g, Guidance::Additive, "additive");
+            ui.label("fusion guidance");
+        });
+        ui.horizontal(|ui| {
+            let s = &mut draft.fusion.solver;
+            let iterative = Solver::Sor { tolerance: 0.01, max_iterations: 2000 };
+            ui.selectable_value(s, Solver::Direct, "direct");
+            if ui.selectable_label(matches!(s, Solver::Sor { .. }), "SOR").clicked() {
+                *s = iterative;
+            }
+            if ui.selectable_label(matches!(s, Solver::Jacobi { .. }), "Jacobi").clicked() {
+                *s = Solver::Jacobi { tolerance: 0.01, max_iterations: 5000 };
+            }
+            ui.label("solver");
+        });
+        if let Solver::Sor { tolerance, .. } | Solver::Jacobi { tolerance, .. } = &mut draft.fusion.solver {
+            num(ui, "solver tolerance", tolerance, 0.001, " DN");
+        }
+    });
+    egui::CollapsingHeader::new("sun").default_open(false).show(ui, |ui| {
+        num(ui, "azimuth", &mut draft.sun.azimuth_deg, 1.0, "°");
+        num(ui, "elevation", &mut draft.sun.elevation_deg, 0.5, "°");
+    });
+    // validate and use the draft once the mouse is released
+    let released = !ui.ctx().input(|i| i.pointer.any_down());
+    if let Some(e) = local_error {
+        v.session.error = Some(e);
+    } else if released && v.session.draft != v.session.applied.spec {
+        let _ = v.session.commit();
+    }
+    if let Some(e) = &v.session.error {
+        ui.colored_label(egui::Color32::from_rgb(255, 110, 90), format!("refused: {}: {}", e.path, e.message));
+        ui.label("the last valid scenario stays in use");
+        if ui.button("revert the draft").clicked() {
+            v.session.revert();
+        }
+    }
+}

@@ -1,0 +1,256 @@
+//! The 3D encounter view: the ground grid with a km scale, the sky plane's outline, trajectories (past solid,
+//! future dashed), each aircraft's ellipsoid at its true pose (enlarged by a shown factor where it would be
+//! smaller than a few screen pixels), the observer and the sensor's view frustum, drawn as lines; an orbit
+//! camera (left drag orbits, right drag pans, wheel zooms, F focuses the first target in the frame).
+
+use bevy::camera::Viewport;
+use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
+use bevy::prelude::*;
+use bevy::window::PrimaryWindow;
+use glam::DVec3;
+
+use super::Viewer;
+use crate::sim::{Aircraft, Body, CameraPose, FlightPath, Kinematics, Observer, SimClock, Sky};
+
+/// World coordinates (m; x east, y north, z up) to the view's (km; Bevy's x right, y up, z toward the viewer):
+/// the one place where z-up becomes y-up.
+pub fn to_view(p_m: DVec3) -> Vec3 {
+    Vec3::new((p_m.x * 1e-3) as f32, (p_m.z * 1e-3) as f32, (-p_m.y * 1e-3) as f32)
+}
+
+/// The orbit camera's state.
+#[derive(Component, Debug, Clone, Copy)]
+pub struct Orbit {
+    /// The point orbited, view km.
+    pub focus: Vec3,
+    /// Azimuth, rad.
+    pub yaw: f32,
+    /// Elevation, rad.
+    pub pitch: f32,
+    /// Distance from the focus, km.
+    pub distance: f32,
+}
+
+impl Orbit {
+    fn transform(&self) -> Transform {
+        let dir = Vec3::new(self.yaw.sin() * self.pitch.cos(), self.pitch.sin(), self.yaw.cos() * self.pitch.cos());
+        Transform::from_translation(self.focus + dir * self.distance).looking_at(self.focus, Vec3::Y)
+    }
+}
+
+/// Enlargement of each aircraft's drawn ellipsoid (1 where it is large enough on screen).
+#[derive(Resource, Debug, Default, Clone)]
+pub struct DrawScale(pub Vec<(u32, f32)>);
+
+/// The 3D camera, framing every trajectory over the run and the observer, seen from behind and above the
+/// observer's line of sight.
+pub fn spawn_view_camera(
+    mut commands: Commands,
+    viewer: Res<Viewer>,
+    paths: Query<&FlightPath>,
+    observer: Query<&FlightPath, With<Observer>>,
+    targets: Query<&FlightPath, With<Aircraft>>,
+) {
+    let spec = &viewer.built.spec;
+    let (t0, dt) = (spec.run.start_time_s, 1.0 / spec.run.frame_rate_hz);
+    let t1 = t0 + (spec.run.frames.max(2) - 1) as f64 * dt;
+    let mut points: Vec<Vec3> = Vec::new();
+    for fp in &paths {
+        points.extend((0..=32).map(|i| to_view(fp.0.state(t0 + (t1 - t0) * f64::from(i) / 32.0).0)));
+    }
+    let (lo, hi) = points
+        .iter()
+        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let focus = if points.is_empty() { Vec3::ZERO } else { (lo + hi) / 2.0 };
+    let radius = points.iter().map(|p| p.distance(focus)).fold(0.5_f32, f32::max);
+    // look from the observer toward the targets at mid-run, from 25° to the left and 25° above
+    let t_mid = (t0 + t1) / 2.0;
+    let eye = observer.single().map_or(DVec3::ZERO, |fp| fp.0.state(t_mid).0);
+    let n = targets.iter().count().max(1) as f64;
+    let aim = targets.iter().map(|fp| fp.0.state(t_mid).0).sum::<DVec3>() / n;
+    let boresight = if targets.is_empty() { Vec3::NEG_Z } else { to_view(aim) - to_view(eye) };
+    let yaw = (-boresight.x).atan2(-boresight.z) + 25_f32.to_radians();
+    // the view is narrower than high in the default layout: fit the sphere in a width half the height
+    let half_fov_h = ((PerspectiveProjection::default().fov / 2.0).tan() * 0.5).atan();
+    let orbit = Orbit { focus, yaw, pitch: 25_f32.to_radians(), distance: radius / half_fov_h.sin() * 1.1 };
+    commands.spawn((
+        Camera3d::default(),
+        Camera {
+            order: 0,
+            clear_color: ClearColorConfig::Custom(BACKGROUND),
+            // egui's camera writes the window (see `setup_egui`)
+            output_mode: bevy::camera::CameraOutputMode::Skip,
+            ..default()
+        },
+        Projection::Perspective(PerspectiveProjection { near: 0.01, far: 1e5, ..default() }),
+        Msaa::Off,
+        // lines need no tonemapping (and its lookup tables are not built in)
+        bevy::core_pipeline::tonemapping::Tonemapping::None,
+        orbit.transform(),
+        orbit,
+    ));
+    commands.insert_resource(DrawScale::default());
+}
+
+/// Orbit, pan, zoom and focus from the mouse and F, only while the pointer is over the 3D view and egui does
+/// not want it; keeps the camera's viewport on the view's rectangle.
+#[allow(clippy::too_many_arguments)]
+pub fn orbit_camera(
+    viewer: Res<Viewer>,
+    buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
+    motion: Res<AccumulatedMouseMotion>,
+    scroll: Res<AccumulatedMouseScroll>,
+    egui: Res<bevy_egui::input::EguiWantsInput>,
+    window: Single<&Window, With<PrimaryWindow>>,
+    mut camera: Query<(&mut Camera, &mut Transform, &mut Orbit)>,
+    targets: Query<(&Aircraft, &Kinematics)>,
+) {
+    let Ok((mut cam, mut transform, mut orbit)) = camera.single_mut() else { return };
+    let [x0, y0, x1, y1] = viewer.view_rect;
+    let scale = window.scale_factor();
+    let (pw, ph) = (window.physical_width(), window.physical_height());
+    let pos = UVec2::new((x0 * scale) as u32, (y0 * scale) as u32)
+        .min(UVec2::new(pw.saturating_sub(1), ph.saturating_sub(1)));
+    let size = UVec2::new(((x1 - x0) * scale) as u32, ((y1 - y0) * scale) as u32)
+        .min(UVec2::new(pw - pos.x, ph - pos.y))
+        .max(UVec2::ONE);
+    let viewport = Viewport { physical_position: pos, physical_size: size, ..default() };
+    if cam.viewport.as_ref().is_none_or(|v| v.physical_position != pos || v.physical_size != size) {
+        cam.viewport = Some(viewport);
+    }
+    let over_view = window.cursor_position().is_some_and(|c| c.x >= x0 && c.x < x1 && c.y >= y0 && c.y < y1);
+    let free = over_view && !egui.wants_pointer_input() && !egui.is_using_pointer();
+    if free {
+        let d = motion.delta;
+        if buttons.pressed(MouseButton::Left) {
+            orbit.yaw -= d.x * 0.005;
+            orbit.pitch = (orbit.pitch + d.y * 0.005).clamp(-1.5, 1.5);
+        }
+        if buttons.pressed(MouseButton::Right) {
+            let t = orbit.transform();
+            let k = orbit.distance * 0.0015;
+            orbit.focus += (-t.right() * d.x + t.up() * d.y) * k;
+        }
+        if scroll.delta.y != 0.0 {
+            orbit.distance = (orbit.distance * (1.0 - 0.1 * scroll.delta.y.clamp(-5.0, 5.0))).clamp(0.01, 1e4);
+        }
+    }
+    if keys.just_pressed(KeyCode::KeyF) && !egui.wants_keyboard_input() {
+        let first = viewer.labels.targets.iter().find(|t| t.in_frame).or(viewer.labels.targets.first()).map(|t| t.id);
+        if let Some((_, k)) = targets.iter().find(|(a, _)| Some(a.id) == first) {
+            orbit.focus = to_view(k.position_m);
+            orbit.distance = orbit.distance.min(5.0);
+        }
+    }
+    *transform = orbit.transform();
+}
+
+/// Draws the encounter.
+#[allow(clippy::too_many_arguments)]
+pub fn draw_encounter(
+    mut gizmos: Gizmos,
+    clock: Res<SimClock>,
+    viewer: Res<Viewer>,
+    mut scale: ResMut<DrawScale>,
+    camera: Query<(&Transform, &Projection, &Camera), With<Orbit>>,
+    observer: Query<(&CameraPose, &FlightPath), With<Observer>>,
+    aircraft: Query<(&Aircraft, &Kinematics, &Body, &FlightPath)>,
+    sky: Query<&Sky>,
+) {
+    let Ok((view_t, projection, view_cam)) = camera.single() else { return };
+    let spec = &viewer.built.spec;
+    let t_now = viewer.playback.shown.map_or(clock.t_s(), |k| spec.run.start_time_s + k as f64 * clock.dt_s);
+    let t0 = spec.run.start_time_s;
+    let t1 = t0 + (viewer.playback.frames.max(2) - 1) as f64 * clock.dt_s;
+    // ground grid, 1 km cells, 40 km across, with a 10 km scale bar
+    gizmos.grid(
+        Isometry3d::from_rotation(Quat::from_rotation_x(std::f32::consts::FRAC_PI_2)),
+        UVec2::splat(40),
+        Vec2::splat(1.0),
+        Color::srgba(0.5, 0.5, 0.5, 0.25),
+    );
+    gizmos.line(Vec3::new(0.0, 0.01, 0.0), Vec3::new(10.0, 0.01, 0.0), Color::srgb(0.9, 0.9, 0.9));
+    // sky plane outline
+    if let Ok(sky) = sky.single()
+        && let Some(plane) = &sky.plane
+    {
+        let (w, h) = (plane.image().width() as f64, plane.image().height() as f64);
+        let corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h), (0.0, 0.0)]
+            .map(|(x, y)| to_view(plane.world_point(glam::DVec2::new(x, y))));
+        gizmos.linestrip(corners, Color::srgb(0.3, 0.6, 1.0));
+    }
+    let path = |gizmos: &mut Gizmos, fp: &FlightPath, color: Color| {
+        const N: usize = 120;
+        let at = |i: usize| to_view(fp.0.state(t0 + (t1 - t0) * i as f64 / N as f64).0);
+        let now = to_view(fp.0.state(t_now).0);
+        let split = (((t_now - t0) / (t1 - t0).max(1e-9)) * N as f64).clamp(0.0, N as f64) as usize;
+        gizmos.linestrip((0..=split).map(at).chain(std::iter::once(now)), color);
+        // the future dashed
+        let mut prev = now;
+        for i in split + 1..=N {
+            let p = at(i);
+            if i % 2 == 0 {
+                gizmos.line(prev, p, color.with_alpha(0.5));
+            }
+            prev = p;
+        }
+    };
+    // screen pixels per km at 1 km distance, to size the ellipsoids
+    let fov = match projection {
+        Projection::Perspective(p) => p.fov,
+        _ => 0.8,
+    };
+    let view_h = view_cam.viewport.as_ref().map_or(600.0, |v| v.physical_size.y as f32);
+    let px_per_rad = view_h / fov;
+    scale.0.clear();
+    for (a, k, body, fp) in &aircraft {
+        let color = palette(a.id);
+        path(&mut gizmos, fp, color);
+        let centre = to_view(k.position_m);
+        let distance = centre.distance(view_t.translation).max(1e-6);
+        let size_px = (body.semi_axes_m.max_element() as f32 * 1e-3 / distance) * px_per_rad;
+        let factor = if size_px < 4.0 { 4.0 / size_px.max(1e-6) } else { 1.0 };
+        scale.0.push((a.id, factor));
+        let m = body.body_to_world(k.velocity_m_s);
+        let axes = [m.x_axis, m.y_axis, m.z_axis].map(|c| to_view(c * 1e3).normalize_or_zero());
+        let r = body.semi_axes_m.as_vec3() * 1e-3 * factor;
+        // the ellipsoid as its three principal ellipses
+        for (i, j, a0, b0) in [(0, 1, r.x, r.y), (0, 2, r.x, r.z), (1, 2, r.y, r.z)] {
+            let (u, v) = (axes[i], axes[j]);
+            let rot = Quat::from_mat3(&Mat3::from_cols(u, v, u.cross(v)));
+            gizmos.ellipse(Isometry3d::new(centre, rot), Vec2::new(a0, b0), color);
+        }
+    }
+    if let Ok((pose, fp)) = observer.single() {
+        path(&mut gizmos, fp, Color::srgb(0.9, 0.9, 0.9));
+        let cam = pose.current;
+        let eye = to_view(cam.position_m);
+        gizmos.cross(Isometry3d::from_translation(eye), 0.3, Color::WHITE);
+        // the frustum to the farthest target (at least 2 km)
+        let reach = aircraft.iter().map(|(_, k, _, _)| k.position_m.distance(cam.position_m)).fold(2000.0, f64::max);
+        let (w, h) = (f64::from(cam.intrinsics.width), f64::from(cam.intrinsics.height));
+        let f = cam.intrinsics.focal_px();
+        let corner = |u: f64, v: f64| {
+            let d = cam.camera_to_world * DVec3::new((u - w / 2.0) / f, (v - h / 2.0) / f, 1.0);
+            to_view(cam.position_m + d * reach)
+        };
+        let c = [corner(0.0, 0.0), corner(w, 0.0), corner(w, h), corner(0.0, h)];
+        let frustum = Color::srgb(1.0, 0.85, 0.2);
+        for p in c {
+            gizmos.line(eye, p, frustum.with_alpha(0.6));
+        }
+        gizmos.linestrip([c[0], c[1], c[2], c[3], c[0]], frustum);
+    }
+}
+
+/// The window's background: the 3D view's and, since they paint none, the panels'.
+pub const BACKGROUND: Color = Color::srgb(0.106, 0.106, 0.106);
+
+/// A colour per target id.
+pub fn palette(id: u32) -> Color {
+    const COLORS: [(f32, f32, f32); 6] =
+        [(1.0, 0.35, 0.3), (0.3, 0.85, 0.4), (0.35, 0.6, 1.0), (1.0, 0.7, 0.2), (0.8, 0.4, 1.0), (0.2, 0.9, 0.9)];
+    let (r, g, b) = COLORS[(id as usize).wrapping_sub(1) % COLORS.len()];
+    Color::srgb(r, g, b)
+}
