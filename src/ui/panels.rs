@@ -89,7 +89,7 @@ pub struct SensorTexture {
     size: (usize, usize),
     key: Option<(u64, u64, String)>,
     rgba: Vec<u8>,
-    scratch: Vec<f32>,
+    scratch: super::state::StretchScratch,
     window: (f64, f64),
 }
 

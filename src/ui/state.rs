@@ -143,8 +143,15 @@ pub enum ColorMap {
     Ironbow,
 }
 
+/// Buffers [`display_window`] reuses from frame to frame: a histogram of whole DN and a copy for selection.
+#[derive(Debug, Default)]
+pub struct StretchScratch {
+    counts: Vec<u32>,
+    values: Vec<f32>,
+}
+
 /// The DN window `(low, high)` that `stretch` gives for `frame` (`high > low`).
-pub fn display_window(frame: &Frame, stretch: Stretch, scratch: &mut Vec<f32>) -> (f64, f64) {
+pub fn display_window(frame: &Frame, stretch: Stretch, scratch: &mut StretchScratch) -> (f64, f64) {
     let (low, high) = match stretch {
         Stretch::Window { low, high } => (low, high),
         Stretch::MinMax => {
@@ -166,10 +173,12 @@ pub fn display_window(frame: &Frame, stretch: Stretch, scratch: &mut Vec<f32>) -
 
 /// The values at percentiles `low ≤ high` of the finite `pixels` (nearest rank). Whole-number DN below 2¹⁶, as
 /// every recorded gray frame has, are counted in a histogram (one pass); any other value falls back to selection.
-fn percentiles(pixels: &[f32], low: f64, high: f64, scratch: &mut Vec<f32>) -> (f64, f64) {
+fn percentiles(pixels: &[f32], low: f64, high: f64, scratch: &mut StretchScratch) -> (f64, f64) {
     const BINS: usize = 1 << 16;
     let rank = |p: f64, n: usize| ((p.clamp(0.0, 100.0) / 100.0 * (n - 1) as f64).round() as usize).min(n - 1);
-    let mut counts = vec![0_u32; BINS];
+    let counts = &mut scratch.counts;
+    counts.clear();
+    counts.resize(BINS, 0);
     let mut whole = true;
     for &v in pixels {
         if v >= 0.0 && v < BINS as f32 && v == v.trunc() {
@@ -196,15 +205,16 @@ fn percentiles(pixels: &[f32], low: f64, high: f64, scratch: &mut Vec<f32>) -> (
             }
         }
     }
-    scratch.clear();
-    scratch.extend(pixels.iter().copied().filter(|v| v.is_finite()));
-    if scratch.is_empty() {
+    let values = &mut scratch.values;
+    values.clear();
+    values.extend(pixels.iter().copied().filter(|v| v.is_finite()));
+    if values.is_empty() {
         return (0.0, 1.0);
     }
-    let n = scratch.len();
+    let n = values.len();
     let (i, j) = (rank(low, n), rank(high, n));
-    let lo = *scratch.select_nth_unstable_by(i, f32::total_cmp).1;
-    let hi = *scratch.select_nth_unstable_by(j, f32::total_cmp).1;
+    let lo = *values.select_nth_unstable_by(i, f32::total_cmp).1;
+    let hi = *values.select_nth_unstable_by(j, f32::total_cmp).1;
     (f64::from(lo), f64::from(hi))
 }
 
@@ -307,7 +317,7 @@ mod tests {
     #[test]
     fn stretches_and_colours_are_monotone() {
         let frame = Frame::from_pixels(4, 1, vec![10.0, 20.0, 30.0, 1000.0]);
-        let mut scratch = Vec::new();
+        let mut scratch = StretchScratch::default();
         assert_eq!(display_window(&frame, Stretch::MinMax, &mut scratch), (10.0, 1000.0));
         let (lo, hi) = display_window(&frame, Stretch::Percentile { low: 0.0, high: 67.0 }, &mut scratch);
         assert_eq!((lo, hi), (10.0, 30.0));
