@@ -7,6 +7,7 @@
 //! writes as frame `k`); Bevy's own fixed clock never steps it.
 
 mod edits;
+mod meshes;
 mod panels;
 mod plots;
 mod scene;
@@ -116,11 +117,11 @@ pub struct Viewer {
     pub display_window: (f64, f64),
 }
 
-/// Screenshot mode: after `frames` computed frames, save the window to `path` and exit.
+/// `--frames` (and `--screenshot`): after `frames` computed frames, save the window to `path` if given, and exit.
 #[derive(Resource, Debug, Clone)]
 struct ScreenshotPlan {
     frames: u64,
-    path: PathBuf,
+    path: Option<PathBuf>,
     /// Display frames waited since the last computed frame (the renderer needs a few to show it).
     waited: u32,
     taken: bool,
@@ -168,7 +169,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
             })
             .set(bevy::log::LogPlugin { level: bevy::log::Level::WARN, ..default() }),
     );
-    app.add_plugins(EguiPlugin::default());
+    app.add_plugins((EguiPlugin::default(), meshes::ViewMeshesPlugin));
     // the viewer steps the simulation itself (see the module docs): Bevy's fixed clock must never do it
     app.insert_resource(Time::<Fixed>::from_seconds(1e9));
     app.add_plugins(IrSimPlugins);
@@ -214,13 +215,13 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
     if let Some(path) = &a.screenshot {
         app.insert_resource(ScreenshotPlan {
             frames: a.frames.unwrap_or(1),
-            path: path.clone(),
+            path: Some(path.clone()),
             waited: 0,
             taken: false,
         });
     } else if let Some(n) = a.frames {
         // --frames alone: play them, then exit
-        app.insert_resource(ScreenshotPlan { frames: n, path: PathBuf::new(), waited: 0, taken: true });
+        app.insert_resource(ScreenshotPlan { frames: n, path: None, waited: 0, taken: true });
     }
     app.add_systems(Startup, (setup_egui, scene::spawn_view_camera));
     app.add_systems(
@@ -232,6 +233,8 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
             pace_window,
             scene::orbit_camera,
             scene::draw_encounter,
+            meshes::sync_sky_quad,
+            meshes::sync_ellipsoids,
             finish_screenshot_run.run_if(resource_exists::<ScreenshotPlan>),
         )
             .chain(),
@@ -378,25 +381,27 @@ fn rebuild_if_edited(world: &mut World) {
     };
     despawn_scenario(world);
     let result = spawn_scenario(world, &next, options);
-    let mut v = world.resource_mut::<Viewer>();
     match result {
-        Ok(()) => v.built = next,
+        Ok(()) => world.resource_mut::<Viewer>().built = next,
         Err(e) => {
-            let good = v.built.clone();
-            v.session.applied = good.clone();
-            v.session.draft = good.spec.clone();
-            v.session.error =
-                Some(crate::scenario::FieldError { path: e.field.clone(), message: e.message.clone(), at: None });
-            drop(v);
+            let good = {
+                let mut v = world.resource_mut::<Viewer>();
+                let good = v.built.clone();
+                v.session.applied = good.clone();
+                v.session.draft = good.spec.clone();
+                v.session.error =
+                    Some(crate::scenario::FieldError { path: e.field.clone(), message: e.message.clone(), at: None });
+                good
+            };
             despawn_scenario(world);
             // it built before; if it no longer does, the world stays empty and the panel says why
             if let Err(e) = spawn_scenario(world, &good, options) {
                 world.resource_mut::<Viewer>().status =
                     format!("the scenario no longer builds: {}: {}", e.field, e.message);
             }
-            v = world.resource_mut::<Viewer>();
         }
     }
+    let mut v = world.resource_mut::<Viewer>();
     v.built_revision = revision;
     v.history.clear();
     let frames = v.built.spec.run.frames.max(1);
@@ -430,15 +435,15 @@ fn finish_screenshot_run(
     }
     // hold the last of the asked frames on screen
     viewer.playback.playing = false;
-    if plan.path.as_os_str().is_empty() {
+    let Some(path) = plan.path.clone() else {
         summary(&viewer);
         exit.write(AppExit::Success);
         return;
-    }
+    };
     plan.waited += 1;
     // a few display frames for the renderer to show the last frame (software rendering lags by one or two)
     if !plan.taken && plan.waited >= 5 {
-        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(plan.path.clone()));
+        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path.clone()));
         plan.taken = true;
         // where things are in the picture, for whoever checks it
         let s = window.scale_factor();
@@ -451,18 +456,18 @@ fn finish_screenshot_run(
             "display_window_dn": [viewer.display_window.0, viewer.display_window.1],
             "stretch": format!("{:?}", viewer.stretch),
         });
-        let sidecar = plan.path.with_extension("json");
+        let sidecar = path.with_extension("json");
         if let Err(e) = std::fs::write(&sidecar, format!("{layout:#}\n")) {
             eprintln!("error: writing {}: {e}", sidecar.display());
             exit.write(AppExit::error());
         }
     }
-    if plan.taken && plan.waited >= 8 && std::fs::metadata(&plan.path).is_ok_and(|m| m.len() > 0) {
+    if plan.taken && plan.waited >= 8 && std::fs::metadata(&path).is_ok_and(|m| m.len() > 0) {
         summary(&viewer);
         exit.write(AppExit::Success);
     }
     if plan.waited > 600 {
-        eprintln!("error: the screenshot {} was not written", plan.path.display());
+        eprintln!("error: the screenshot {} was not written", path.display());
         exit.write(AppExit::error());
     }
 }

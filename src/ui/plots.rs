@@ -21,10 +21,13 @@ pub enum Quantity {
     Peak,
 }
 
+/// One target's plotted values in one frame: id, SNR, range (km) and peak (DN).
+type TargetValues = (u32, f64, f64, f64);
+
 /// Per frame (by index), each target's id, name, time and values: a frame computed twice is stored once.
 #[derive(Debug, Default)]
 pub struct History {
-    frames: BTreeMap<u64, (f64, Vec<(u32, f64, f64, f64)>)>,
+    frames: BTreeMap<u64, (f64, Vec<TargetValues>)>,
     names: BTreeMap<u32, String>,
     /// The quantity on show.
     pub quantity: Quantity,

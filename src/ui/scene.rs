@@ -63,16 +63,17 @@ pub fn spawn_view_camera(
         .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
     let focus = if points.is_empty() { Vec3::ZERO } else { (lo + hi) / 2.0 };
     let radius = points.iter().map(|p| p.distance(focus)).fold(0.5_f32, f32::max);
-    // look from the observer toward the targets at mid-run, from 25° to the left and 25° above
+    // look from the observer toward the targets at mid-run, from 20° to the left and 10° above: low enough that
+    // a sky plane behind the targets stands in the background
     let t_mid = (t0 + t1) / 2.0;
     let eye = observer.single().map_or(DVec3::ZERO, |fp| fp.0.state(t_mid).0);
     let n = targets.iter().count().max(1) as f64;
     let aim = targets.iter().map(|fp| fp.0.state(t_mid).0).sum::<DVec3>() / n;
     let boresight = if targets.is_empty() { Vec3::NEG_Z } else { to_view(aim) - to_view(eye) };
-    let yaw = (-boresight.x).atan2(-boresight.z) + 25_f32.to_radians();
+    let yaw = (-boresight.x).atan2(-boresight.z) + 20_f32.to_radians();
     // the view is narrower than high in the default layout: fit the sphere in a width half the height
     let half_fov_h = ((PerspectiveProjection::default().fov / 2.0).tan() * 0.5).atan();
-    let orbit = Orbit { focus, yaw, pitch: 25_f32.to_radians(), distance: radius / half_fov_h.sin() * 1.1 };
+    let orbit = Orbit { focus, yaw, pitch: 10_f32.to_radians(), distance: radius / half_fov_h.sin() * 1.1 };
     commands.spawn((
         Camera3d::default(),
         Camera {
@@ -210,17 +211,9 @@ pub fn draw_encounter(
         let centre = to_view(k.position_m);
         let distance = centre.distance(view_t.translation).max(1e-6);
         let size_px = (body.semi_axes_m.max_element() as f32 * 1e-3 / distance) * px_per_rad;
-        let factor = if size_px < 4.0 { 4.0 / size_px.max(1e-6) } else { 1.0 };
+        let factor = if size_px < MIN_DRAWN_PX { MIN_DRAWN_PX / size_px.max(1e-6) } else { 1.0 };
+        // the ellipsoid itself is a mesh (`meshes::sync_ellipsoids`)
         scale.0.push((a.id, factor));
-        let m = body.body_to_world(k.velocity_m_s);
-        let axes = [m.x_axis, m.y_axis, m.z_axis].map(|c| to_view(c * 1e3).normalize_or_zero());
-        let r = body.semi_axes_m.as_vec3() * 1e-3 * factor;
-        // the ellipsoid as its three principal ellipses
-        for (i, j, a0, b0) in [(0, 1, r.x, r.y), (0, 2, r.x, r.z), (1, 2, r.y, r.z)] {
-            let (u, v) = (axes[i], axes[j]);
-            let rot = Quat::from_mat3(&Mat3::from_cols(u, v, u.cross(v)));
-            gizmos.ellipse(Isometry3d::new(centre, rot), Vec2::new(a0, b0), color);
-        }
     }
     if let Ok((pose, fp)) = observer.single() {
         path(&mut gizmos, fp, Color::srgb(0.9, 0.9, 0.9));
@@ -229,11 +222,19 @@ pub fn draw_encounter(
         gizmos.cross(Isometry3d::from_translation(eye), 0.3, Color::WHITE);
         // the frustum to the farthest target (at least 2 km)
         let reach = aircraft.iter().map(|(_, k, _, _)| k.position_m.distance(cam.position_m)).fold(2000.0, f64::max);
+        let plane = sky.single().ok().and_then(|s| s.plane.as_ref());
         let (w, h) = (f64::from(cam.intrinsics.width), f64::from(cam.intrinsics.height));
         let f = cam.intrinsics.focal_px();
+        // each corner's ray to the sky plane where it meets it ahead (within 100 km): the frustum ends on the part
+        // of the sky image the sensor sees; otherwise to the farthest target
         let corner = |u: f64, v: f64| {
             let d = cam.camera_to_world * DVec3::new((u - w / 2.0) / f, (v - h / 2.0) / f, 1.0);
-            to_view(cam.position_m + d * reach)
+            let on_plane = plane.and_then(|p| {
+                let (a, n) = (p.world_point(glam::DVec2::ZERO), p.normal());
+                let t = (a - cam.position_m).dot(n) / d.dot(n);
+                (t.is_finite() && t > 0.0 && t * d.length() < 1e5).then_some(t)
+            });
+            to_view(cam.position_m + d * on_plane.unwrap_or(reach))
         };
         let c = [corner(0.0, 0.0), corner(w, 0.0), corner(w, h), corner(0.0, h)];
         let frustum = Color::srgb(1.0, 0.85, 0.2);
@@ -243,6 +244,9 @@ pub fn draw_encounter(
         gizmos.linestrip([c[0], c[1], c[2], c[3], c[0]], frustum);
     }
 }
+
+/// An aircraft is drawn at least this large on screen (px), enlarged by the factor the targets table shows.
+const MIN_DRAWN_PX: f32 = 8.0;
 
 /// The window's background: the 3D view's and, since they paint none, the panels'.
 pub const BACKGROUND: Color = Color::srgb(0.106, 0.106, 0.106);
