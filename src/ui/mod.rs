@@ -173,6 +173,10 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
     // the viewer steps the simulation itself (see the module docs): Bevy's fixed clock must never do it
     app.insert_resource(Time::<Fixed>::from_seconds(1e9));
     app.add_plugins(IrSimPlugins);
+    // the simulation's chain on one thread, as `irsim record` runs it (see `run_systems_in_order`)
+    app.edit_schedule(FixedUpdate, |s| {
+        s.set_executor(bevy::ecs::schedule::SingleThreadedExecutor::new());
+    });
     let mut playback = Playback::new(scenario.spec.run.frames, rate);
     if a.frames.is_some() || a.screenshot.is_some() {
         playback.playing = true;
