@@ -17,7 +17,7 @@ use std::path::PathBuf;
 
 use bevy::app::AppExit;
 use bevy::prelude::*;
-use bevy::render::view::screenshot::{Screenshot, save_to_disk};
+use bevy::render::view::screenshot::{Screenshot, ScreenshotCaptured};
 use bevy::window::{PresentMode, WindowResolution};
 use bevy_egui::{EguiGlobalSettings, EguiPlugin, EguiPrimaryContextPass};
 use clap::Args;
@@ -122,10 +122,28 @@ pub struct Viewer {
 struct ScreenshotPlan {
     frames: u64,
     path: Option<PathBuf>,
-    /// Display frames waited since the last computed frame (the renderer needs a few to show it).
+    /// Display frames waited since the asked frames were computed.
     waited: u32,
-    taken: bool,
+    /// The display frame at which to capture (again).
+    capture_at: u32,
+    /// Captures made; one is in flight.
+    tries: u32,
+    in_flight: bool,
+    /// The file is written.
+    saved: bool,
 }
+
+impl ScreenshotPlan {
+    fn new(frames: u64, path: Option<PathBuf>) -> Self {
+        // a few display frames for the renderer to show the last frame (pipelined rendering lags by one)
+        Self { frames, path, waited: 0, capture_at: 5, tries: 0, in_flight: false, saved: false }
+    }
+}
+
+/// Captures until the sensor image and the 3D view both show something, at most this many times.
+const SCREENSHOT_TRIES: u32 = 40;
+/// Display frames between captures: pipelines still compiling draw nothing, more so in a debug build.
+const SCREENSHOT_RETRY_FRAMES: u32 = 10;
 
 /// Opens the viewer on `a.scenario`.
 ///
@@ -216,16 +234,9 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
         sensor_rect: [0.0; 4],
         display_window: (0.0, 1.0),
     });
-    if let Some(path) = &a.screenshot {
-        app.insert_resource(ScreenshotPlan {
-            frames: a.frames.unwrap_or(1),
-            path: Some(path.clone()),
-            waited: 0,
-            taken: false,
-        });
-    } else if let Some(n) = a.frames {
+    if a.frames.is_some() || a.screenshot.is_some() {
         // --frames alone: play them, then exit
-        app.insert_resource(ScreenshotPlan { frames: n, path: None, waited: 0, taken: true });
+        app.insert_resource(ScreenshotPlan::new(a.frames.unwrap_or(1), a.screenshot.clone()));
     }
     app.add_systems(Startup, (setup_egui, scene::spawn_view_camera));
     app.add_systems(
@@ -424,8 +435,9 @@ fn update_title(viewer: Res<Viewer>, mut window: Single<&mut Window, With<bevy::
     }
 }
 
-/// In screenshot mode: once the frames are computed and shown, saves the window and exits when the file is
-/// written.
+/// After `--frames`: exits, or with `--screenshot` captures the window until the sensor image and the 3D view
+/// both show something (a pipeline still compiling draws nothing), saves it with its layout beside it, and exits
+/// when the file is written.
 fn finish_screenshot_run(
     mut commands: Commands,
     mut plan: ResMut<ScreenshotPlan>,
@@ -445,35 +457,82 @@ fn finish_screenshot_run(
         return;
     };
     plan.waited += 1;
-    // a few display frames for the renderer to show the last frame (software rendering lags by one or two)
-    if !plan.taken && plan.waited >= 5 {
-        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path.clone()));
-        plan.taken = true;
-        // where things are in the picture, for whoever checks it
+    if plan.saved {
+        summary(&viewer);
+        exit.write(AppExit::Success);
+        return;
+    }
+    if !plan.in_flight && plan.waited >= plan.capture_at {
+        plan.in_flight = true;
+        plan.tries += 1;
         let s = window.scale_factor();
         let physical = |r: [f32; 4]| r.map(|v| (v * s).round());
+        let (sensor, view) = (physical(viewer.sensor_rect), physical(viewer.view_rect));
+        // where things are in the picture, for whoever checks it
         let layout = serde_json::json!({
             "frame": viewer.playback.shown,
             "scale_factor": s,
-            "sensor_rect_px": physical(viewer.sensor_rect),
-            "view_rect_px": physical(viewer.view_rect),
+            "sensor_rect_px": sensor,
+            "view_rect_px": view,
             "display_window_dn": [viewer.display_window.0, viewer.display_window.1],
             "stretch": format!("{:?}", viewer.stretch),
         });
-        let sidecar = path.with_extension("json");
-        if let Err(e) = std::fs::write(&sidecar, format!("{layout:#}\n")) {
-            eprintln!("error: writing {}: {e}", sidecar.display());
-            exit.write(AppExit::error());
-        }
+        let last_try = plan.tries >= SCREENSHOT_TRIES;
+        let path = path.clone();
+        commands.spawn(Screenshot::primary_window()).observe(
+            move |captured: On<ScreenshotCaptured>,
+                  mut plan: ResMut<ScreenshotPlan>,
+                  mut exit: MessageWriter<AppExit>| {
+                plan.in_flight = false;
+                let picture = match captured.image.clone().try_into_dynamic() {
+                    Ok(p) => p.to_rgb8(),
+                    Err(e) => {
+                        eprintln!("error: the screenshot cannot be read: {e}");
+                        exit.write(AppExit::error());
+                        return;
+                    }
+                };
+                if !(shows_something(&picture, sensor) && shows_something(&picture, view)) && !last_try {
+                    plan.capture_at = plan.waited + SCREENSHOT_RETRY_FRAMES;
+                    return;
+                }
+                let sidecar = path.with_extension("json");
+                let written = picture.save(&path).map_err(|e| format!("{}: {e}", path.display())).and_then(|()| {
+                    std::fs::write(&sidecar, format!("{layout:#}\n")).map_err(|e| format!("{}: {e}", sidecar.display()))
+                });
+                match written {
+                    Ok(()) => plan.saved = true,
+                    Err(e) => {
+                        eprintln!("error: writing the screenshot: {e}");
+                        exit.write(AppExit::error());
+                    }
+                }
+            },
+        );
     }
-    if plan.taken && plan.waited >= 8 && std::fs::metadata(&path).is_ok_and(|m| m.len() > 0) {
-        summary(&viewer);
-        exit.write(AppExit::Success);
-    }
-    if plan.waited > 600 {
+    if plan.waited > SCREENSHOT_TRIES * SCREENSHOT_RETRY_FRAMES + 600 {
         eprintln!("error: the screenshot {} was not written", path.display());
         exit.write(AppExit::error());
     }
+}
+
+/// Whether the rectangle `r` (physical px: min x, min y, max x, max y) of `picture` is more than one flat colour.
+fn shows_something(picture: &image::RgbImage, r: [f32; 4]) -> bool {
+    let (w, h) = (picture.width() as f32, picture.height() as f32);
+    let (x0, y0) = (r[0].clamp(0.0, w) as u32, r[1].clamp(0.0, h) as u32);
+    let (x1, y1) = (r[2].clamp(0.0, w) as u32, r[3].clamp(0.0, h) as u32);
+    let mut first = None;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let p = picture.get_pixel(x, y).0;
+            match first {
+                None => first = Some(p),
+                Some(q) if p.iter().zip(q).any(|(a, b)| a.abs_diff(b) > 8) => return true,
+                Some(_) => {}
+            }
+        }
+    }
+    false
 }
 
 /// Prints how fast the window ran: frames shown per second since the first, and the simulation's share.
