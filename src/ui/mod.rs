@@ -492,7 +492,8 @@ fn finish_screenshot_run(
                         return;
                     }
                 };
-                if !(shows_something(&picture, sensor) && shows_something(&picture, view)) && !last_try {
+                let ready = shows_something(&picture, sensor) && shows_something(&picture, view);
+                if !(ready || last_try) {
                     plan.capture_at = plan.waited + SCREENSHOT_RETRY_FRAMES;
                     return;
                 }
