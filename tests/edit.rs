@@ -154,3 +154,41 @@ fn save_validate_record_round_trips() {
     assert!(same, "the recorded frame 2 is the edited scenario's frame 2");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The Record button writes frames a … b of the run on show; its manifest's scenario, recorded whole, gives those
+/// same frames as its frames a … b (the run's length, which the sky is planned over, is the run's, not the part's).
+#[test]
+fn a_recorded_part_of_the_run_is_reproduced_from_its_manifest() {
+    use irsim::cli::run::{RecordPlan, record_scenario};
+    let dir = temp_dir("edit_part");
+    let s = scene(SCENE);
+    let part = dir.join("part");
+    let plan = RecordPlan {
+        out: part.clone(),
+        first_frame: 4,
+        frames: 3,
+        seed: None,
+        force: false,
+        noise: true,
+        vibration: true,
+        format: irsim::record::FrameFormat::Png16,
+        masks: false,
+    };
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    record_scenario(&s, &plan, &stop, &mut |_, _| {}).expect("recorded");
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(part.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!((manifest["first_frame"].as_u64(), manifest["frames"].as_u64()), (Some(4), Some(3)));
+    assert_eq!(manifest["scenario"]["run"]["frames"].as_u64(), Some(12), "the run as built");
+    let again = dir.join("again.json");
+    std::fs::write(&again, serde_json::to_string(&manifest["scenario"]).unwrap()).unwrap();
+    let whole = dir.join("whole");
+    let (code, _, err) = irsim(&["record", again.to_str().unwrap(), "--out", whole.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    for i in 0..3 {
+        let a = image::open(part.join(format!("frames/{i:06}.png"))).expect("png").into_luma16();
+        let b = image::open(whole.join(format!("frames/{:06}.png", i + 4))).expect("png").into_luma16();
+        assert!(a == b, "part frame {i} is the whole run's frame {}", i + 4);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -264,8 +264,9 @@ pub fn record_scenario(
         other => CliError::Failed(other.to_string()),
     })?;
     let seed = plan.seed.unwrap_or(scenario.spec.run.seed);
+    // the scenario as the world was built from it: its run's length stays (the sky is planned over the whole
+    // run), and frames written from a part of it are said by `first_frame` and `frames` below
     let mut spec_as_run = scenario.spec.clone();
-    spec_as_run.run.frames = frames;
     spec_as_run.run.seed = seed;
     let mut manifest = json!({
         "program": "irsim",
@@ -275,8 +276,9 @@ pub fn record_scenario(
         "seed": seed,
         "options": { "noise": plan.noise, "vibration": plan.vibration, "format": plan.format, "masks": plan.masks },
     });
-    if plan.first_frame > 0 {
+    if plan.first_frame > 0 || frames != scenario.spec.run.frames {
         manifest["first_frame"] = json!(plan.first_frame);
+        manifest["frames"] = json!(frames);
         app.world_mut().resource_mut::<SimClock>().frame = plan.first_frame;
     }
     let max_level = scenario.sensor.model.adc.max_level() as u16;

@@ -94,6 +94,11 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
             }
         }
     });
+    // the direction a speed edit keeps when the draft's velocity is zero on the way (typing 0.5 passes through 0)
+    let applied_direction = match v.session.applied.spec.targets.get(v.selected).map(|t| &t.trajectory) {
+        Some(TrajectorySpec::ConstantVelocity { velocity_m_s, .. }) => velocity_m_s.try_normalize(),
+        _ => None,
+    };
     if let Some(t) = v.session.draft.targets.get_mut(v.selected) {
         egui::CollapsingHeader::new("trajectory").default_open(true).show(ui, |ui| {
             match &mut t.trajectory {
@@ -103,8 +108,9 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
                     vec3(ui, "velocity", velocity_m_s, 0.1, " m/s");
                     let mut speed = velocity_m_s.length();
                     if num(ui, "speed", &mut speed, 0.1, " m/s") {
-                        let dir = velocity_m_s.try_normalize().unwrap_or(DVec3::X);
-                        *velocity_m_s = dir * speed;
+                        let dir = velocity_m_s.try_normalize().or(applied_direction).unwrap_or(DVec3::X);
+                        // a speed is not negative: below 0 it stays 0 (the direction is the velocity's)
+                        *velocity_m_s = dir * speed.max(0.0);
                     }
                 }
                 TrajectorySpec::CoordinatedTurn {
@@ -248,8 +254,9 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
         num(ui, "azimuth", &mut draft.sun.azimuth_deg, 1.0, "°");
         num(ui, "elevation", &mut draft.sun.elevation_deg, 0.5, "°");
     });
-    // validate and use the draft once the mouse is released
-    let released = !ui.ctx().input(|i| i.pointer.any_down());
+    // validate and use the draft once the mouse is released and no number is being typed (a half-typed value
+    // is not an edit: it is taken when the field is left or Enter pressed)
+    let released = !ui.ctx().input(|i| i.pointer.any_down()) && !ui.ctx().egui_wants_keyboard_input();
     if let Some(e) = local_error {
         v.session.error = Some(e);
     } else if released && v.session.draft != v.session.applied.spec {

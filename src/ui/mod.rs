@@ -157,6 +157,17 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
     {
         return Err(CliError::Invalid(format!("--frames {n} must be in 1 … 100000000")));
     }
+    // a screenshot goes into an existing directory: said now, not after the frames have played
+    if let Some(path) = &a.screenshot {
+        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+        if !dir.is_dir() {
+            return Err(CliError::Invalid(format!(
+                "--screenshot {}: the directory {} does not exist",
+                path.display(),
+                dir.display()
+            )));
+        }
+    }
     // checked over the frames that will be shown, as `record --frames` checks them
     let file_frames = crate::scenario::load(&a.scenario).map_err(|e| CliError::Invalid(e.to_string()))?.spec.run.frames;
     let scenario = crate::scenario::load::load_for_frames(&a.scenario, a.frames.map(|n| n.max(file_frames)))

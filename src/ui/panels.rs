@@ -100,7 +100,7 @@ const SHORTCUTS: [(&str, &str); 11] = [
     ("B", "ground-truth boxes on / off"),
     ("F", "3D view: focus on the first target in the frame"),
     ("H", "this help"),
-    ("Esc", "close the help"),
+    ("Esc", "close the help; cancel placing a new target"),
     ("left drag", "3D view: orbit"),
     ("right drag", "3D view: pan"),
     ("wheel", "3D view: zoom"),
