@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 
 use bevy_egui::egui;
-use egui_plot::{Legend, Line, Plot, PlotPoints, VLine};
+use egui_plot::{Legend, Line, Plot, PlotPoints, Points, VLine};
 
 use super::scene::palette;
 use crate::labels::FrameLabels;
@@ -62,25 +62,39 @@ impl History {
             ui,
             |plot| {
                 for (&id, name) in &self.names {
-                    let points: Vec<[f64; 2]> = self
-                        .frames
-                        .values()
-                        .filter_map(|(t, values)| {
-                            values.iter().find(|v| v.0 == id).map(|&(_, snr, range, peak)| {
-                                let y = match quantity {
-                                    Quantity::Snr => snr,
-                                    Quantity::Range => range,
-                                    Quantity::Peak => peak,
-                                };
-                                [*t, y]
-                            })
-                        })
-                        .filter(|p| p[1].is_finite())
-                        .collect();
+                    // a line through consecutive frames only: frames skipped by a seek are a gap, not a straight
+                    // line, and a lone frame is a dot
+                    let mut segments: Vec<Vec<[f64; 2]>> = Vec::new();
+                    let mut last: Option<u64> = None;
+                    for (&k, (t, values)) in &self.frames {
+                        let y = values.iter().find(|v| v.0 == id).map(|&(_, snr, range, peak)| match quantity {
+                            Quantity::Snr => snr,
+                            Quantity::Range => range,
+                            Quantity::Peak => peak,
+                        });
+                        let Some(y) = y.filter(|y| y.is_finite()) else {
+                            last = None;
+                            continue;
+                        };
+                        if last.is_none_or(|l| k != l + 1) {
+                            segments.push(Vec::new());
+                        }
+                        if let Some(segment) = segments.last_mut() {
+                            segment.push([*t, y]);
+                        }
+                        last = Some(k);
+                    }
                     let c = palette(id).to_srgba();
                     let color =
                         egui::Color32::from_rgb((c.red * 255.0) as u8, (c.green * 255.0) as u8, (c.blue * 255.0) as u8);
-                    plot.line(Line::new(format!("{id} {name}"), PlotPoints::from(points)).color(color));
+                    let label = format!("{id} {name}");
+                    for segment in segments {
+                        if segment.len() == 1 {
+                            plot.points(Points::new(label.clone(), segment).radius(2.5).color(color));
+                        } else {
+                            plot.line(Line::new(label.clone(), PlotPoints::from(segment)).color(color));
+                        }
+                    }
                 }
                 plot.vline(VLine::new("now", t_now_s).color(egui::Color32::GRAY));
             },
