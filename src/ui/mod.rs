@@ -75,8 +75,10 @@ pub struct Viewer {
     pub save_path: String,
     /// See `save_path`.
     pub save_overwrite: bool,
-    /// What the last save or recording said.
+    /// What the last recording, target added or rebuild said.
     pub status: String,
+    /// What the last save said.
+    pub save_status: String,
     /// The Record button's settings and job.
     pub record: panels::RecordUi,
     /// Play, pause, step, seek.
@@ -225,6 +227,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
         save_path,
         save_overwrite: false,
         status: String::new(),
+        save_status: String::new(),
         record: panels::RecordUi::new(last),
         playback,
         frame: None,

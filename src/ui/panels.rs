@@ -342,10 +342,13 @@ fn save_and_record(ui: &mut egui::Ui, v: &mut Viewer) {
         ui.checkbox(&mut v.save_overwrite, "overwrite");
     });
     if ui.button("Save").clicked() {
-        v.status = match v.session.save(std::path::Path::new(v.save_path.trim()), v.save_overwrite) {
-            Ok(p) => format!("saved {}", p.display()),
+        v.save_status = match v.session.save(std::path::Path::new(v.save_path.trim()), v.save_overwrite) {
+            Ok(p) => format!("saved {}", std::fs::canonicalize(&p).unwrap_or(p).display()),
             Err(e) => format!("not saved: {e}"),
         };
+    }
+    if !v.save_status.is_empty() {
+        ui.label(&v.save_status);
     }
     ui.separator();
     ui.strong("Record (as irsim record)");
