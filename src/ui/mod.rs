@@ -111,6 +111,8 @@ pub struct Viewer {
     pub started: Option<std::time::Instant>,
     /// See `started`.
     pub latest: Option<std::time::Instant>,
+    /// The process's CPU seconds (all threads) at `started` and at `latest`, where the system says it.
+    pub cpu_s: (Option<f64>, Option<f64>),
     /// The 3D view's rectangle in the window, logical pixels (min x, min y, max x, max y).
     pub view_rect: [f32; 4],
     /// The sensor image's rectangle in the window, logical pixels, as last drawn.
@@ -244,6 +246,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
         map_ms_total: 0.0,
         started: None,
         latest: None,
+        cpu_s: (None, None),
         view_rect: [0.0; 4],
         sensor_rect: [0.0; 4],
         display_window: (0.0, 1.0),
@@ -364,8 +367,13 @@ fn drive_simulation(world: &mut World) {
     viewer.step_ms = step_ms;
     viewer.step_ms_total += step_ms;
     let now = std::time::Instant::now();
-    viewer.started.get_or_insert(now);
+    let cpu = process_cpu_s();
+    if viewer.started.is_none() {
+        viewer.started = Some(now);
+        viewer.cpu_s.0 = cpu;
+    }
     viewer.latest = Some(now);
+    viewer.cpu_s.1 = cpu;
     if let Some(ready) = ready {
         viewer.history.add(&ready.labels);
         viewer.playback.shown = Some(ready.labels.frame);
@@ -558,11 +566,29 @@ fn summary(viewer: &Viewer) {
     if n > 1 && seconds > 0.0 {
         let per_frame_ms = seconds * 1e3 / (n - 1) as f64;
         let (sim, map) = (viewer.step_ms_total / n as f64, viewer.map_ms_total / n as f64);
+        let cpu = match viewer.cpu_s {
+            (Some(a), Some(b)) => format!(
+                "; CPU {:.1} ms per frame ({:.2} cores busy)",
+                (b - a) * 1e3 / (n - 1) as f64,
+                (b - a) / seconds
+            ),
+            _ => String::new(),
+        };
         eprintln!(
             "{n} frames shown in {seconds:.2} s: {:.1} frames/s, {per_frame_ms:.1} ms per frame: simulation {sim:.1} \
-             ms, display mapping {map:.1} ms, the rest (egui, 3D view, rendering, presenting) {:.1} ms",
+             ms, display mapping {map:.1} ms, the rest (egui, 3D view, rendering, presenting) {:.1} ms{cpu}",
             (n - 1) as f64 / seconds,
             per_frame_ms - sim - map
         );
     }
+}
+
+/// CPU seconds this process has used, all threads (Linux: /proc/self/stat; None elsewhere).
+fn process_cpu_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // the fields after the command name, which ends at the last ')': utime and stime are the 12th and 13th
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    // the kernel's USER_HZ, 100 on every Linux this runs on
+    Some(ticks / 100.0)
 }
