@@ -165,10 +165,12 @@ miss = { mode = "edge" }
 #[test]
 fn iterative_solvers_are_bounded_and_stop_on_request() {
     let text = |it: &str| {
-        format!("{BASE}[fusion]\nsolver = {{ method = \"jacobi\", tolerance = 1e-300, max_iterations = {it} }}\n")
+        format!(
+            "{BASE}[quality]\nfusion_solver = {{ method = \"jacobi\", tolerance = 1e-300, max_iterations = {it} }}\n"
+        )
     };
-    refused(load_toml(&text("4000000000")), "fusion.solver.max_iterations");
-    refused(load_toml(&text("0")), "fusion.solver.max_iterations");
+    refused(load_toml(&text("4000000000")), "quality.fusion_solver.max_iterations");
+    refused(load_toml(&text("0")), "quality.fusion_solver.max_iterations");
     load_toml(&text("100000")).unwrap();
 
     // a large patch and a tolerance no solve reaches: the stop flag ends it between sweeps
@@ -316,10 +318,9 @@ fn inputs_whose_results_would_overflow_are_refused() {
     );
     refused(load_toml(&turn), "targets[0].trajectory.radius_m");
     // a number or a boolean where a name belongs ("wanted string or table" in TOML), beside numbers that fit
-    for bad in ["sky_blur = 3", "method = true"] {
-        let psf =
-            with("band_um = [8, 12]\n", &format!("band_um = [8, 12]\n[sensor.psf]\nenergy_cutoff = 0.03\n{bad}\n"));
-        refused(load_toml(&psf), &format!("sensor.psf.{}", bad.split(' ').next().unwrap()));
+    for bad in ["sky_blur = 3", "psf_method = true"] {
+        let quality = format!("{BASE}[quality]\npsf_energy_cutoff = 0.03\n{bad}\n");
+        refused(load_toml(&quality), &format!("quality.{}", bad.split(' ').next().unwrap()));
     }
     // a polynomial that grows past the world within the run
     let poly = with(
@@ -485,10 +486,8 @@ fn type_errors_name_the_full_path() {
     let e = load_json(&json.replace("\"width\": 64", "\"width\": {}")).unwrap_err();
     assert_eq!(e.field, "sensor.width", "{e}");
     // a number where a name belongs ("expected value" in JSON)
-    let e =
-        load_json(&json.replacen("\"semi_axes_m\": [1, 1, 1]}", "\"semi_axes_m\": [1, 1, 1], \"reflection\": 1.5}", 1))
-            .unwrap_err();
-    assert_eq!(e.field, "targets[0].reflection", "{e}");
+    let e = load_json(&json.replacen('{', "{\"quality\": {\"reflection\": 1.5}, ", 1)).unwrap_err();
+    assert_eq!(e.field, "quality.reflection", "{e}");
     let e = load_json(json).unwrap_err();
     assert_eq!(e.field, "targets[1].brdf.roughness", "{e}");
     assert_eq!(e.line, 5, "{e}");
@@ -582,7 +581,7 @@ fn scenario_text() -> impl Strategy<Value = String> {
                  noise = {{ enabled = {noise} }}\n\n\
                  [observer]\ntrajectory = {{ kind = \"constant_velocity\", position_m = [0, 0, 1000] }}\n\
                  pointing = {{ mode = \"look_at\", target_m = [0, 3000, 1100] }}\nvibration = {{ amplitude_deg = {vib:e} }}\n\n\
-                 [fusion]\nguidance = \"{guidance}\"\nsolver = {solver}\n\n{sky}\n"
+                 [quality]\nfusion_guidance = \"{guidance}\"\nfusion_solver = {solver}\n\n{sky}\n"
             );
             for (i, t) in targets.iter().enumerate() {
                 s.push_str(&format!("[[targets]]\nname = \"t{i}\"\n{t}\n"));

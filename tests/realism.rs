@@ -9,7 +9,7 @@ use irsim::scenario::{SensorSpec, load};
 use irsim::sim::{RunOptions, build_app, current_frame, step};
 
 fn readout(preset: Preset) -> (irsim::scenario::ResolvedSensor, Readout) {
-    let s = SensorSpec { preset: Some(preset), ..Default::default() }.resolve().unwrap();
+    let s = SensorSpec { preset: Some(preset), ..Default::default() }.resolve(&Default::default()).unwrap();
     let r = s.model.readout(100.0);
     (s, r)
 }

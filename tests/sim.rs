@@ -152,7 +152,7 @@ fn noise_free_frames_equal_the_core_pipeline_composed_by_hand() {
     let model = s.sensor.model;
     let sky_spec = &spec.sky;
     let raw = SkyImage::load(s.sky_image.as_ref().unwrap()).unwrap();
-    let lut = RadianceLut::new(model.band, model.measure());
+    let lut = RadianceLut::new(model.band, model.measure(), irsim::scenario::Quality::default().radiance_table_step_k);
     let image = calibrate(&raw, &sky_spec.calibration.unwrap(), &lut, "sky").unwrap();
     let eye = DVec3::new(0.0, 0.0, 8000.0);
     let plane = SkyPlane::new(image, &sky_spec.placement().unwrap(), eye).unwrap();
@@ -173,7 +173,7 @@ fn noise_free_frames_equal_the_core_pipeline_composed_by_hand() {
         let (pos, vel) = s.target_trajectories[0].state(k as f64 / spec.run.frame_rate_hz);
         let cam = Camera::look_at(intr, eye, pos, 0.0).unwrap();
         let mut frame = Frame::new(intr.width as usize, intr.height as usize);
-        plane.render(&cam, sky_spec.sampling, sky_spec.miss, &mut frame);
+        plane.render(&cam, s.quality.sky_sampling, sky_spec.miss, &mut frame);
         render_dome(&cam, &dome, &mut frame, true);
         let e = Ellipsoid {
             center_m: pos,
@@ -194,7 +194,12 @@ fn noise_free_frames_equal_the_core_pipeline_composed_by_hand() {
         let roi = blob.region_of_interest(s.sensor.blob.roi_fraction, frame.width(), frame.height());
         let mut patch = vec![0.0; roi.width() * roi.height()];
         blob.render_patch(roi, s.sensor.blob.sampling, &mut patch);
-        fusion.fuse(&mut frame, &[Patch { rect: roi, values: &patch }], spec.fusion.guidance, spec.fusion.solver);
+        fusion.fuse(
+            &mut frame,
+            &[Patch { rect: roi, values: &patch }],
+            s.quality.fusion_guidance,
+            s.quality.fusion_solver,
+        );
         let top = model.adc.max_level() as f32;
         let dark = model.dark_signal();
         for p in frame.pixels_mut() {

@@ -322,7 +322,10 @@ fn signal(a: &SignalArgs) -> Result<Value, CliError> {
             ReflectionArg::Facet => ReflectionGeometry::Facet,
             ReflectionArg::Ellipsoid => ReflectionGeometry::Ellipsoid,
         },
-        quadrature: SphereQuadrature::default(),
+        quadrature: {
+            let [n_z, n_phi] = crate::scenario::Quality::default().reflection_grid;
+            SphereQuadrature::new(n_z, n_phi)
+        },
         radiometer: Radiometer {
             aperture_m: a.aperture_mm * 1e-3,
             focal_length_m: a.focal_mm * 1e-3,
@@ -369,7 +372,7 @@ fn sensor(a: &SensorArgs) -> Result<Value, CliError> {
                 return Err(CliError::Invalid(format!("--preset `{name}` is not one of {}", names.join(", "))));
             };
             crate::scenario::SensorSpec { preset: Some(preset), ..Default::default() }
-                .resolve()
+                .resolve(&crate::scenario::Quality::default())
                 .map_err(|e| CliError::Invalid(format!("{}: {}", e.path, e.message)))?
         }
         (None, Some(path)) => crate::scenario::load(path).map_err(|e| CliError::Invalid(e.to_string()))?.sensor,

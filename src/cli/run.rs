@@ -13,7 +13,7 @@ use crate::imaging::frame::Frame;
 use crate::imaging::sky_gen::{SkyGenSpec, SkyKind, generate};
 use crate::record::{FrameFormat, Recorder, prepare_dir, write_atomic};
 use crate::scenario::load::{load_for_frames, located};
-use crate::scenario::{CheckedScenario, load};
+use crate::scenario::{CheckedScenario, QualityPreset, QualitySpec, load};
 use crate::sim::{
     FrameReady, RunOptions, SensorFrame, SimClock, StageTimings, drain_frames, headless_app, set_stop_flag, step,
 };
@@ -50,6 +50,9 @@ pub struct RecordArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Accuracy against speed: draft, standard or reference, in place of the scenario's `[quality]` table.
+    #[arg(long, value_name = "PRESET")]
+    pub quality: Option<QualityPreset>,
 }
 
 /// Flags of `irsim validate`.
@@ -126,10 +129,36 @@ pub struct BenchArgs {
     /// Frames per case.
     #[arg(long, default_value_t = 2000)]
     pub frames: u64,
+    /// Accuracy against speed: draft, standard or reference, in place of each scenario's `[quality]` table.
+    #[arg(long, value_name = "PRESET")]
+    pub quality: Option<QualityPreset>,
 }
 
 fn load_scenario(path: &Path) -> Result<CheckedScenario, CliError> {
     load(path).map_err(|e| CliError::Invalid(e.to_string()))
+}
+
+/// `--quality PRESET`: `scenario` with its `[quality]` table replaced by the preset alone (a note on stderr
+/// names the file's overrides that are dropped); unchanged without the flag.
+///
+/// # Errors
+/// [`CliError::Invalid`] if the scenario does not check with the preset.
+pub fn with_quality(scenario: CheckedScenario, preset: Option<QualityPreset>) -> Result<CheckedScenario, CliError> {
+    let Some(preset) = preset else { return Ok(scenario) };
+    let dropped = scenario.spec.quality.overrides();
+    if !dropped.is_empty() {
+        eprintln!(
+            "note: --quality {}: the [quality] overrides of {} are not used: {}",
+            preset.name(),
+            scenario.source.display(),
+            dropped.join(", ")
+        );
+    }
+    let mut spec = scenario.spec.clone();
+    spec.quality = QualitySpec::of(preset);
+    let base = scenario.source.parent().map(Path::to_path_buf).unwrap_or_default();
+    spec.checked_in(&scenario.source, &base)
+        .map_err(|e| CliError::Invalid(located(&scenario.source, &e.path, &e.message).to_string()))
 }
 
 /// `irsim validate`: loads and checks the scenario and builds its simulation without running it.
@@ -138,7 +167,7 @@ fn load_scenario(path: &Path) -> Result<CheckedScenario, CliError> {
 /// [`CliError::Invalid`] with the located error.
 pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
     let s = load_scenario(&a.scenario)?;
-    let _app = headless_app(&s, RunOptions::default())
+    let mut app = headless_app(&s, RunOptions::default())
         .map_err(|e| CliError::Invalid(located(&a.scenario, &e.field, &e.message).to_string()))?;
     println!(
         "{}: ok ({} targets, {} frames of {}×{} at {} Hz)",
@@ -149,6 +178,17 @@ pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
         s.sensor.intrinsics.height,
         s.spec.run.frame_rate_hz
     );
+    let resolved = resolved_settings(&mut app, &s);
+    let given = s.spec.quality.overrides();
+    println!("[quality] as resolved (* = given in the file):");
+    for (name, value, _) in s.quality.describe() {
+        println!("  {}{name} = {value}", if given.contains(&name) { "*" } else { " " });
+    }
+    if let Some(choice) =
+        resolved["sky_blur_used"].as_str().filter(|_| s.spec.sky.has_layer() && s.sensor.psf.is_some())
+    {
+        println!("  sky blur used: {choice}");
+    }
     Ok(())
 }
 
@@ -164,6 +204,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         return Err(CliError::Invalid(format!("--frames {n} must be in 1 … 100000000")));
     }
     let scenario = load_for_frames(&a.scenario, a.frames).map_err(|e| CliError::Invalid(e.to_string()))?;
+    let scenario = with_quality(scenario, a.quality)?;
     let plan = RecordPlan {
         out: a.out.clone(),
         first_frame: 0,
@@ -275,6 +316,7 @@ pub fn record_scenario(
         "scenario": spec_as_run,
         "seed": seed,
         "options": { "noise": plan.noise, "vibration": plan.vibration, "format": plan.format, "masks": plan.masks },
+        "resolved": resolved_settings(&mut app, scenario),
     });
     if plan.first_frame > 0 || frames != scenario.spec.run.frames {
         manifest["first_frame"] = json!(plan.first_frame);
@@ -414,7 +456,7 @@ fn write_sky(a: &SkyArgs) -> Result<(), CliError> {
         atmosphere: &atmosphere,
     })
     .map_err(|e| CliError::Invalid(format!("{}: {}", e.name, e.range)))?;
-    let lut = RadianceLut::new(band, Measure::Energy);
+    let lut = RadianceLut::new(band, Measure::Energy, crate::scenario::Quality::default().radiance_table_step_k);
     let layer = generate(&spec, a.width, a.height);
     let air =
         |z: f64| crate::physics::atmosphere::ambient_temperature_k(z.clamp(0.0, 80_000.0), a.t0_k).unwrap_or(a.t0_k);
@@ -548,6 +590,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     if !a.scenarios.is_empty() {
         for path in &a.scenarios {
             let scenario = load_for_frames(path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
+            let scenario = with_quality(scenario, a.quality)?;
             let (fps, details) = time_headless(&scenario, frames)?;
             println!("{:<40} {fps:>9.1} frames/s", path.display());
             details.iter().for_each(|d| eprintln!("{d}"));
@@ -589,12 +632,14 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
                 format: FrameFormat::Png16,
                 masks: false,
                 quiet: true,
+                quality: a.quality,
             };
             let t = Instant::now();
             record(&args)?;
             (frames as f64 / t.elapsed().as_secs_f64(), Vec::new())
         } else {
             let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
+            let scenario = with_quality(scenario, a.quality)?;
             time_headless(&scenario, frames)?
         };
         let case = format!(
@@ -607,4 +652,16 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     }
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
+}
+
+/// What a run's settings resolved to, for the manifest: every `[quality]` switch, and the sky blur route the
+/// planner chose where the switch says `auto`.
+fn resolved_settings(app: &mut bevy::app::App, scenario: &CheckedScenario) -> serde_json::Value {
+    let mut sensors = app.world_mut().query::<&crate::sim::Sensor>();
+    let sky_blur = sensors.iter(app.world()).next().map(|s| (s.sky_blur, s.sky_blur_plan));
+    json!({
+        "quality": scenario.quality,
+        "sky_blur_used": sky_blur.map(|(choice, _)| choice),
+        "sky_blur_plan": sky_blur.and_then(|(_, plan)| plan),
+    })
 }

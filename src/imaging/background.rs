@@ -36,7 +36,8 @@ pub enum SkyBlur {
     Auto,
     /// Convolve the image once with the PSF mapped into its texels, then ray cast it.
     Prefilter,
-    /// Ray cast the raw image and convolve every frame (the reference).
+    /// Ray cast the raw image and convolve every frame (it blurs point samples of the image, so it errs more
+    /// than `Prefilter` against the brute-force blur: docs/accuracy.md).
     Frame,
 }
 

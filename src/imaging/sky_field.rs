@@ -103,14 +103,18 @@ impl SkyCalibration {
     }
 }
 
-/// Band radiance against temperature, tabulated every 0.02 K from 40 to 700 K and interpolated linearly.
+/// Band radiance against temperature from 40 to 700 K: tabulated every `step_k` and interpolated linearly, or
+/// (step 0) the Planck series for every value.
 ///
 /// The table is exact (the series of [`band_radiance_in`]) at its nodes; between them the error of linear
-/// interpolation is `h²/8·L''`, below 2e-7 of `L` for 3–14 µm bands above 150 K (test
-/// `lut_matches_the_exact_radiance`).
+/// interpolation is `h²/8·L''`: at the `standard` step of 0.02 K below 2e-7 of `L` for 3–14 µm bands above
+/// 150 K (test `lut_matches_the_exact_radiance`).
 #[derive(Debug, Clone)]
 pub struct RadianceLut {
     values: Vec<f64>,
+    step_k: f64,
+    band: Band,
+    measure: Measure,
 }
 
 impl RadianceLut {
@@ -118,20 +122,26 @@ impl RadianceLut {
     pub const LO_K: f64 = 40.0;
     /// Highest temperature of the table, K.
     pub const HI_K: f64 = 700.0;
-    const STEP_K: f64 = 0.02;
 
-    /// The table for a band and measure.
-    pub fn new(band: Band, measure: Measure) -> Self {
-        let n = ((Self::HI_K - Self::LO_K) / Self::STEP_K).round() as usize + 1;
-        let values =
-            (0..n).map(|i| band_radiance_in(measure, band, Self::LO_K + i as f64 * Self::STEP_K, 1.0)).collect();
-        Self { values }
+    /// The table for a band and measure, every `step_k` (clamped to 0.001 … 5 K); 0 (or less) makes no table.
+    pub fn new(band: Band, measure: Measure, step_k: f64) -> Self {
+        if !(step_k > 0.0) {
+            return Self { values: Vec::new(), step_k: 0.0, band, measure };
+        }
+        let step_k = step_k.clamp(1e-3, 5.0);
+        let n = ((Self::HI_K - Self::LO_K) / step_k).ceil() as usize + 1;
+        let values = (0..n).map(|i| band_radiance_in(measure, band, Self::LO_K + i as f64 * step_k, 1.0)).collect();
+        Self { values, step_k, band, measure }
     }
 
     /// Radiance at `temp_k` (clamped to the table's range; NaN gives the lowest).
     #[inline]
     pub fn radiance(&self, temp_k: f64) -> f64 {
-        let x = ((temp_k - Self::LO_K) / Self::STEP_K).clamp(0.0, (self.values.len() - 1) as f64);
+        if self.values.len() < 2 {
+            let t = if temp_k.is_nan() { Self::LO_K } else { temp_k.clamp(Self::LO_K, Self::HI_K) };
+            return band_radiance_in(self.measure, self.band, t, 1.0);
+        }
+        let x = ((temp_k - Self::LO_K) / self.step_k).clamp(0.0, (self.values.len() - 1) as f64);
         let x = if x.is_nan() { 0.0 } else { x };
         let i = (x as usize).min(self.values.len() - 2);
         let t = x - i as f64;

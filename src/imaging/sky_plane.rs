@@ -293,6 +293,8 @@ pub struct SkyPlane {
     px_per_m: DVec2,
     right: DVec3,
     down: DVec3,
+    /// Largest departure of an interpolated ray-cast coordinate from the exact one, px.
+    span_tolerance_px: f64,
 }
 
 impl SkyPlane {
@@ -326,7 +328,19 @@ impl SkyPlane {
             px_per_m,
             right,
             down,
+            span_tolerance_px: SPAN_TOLERANCE_PX,
         })
+    }
+
+    /// Sets how far an interpolated ray-cast coordinate may depart from the exact one, px (default
+    /// [`SPAN_TOLERANCE_PX`]; 0 casts every ray exactly). Negative or NaN values count as 0.
+    pub fn set_span_tolerance(&mut self, px: f64) {
+        self.span_tolerance_px = if px > 0.0 { px } else { 0.0 };
+    }
+
+    /// See [`SkyPlane::set_span_tolerance`].
+    pub fn span_tolerance_px(&self) -> f64 {
+        self.span_tolerance_px
     }
 
     /// The image.
@@ -350,6 +364,7 @@ impl SkyPlane {
             px_per_m: self.px_per_m * m,
             right: self.right,
             down: self.down,
+            span_tolerance_px: self.span_tolerance_px,
         }
     }
 
@@ -470,7 +485,7 @@ impl SkyPlane {
     /// Along a row of sensor pixels the ray direction is linear in `u`, so its dot products with the plane's
     /// normal and in-plane axes are too: the image coordinates are a ratio of linear functions of `u` (the
     /// plane-to-image homography). They are evaluated exactly at the ends and the middle of spans short enough
-    /// that the quadratic through those values is within [`SPAN_TOLERANCE_PX`] of them (a bound from the
+    /// that the quadratic through those values is within the plane's span tolerance of them (a bound from the
     /// ratio's third derivative, not a test), and stepped by forward differences in 32.32 fixed point inside a
     /// span, so a pixel costs integer additions and the sample.
     pub fn render(&self, camera: &Camera, sampling: Sampling, fill: MissFill, frame: &mut Frame) {
@@ -617,7 +632,7 @@ impl RowGeometry {
         let bilinear = !matches!(sampling, Sampling::Nearest);
         let exact = |i: f64| self.coordinates(d0, i);
         let sample = |p: DVec2| plane.sample(p, sampling, fill);
-        let span = self.span_length(d0, out.len());
+        let span = self.span_length(d0, out.len(), plane.span_tolerance_px);
         let mut i0 = 0;
         let mut p0 = exact(0.0);
         while i0 < out.len() {
@@ -657,16 +672,19 @@ impl RowGeometry {
     }
 
     /// How many pixels a span of this row may hold so that the image coordinates, interpolated by the quadratic
-    /// through exact values at the span's ends and middle, stay within [`SPAN_TOLERANCE_PX`] of the exact ones
-    /// (in sensor pixels, and in image pixels where the image is magnified less than 1:1); 1 if some ray of the
-    /// row misses the plane.
+    /// through exact values at the span's ends and middle, stay within `tolerance_px` of the exact ones (in
+    /// sensor pixels, and in image pixels where the image is magnified less than 1:1); 1 if some ray of the
+    /// row misses the plane or the tolerance is 0.
     ///
     /// A coordinate is `f(i) = c + m·N(i)/D(i)` with `N`, `D` linear in `i`, so `f′(i) = m·C/D(i)²` and
     /// `f‴(i) = 6·m·D′²·C/D(i)⁴`, where `C = N′·D − N·D′` is the same for every `i`. The quadratic through
     /// `0, L/2, L` errs by at most `max|f‴|/6 · max|t(t − L/2)(t − L)| = max|f‴| · L³·√3/216`; `|D|` is linear
     /// and keeps its sign along the row, so it is smallest and largest at the row's ends.
-    fn span_length(&self, d0: DVec3, pixels: usize) -> usize {
+    fn span_length(&self, d0: DVec3, pixels: usize, tolerance_px: f64) -> usize {
         const MAX_SPAN: usize = 64;
+        if tolerance_px <= 0.0 {
+            return 1;
+        }
         let d_end = d0 + self.du * pixels as f64;
         let (t0, t1) = (self.numerator / d0.x, self.numerator / d_end.x);
         if !(t0 > 0.0 && t1 > 0.0 && t0.is_finite() && t1.is_finite()) {
@@ -678,7 +696,7 @@ impl RowGeometry {
         let m = self.numerator.abs();
         // image pixels per sensor pixel along the row, at its smallest
         let scale = m * cx.hypot(cy) / (max_d * max_d);
-        let tolerance = SPAN_TOLERANCE_PX * scale.min(1.0);
+        let tolerance = tolerance_px * scale.min(1.0);
         let third = 6.0 * m * slope.x * slope.x * cx.abs().max(cy.abs()) / min_d.powi(4);
         let span = (tolerance * 216.0 / (3f64.sqrt() * third)).cbrt();
         if span.is_nan() || span >= MAX_SPAN as f64 { MAX_SPAN } else { (span as usize).max(1) }
@@ -754,7 +772,8 @@ impl Quadratic {
 }
 
 /// Largest departure of an interpolated ray-cast coordinate from the exact one, in sensor pixels (and in
-/// sky-image pixels where the image is magnified less than 1:1).
+/// sky-image pixels where the image is magnified less than 1:1), unless [`SkyPlane::set_span_tolerance`] says
+/// otherwise: the `standard` quality's value.
 pub const SPAN_TOLERANCE_PX: f64 = 1e-5;
 
 #[cfg(test)]
@@ -822,9 +841,10 @@ mod tests {
                     continue;
                 };
                 let g = RowGeometry::new(&p, &cam);
-                for row in (0..240).step_by(7) {
+                // the standard tolerance, and a coarse one (draft's is 0.02 px)
+                for (row, tolerance) in (0..240).step_by(7).flat_map(|r| [(r, SPAN_TOLERANCE_PX), (r, 0.05)]) {
                     let d0 = g.base + g.dv * (row as f64 + 0.5) + g.du * 0.5;
-                    let span = g.span_length(d0, 320);
+                    let span = g.span_length(d0, 320, tolerance);
                     let mut i0 = 0;
                     while i0 + span <= 320 && span > 2 {
                         let at = |k: usize| g.coordinates(d0, (i0 + k) as f64).unwrap();
@@ -834,7 +854,7 @@ mod tests {
                             let err = (q.at(k as f64) - at(k)).abs().max_element();
                             // local image pixels per sensor pixel
                             let scale = (at(k + 1) - at(k)).length();
-                            let allowed = SPAN_TOLERANCE_PX * scale.min(1.0) * 1.05 + 1e-9 * at(k).length();
+                            let allowed = tolerance * scale.min(1.0) * 1.05 + 1e-9 * at(k).length();
                             assert!(err <= allowed, "row {row} pixel {}: error {err:e} > {allowed:e}", i0 + k);
                             checked += 1;
                         }

@@ -7,6 +7,7 @@
 pub mod edit;
 pub mod load;
 pub mod locate;
+pub mod quality;
 pub mod sensor;
 pub mod trajectory;
 
@@ -18,20 +19,21 @@ use serde::{Deserialize, Serialize};
 use serde::de::IgnoredAny;
 
 use crate::imaging::camera::YawPitchRoll;
-use crate::imaging::fusion::{Guidance, Solver};
 use crate::imaging::sky_field::SkyCalibration;
 use crate::imaging::sky_gen::SkyGenSpec;
-use crate::imaging::sky_plane::{MissFill, Sampling, SkyError, SkyPlacement};
+use crate::imaging::sky_plane::{MissFill, SkyError, SkyPlacement};
 use crate::imaging::vibration::VibrationSpec;
 use crate::physics::ParamError;
 use crate::physics::brdf::CookTorrance;
 use crate::physics::planck::band_radiance_in;
-use crate::physics::reflection::{ReflectionGeometry, Sun};
+use crate::physics::reflection::Sun;
 use crate::physics::skin::StagnationModel;
 use crate::physics::sky::DomeSpec;
 use crate::physics::transmittance::Transmittance;
 pub use load::{ScenarioError, load, load_str};
-pub use sensor::{BlobSpec, ResolvedSensor, SensorSpec, TargetModel};
+pub use quality::{Quality, QualityPreset, QualitySpec};
+use sensor::moved_to_quality;
+pub use sensor::{BlobSettings, BlobSpec, ResolvedSensor, SensorSpec, TargetModel};
 use trajectory::{Exceeds, MAX_COORDINATE_M, MAX_SPEED_M_S, Trajectory, TrajectorySpec};
 
 /// A whole scenario file.
@@ -60,15 +62,18 @@ pub struct Scenario {
     /// The sun.
     #[serde(default)]
     pub sun: Sun,
-    /// Poisson fusion.
-    #[serde(default)]
-    pub fusion: FusionSpec,
+    /// Moved: `[quality] fusion_solver` and `fusion_guidance`.
+    #[serde(default, skip_serializing)]
+    pub fusion: Option<IgnoredAny>,
     /// The aircraft.
     #[serde(default)]
     pub targets: Vec<TargetSpec>,
     /// What the labels call detectable.
     #[serde(default)]
     pub labels: LabelsSpec,
+    /// Accuracy against speed: a preset and overrides.
+    #[serde(default)]
+    pub quality: QualitySpec,
 }
 
 /// `[labels]`.
@@ -192,6 +197,8 @@ pub struct SkySpec {
     #[serde(default)]
     pub cloud_base_m: Option<f64>,
     /// Largest side of a generated layer, texels (its resolution follows the sensor's footprint up to this).
+    /// Part of the scene, not an accuracy switch: the layer is generated at this resolution, and another
+    /// resolution generates other clouds.
     #[serde(default = "default_max_texels")]
     pub max_texels: usize,
     /// World position of the anchor point P, m.
@@ -212,9 +219,9 @@ pub struct SkySpec {
     /// World direction of the image's up; default +z.
     #[serde(default, with = "crate::physics::exact::opt_dvec3")]
     pub up: Option<DVec3>,
-    /// Sampling of the image.
-    #[serde(default)]
-    pub sampling: Sampling,
+    /// Moved: `[quality] sky_sampling`.
+    #[serde(default, skip_serializing)]
+    pub sampling: Option<IgnoredAny>,
     /// What rays that miss the image get (default: the dome along the ray).
     #[serde(default)]
     pub miss: MissFill,
@@ -270,16 +277,6 @@ impl Default for AtmosphereSpec {
     }
 }
 
-/// Poisson fusion settings.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct FusionSpec {
-    /// Guidance field.
-    pub guidance: Guidance,
-    /// Solver.
-    pub solver: Solver,
-}
-
 /// One aircraft.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -304,9 +301,9 @@ pub struct TargetSpec {
     /// Reflectance.
     #[serde(default)]
     pub brdf: CookTorrance,
-    /// Facet (paper) or ellipsoid-averaged reflection.
-    #[serde(default)]
-    pub reflection: ReflectionGeometry,
+    /// Moved: `[quality] reflection`.
+    #[serde(default, skip_serializing)]
+    pub reflection: Option<IgnoredAny>,
     /// Fixed attitude of the ellipsoid's long axis (yaw, pitch, roll); default along the velocity.
     #[serde(default)]
     pub attitude: Option<YawPitchRoll>,
@@ -416,6 +413,8 @@ pub struct CheckedScenario {
     pub sky_image: Option<PathBuf>,
     /// The sensor with the preset and overrides resolved.
     pub sensor: ResolvedSensor,
+    /// Every accuracy switch, resolved.
+    pub quality: Quality,
 }
 
 /// What [`Scenario::check`] builds.
@@ -429,6 +428,8 @@ pub struct Checked {
     pub sky_image: Option<PathBuf>,
     /// The resolved sensor.
     pub sensor: ResolvedSensor,
+    /// The resolved accuracy switches.
+    pub quality: Quality,
 }
 
 impl Scenario {
@@ -455,6 +456,7 @@ impl Scenario {
             target_trajectories: checked.targets,
             sky_image: checked.sky_image,
             sensor: checked.sensor,
+            quality: checked.quality,
         })
     }
 
@@ -507,7 +509,17 @@ impl Scenario {
         if r.frames == 0 || r.frames > 100_000_000 {
             return Err(fe("run.frames", format!("{} must be in 1 … 100000000", r.frames)));
         }
-        let sensor = self.sensor.resolve()?;
+        if self.fusion.is_some() {
+            return Err(fe("fusion", moved_to_quality("fusion_solver` / `fusion_guidance")));
+        }
+        if self.sky.sampling.is_some() {
+            return Err(fe("sky.sampling", moved_to_quality("sky_sampling")));
+        }
+        if let Some(i) = self.targets.iter().position(|t| t.reflection.is_some()) {
+            return Err(fe(format!("targets[{i}].reflection"), moved_to_quality("reflection")));
+        }
+        let quality = self.quality.resolve()?;
+        let sensor = self.sensor.resolve(&quality)?;
         if !(self.labels.detectable_snr.is_finite() && self.labels.detectable_snr >= 0.0) {
             return Err(fe(
                 "labels.detectable_snr",
@@ -627,11 +639,6 @@ impl Scenario {
                     other => fe("sky", other),
                 })?;
             }
-            if let Sampling::Supersample { n } = sky.sampling
-                && !(1..=16).contains(&n)
-            {
-                return Err(fe("sky.sampling.n", format!("{n} must be in 1 … 16")));
-            }
             let largest = band_radiance_in(sensor.model.measure(), sensor.model.band, 6000.0, 1.0) as f32;
             if let MissFill::Constant { value } = sky.miss
                 && !(value.is_finite() && (0.0..=largest).contains(&value))
@@ -679,20 +686,6 @@ impl Scenario {
                 return Err(fe(format!("sun.{n}"), format!("{} is outside its allowed range", num(v))));
             }
         }
-        match self.fusion.solver {
-            Solver::Direct => {}
-            Solver::Jacobi { tolerance, max_iterations } | Solver::Sor { tolerance, max_iterations } => {
-                if !(tolerance > 0.0 && tolerance.is_finite()) {
-                    return Err(fe("fusion.solver.tolerance", format!("{tolerance} must be a finite number > 0")));
-                }
-                if !(1..=MAX_SOLVER_ITERATIONS).contains(&max_iterations) {
-                    return Err(fe(
-                        "fusion.solver.max_iterations",
-                        format!("{max_iterations} must be in 1 … {MAX_SOLVER_ITERATIONS}"),
-                    ));
-                }
-            }
-        }
 
         let mut trajectories = Vec::with_capacity(self.targets.len());
         for (i, t) in self.targets.iter().enumerate() {
@@ -728,6 +721,6 @@ impl Scenario {
             }
             t.brdf.validate().map_err(at(&format!("{p}.brdf")))?;
         }
-        Ok(Checked { observer, targets: trajectories, sky_image, sensor })
+        Ok(Checked { observer, targets: trajectories, sky_image, sensor, quality })
     }
 }

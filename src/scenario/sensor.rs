@@ -9,7 +9,7 @@
 use serde::de::IgnoredAny;
 use serde::{Deserialize, Serialize};
 
-use super::{FieldError, fe};
+use super::{FieldError, Quality, fe};
 use crate::imaging::background::SkyBlur;
 use crate::imaging::camera::Intrinsics;
 use crate::imaging::psf::{ConvolutionMethod, PsfSpec};
@@ -132,8 +132,9 @@ pub struct AdcToml {
 pub struct NoiseToml {
     /// Add temporal noise at all.
     pub enabled: bool,
-    /// Mean electron count below which shot noise is an exact Poisson count.
-    pub poisson_normal_threshold: f64,
+    /// Moved: `[quality] poisson_normal_threshold_e`.
+    #[serde(skip_serializing)]
+    pub poisson_normal_threshold: Option<IgnoredAny>,
     /// Removed: noise is now in electrons (see `sensor.detector`).
     #[serde(skip_serializing)]
     pub electrons_per_gray: Option<IgnoredAny>,
@@ -144,8 +145,17 @@ pub struct NoiseToml {
 
 impl Default for NoiseToml {
     fn default() -> Self {
-        Self { enabled: true, poisson_normal_threshold: 100.0, electrons_per_gray: None, read_noise_gray: None }
+        Self { enabled: true, poisson_normal_threshold: None, electrons_per_gray: None, read_noise_gray: None }
     }
+}
+
+/// Temporal noise, resolved.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseSettings {
+    /// Add temporal noise at all.
+    pub enabled: bool,
+    /// Mean electron count below which shot noise is an exact Poisson count (`[quality]`).
+    pub poisson_normal_threshold: f64,
 }
 
 /// `[sensor.psf]`: the optics blur of the whole frame (and of the targets).
@@ -162,17 +172,21 @@ pub struct PsfToml {
     pub aberration_sigma_px: f64,
     /// Gaussian for line-of-sight motion during the integration time, px rms.
     pub motion_sigma_px: f64,
-    /// Kernel cut where the energy outside falls below this fraction.
-    pub energy_cutoff: f64,
-    /// How the kernel is applied to the frame.
-    pub method: ConvolutionMethod,
-    /// A 16 × 16 px tile of the frame is not blurred when the blur cannot change any of its pixels by more than
-    /// this many DN (bounded from the background's second differences); 0 always blurs.
-    pub skip_below_dn: f64,
-    /// How the blur reaches a sky image: a prefiltered texture, or the frame (the reference).
-    pub sky_blur: SkyBlur,
-    /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
-    pub prefilter_tolerance: f64,
+    /// Moved: `[quality] psf_energy_cutoff`.
+    #[serde(skip_serializing)]
+    pub energy_cutoff: Option<IgnoredAny>,
+    /// Moved: `[quality] psf_method`.
+    #[serde(skip_serializing)]
+    pub method: Option<IgnoredAny>,
+    /// Moved: `[quality] psf_skip_below_dn`.
+    #[serde(skip_serializing)]
+    pub skip_below_dn: Option<IgnoredAny>,
+    /// Moved: `[quality] sky_blur`.
+    #[serde(skip_serializing)]
+    pub sky_blur: Option<IgnoredAny>,
+    /// Moved: `[quality] prefilter_tolerance`.
+    #[serde(skip_serializing)]
+    pub prefilter_tolerance: Option<IgnoredAny>,
 }
 
 impl Default for PsfToml {
@@ -184,16 +198,40 @@ impl Default for PsfToml {
             pixel_aperture: p.pixel_aperture,
             aberration_sigma_px: p.aberration_sigma_px,
             motion_sigma_px: p.motion_sigma_px,
-            energy_cutoff: p.energy_cutoff,
-            method: ConvolutionMethod::Separable,
-            skip_below_dn: 0.1,
-            sky_blur: SkyBlur::Auto,
-            prefilter_tolerance: 0.05,
+            energy_cutoff: None,
+            method: None,
+            skip_below_dn: None,
+            sky_blur: None,
+            prefilter_tolerance: None,
         }
     }
 }
 
-impl PsfToml {
+/// The optics blur, resolved: the physics from `[sensor.psf]`, the numerics from `[quality]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PsfSettings {
+    /// Diffraction by the circular pupil.
+    pub diffraction: bool,
+    /// The pixel's photosensitive aperture.
+    pub pixel_aperture: bool,
+    /// Gaussian for aberrations and defocus, px rms.
+    pub aberration_sigma_px: f64,
+    /// Gaussian for line-of-sight motion during the integration time, px rms.
+    pub motion_sigma_px: f64,
+    /// Kernel cut where the energy outside falls below this fraction.
+    pub energy_cutoff: f64,
+    /// How the kernel is applied to the frame.
+    pub method: ConvolutionMethod,
+    /// A 16 × 16 px tile of the frame is not blurred when the blur cannot change any of its pixels by more than
+    /// this many DN (bounded from the background's second differences); 0 always blurs.
+    pub skip_below_dn: f64,
+    /// How the blur reaches a sky image.
+    pub sky_blur: SkyBlur,
+    /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
+    pub prefilter_tolerance: f64,
+}
+
+impl PsfSettings {
     /// The PSF's parameters.
     pub fn spec(&self) -> PsfSpec {
         PsfSpec {
@@ -223,7 +261,33 @@ pub enum TargetModel {
 pub struct BlobSpec {
     /// `psf` (ellipse ⊗ PSF) or `paper` (generalized Gaussian).
     pub model: TargetModel,
-    /// Quadrature of the ellipse ⊗ PSF: `auto` or `reference`.
+    /// Paper model: minimum blur, px.
+    pub min_blur_px: f64,
+    /// Paper model: shape exponent β (2 = Gaussian).
+    pub beta: f64,
+    /// Moved: `[quality] target_method`.
+    #[serde(skip_serializing)]
+    pub method: Option<IgnoredAny>,
+    /// Moved: `[quality] blob_roi_fraction`.
+    #[serde(skip_serializing)]
+    pub roi_fraction: Option<IgnoredAny>,
+    /// Moved: `[quality] blob_sampling`.
+    #[serde(skip_serializing)]
+    pub sampling: Option<IgnoredAny>,
+}
+
+impl Default for BlobSpec {
+    fn default() -> Self {
+        Self { model: TargetModel::Psf, min_blur_px: 0.7, beta: 2.0, method: None, roi_fraction: None, sampling: None }
+    }
+}
+
+/// How targets are drawn, resolved: the model from `[sensor.blob]`, the numerics from `[quality]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BlobSettings {
+    /// `psf` (ellipse ⊗ PSF) or `paper` (generalized Gaussian).
+    pub model: TargetModel,
+    /// Quadrature of the ellipse ⊗ PSF.
     pub method: TargetMethod,
     /// Paper model: minimum blur, px.
     pub min_blur_px: f64,
@@ -235,20 +299,7 @@ pub struct BlobSpec {
     pub sampling: BlobSampling,
 }
 
-impl Default for BlobSpec {
-    fn default() -> Self {
-        Self {
-            model: TargetModel::Psf,
-            method: TargetMethod::Auto,
-            min_blur_px: 0.7,
-            beta: 2.0,
-            roi_fraction: 1e-3,
-            sampling: BlobSampling::Auto,
-        }
-    }
-}
-
-impl BlobSpec {
+impl BlobSettings {
     /// The PSF-model quadrature settings.
     pub fn target_psf(&self) -> TargetPsfSpec {
         TargetPsfSpec { method: self.method, ..TargetPsfSpec::default() }
@@ -263,13 +314,13 @@ pub struct ResolvedSensor {
     /// Radiometry: band, optics, detector, ADC.
     pub model: SensorModel,
     /// Temporal noise switches.
-    pub noise: NoiseToml,
+    pub noise: NoiseSettings,
     /// Optics blur; `None` when off.
-    pub psf: Option<PsfToml>,
+    pub psf: Option<PsfSettings>,
     /// Non-idealities.
     pub nonideal: NonIdealSpec,
     /// Target drawing.
-    pub blob: BlobSpec,
+    pub blob: BlobSettings,
     /// Frame rate the preset's camera runs at, if a preset was named.
     pub preset_frame_rate_hz: Option<f64>,
 }
@@ -278,12 +329,39 @@ const MIGRATION: &str = "was removed: the sensor is now a physical camera (optic
      ADC in DN); use `preset = \"paper_lwir_256\"` (or `cooled_mwir_insb`, `uncooled_lwir_microbolometer`) and \
      override `[sensor.detector]` / `[sensor.adc]` fields (docs/scenarios.md, \"Migrating\")";
 
+/// The message for a field that moved to `[quality]`.
+pub(crate) fn moved_to_quality(new: &str) -> String {
+    format!(
+        "moved: accuracy settings are now in `[quality]` (a preset, `draft`, `standard` or `reference`, and \
+         overrides); write `[quality] {new} = …` (docs/scenarios.md, \"Quality\")"
+    )
+}
+
 impl SensorSpec {
-    /// Resolves the preset and the overrides, and checks every value.
+    /// Resolves the preset and the overrides, and checks every value; the numerical settings come from `quality`.
     ///
     /// # Errors
     /// A [`FieldError`] under `sensor.`.
-    pub fn resolve(&self) -> Result<ResolvedSensor, FieldError> {
+    pub fn resolve(&self, quality: &Quality) -> Result<ResolvedSensor, FieldError> {
+        for (given, path, new) in [
+            (
+                self.noise.poisson_normal_threshold.is_some(),
+                "noise.poisson_normal_threshold",
+                "poisson_normal_threshold_e",
+            ),
+            (self.psf.energy_cutoff.is_some(), "psf.energy_cutoff", "psf_energy_cutoff"),
+            (self.psf.method.is_some(), "psf.method", "psf_method"),
+            (self.psf.skip_below_dn.is_some(), "psf.skip_below_dn", "psf_skip_below_dn"),
+            (self.psf.sky_blur.is_some(), "psf.sky_blur", "sky_blur"),
+            (self.psf.prefilter_tolerance.is_some(), "psf.prefilter_tolerance", "prefilter_tolerance"),
+            (self.blob.method.is_some(), "blob.method", "target_method"),
+            (self.blob.roi_fraction.is_some(), "blob.roi_fraction", "blob_roi_fraction"),
+            (self.blob.sampling.is_some(), "blob.sampling", "blob_sampling"),
+        ] {
+            if given {
+                return Err(fe(format!("sensor.{path}"), moved_to_quality(new)));
+            }
+        }
         if self.gray.is_some() {
             return Err(fe(
                 "sensor.gray",
@@ -440,23 +518,27 @@ impl SensorSpec {
             adc.gain = AdcGain::FullWell;
         }
         let model = SensorModel::new(band, optics, det, adc).map_err(|e| sensor_param_error(&e, self))?;
-        let n = &self.noise;
-        if !(n.poisson_normal_threshold.is_finite() && (0.0..=1e9).contains(&n.poisson_normal_threshold)) {
-            return Err(fe(
-                "sensor.noise.poisson_normal_threshold",
-                format!("{} must be in [0, 1e9]", n.poisson_normal_threshold),
-            ));
-        }
         let psf = if self.psf.enabled {
-            self.psf.spec().validate().map_err(super::at("sensor.psf"))?;
-            if !(self.psf.skip_below_dn.is_finite() && (0.0..=1e6).contains(&self.psf.skip_below_dn)) {
-                return Err(fe("sensor.psf.skip_below_dn", format!("{} must be in [0, 1e6]", self.psf.skip_below_dn)));
-            }
-            let tol = self.psf.prefilter_tolerance;
-            if !(tol.is_finite() && (1e-3..=0.5).contains(&tol)) {
-                return Err(fe("sensor.psf.prefilter_tolerance", format!("{tol} must be in [0.001, 0.5]")));
-            }
-            Some(self.psf)
+            let p = &self.psf;
+            let settings = PsfSettings {
+                diffraction: p.diffraction,
+                pixel_aperture: p.pixel_aperture,
+                aberration_sigma_px: p.aberration_sigma_px,
+                motion_sigma_px: p.motion_sigma_px,
+                energy_cutoff: quality.psf_energy_cutoff,
+                method: quality.psf_method,
+                skip_below_dn: quality.psf_skip_below_dn,
+                sky_blur: quality.sky_blur,
+                prefilter_tolerance: quality.prefilter_tolerance,
+            };
+            settings.spec().validate().map_err(|e| {
+                if e.name == "energy_cutoff" {
+                    fe("quality.psf_energy_cutoff", format!("{} is outside {}", super::num(e.value), e.range))
+                } else {
+                    super::at("sensor.psf")(e)
+                }
+            })?;
+            Some(settings)
         } else {
             None
         };
@@ -475,21 +557,23 @@ impl SensorSpec {
         if !(b.beta.is_finite() && (0.1..=1000.0).contains(&b.beta)) {
             return Err(fe("sensor.blob.beta", format!("{} must be in [0.1, 1000]", b.beta)));
         }
-        if !(b.roi_fraction > 0.0 && b.roi_fraction < 1.0) {
-            return Err(fe("sensor.blob.roi_fraction", format!("{} must be in (0, 1)", b.roi_fraction)));
-        }
-        if let BlobSampling::Integrated { n } = b.sampling
-            && !(1..=16).contains(&n)
-        {
-            return Err(fe("sensor.blob.sampling.n", format!("{n} must be in 1 … 16")));
-        }
         Ok(ResolvedSensor {
             intrinsics,
             model,
-            noise: self.noise,
+            noise: NoiseSettings {
+                enabled: self.noise.enabled,
+                poisson_normal_threshold: quality.poisson_normal_threshold_e,
+            },
             psf,
             nonideal,
-            blob: self.blob,
+            blob: BlobSettings {
+                model: b.model,
+                method: quality.target_method,
+                min_blur_px: b.min_blur_px,
+                beta: b.beta,
+                roi_fraction: quality.blob_roi_fraction,
+                sampling: quality.blob_sampling,
+            },
             preset_frame_rate_hz: base.map(|b| b.frame_rate_hz),
         })
     }

@@ -72,7 +72,7 @@ pub struct Skin {
     pub emissivity: f64,
     /// Reflectance.
     pub brdf: CookTorrance,
-    /// Facet or ellipsoid-averaged reflection.
+    /// Facet or ellipsoid-averaged reflection (`[quality] reflection`).
     pub reflection: ReflectionGeometry,
     /// Mach number if fixed; otherwise from speed and the local speed of sound.
     pub mach: Option<f64>,

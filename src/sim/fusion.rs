@@ -29,5 +29,5 @@ pub fn fuse_targets(
     }
     let list: Vec<Patch<'_>> =
         patches.patches[..patches.used].iter().map(|(rect, values)| Patch { rect: *rect, values }).collect();
-    fusion.0.fuse(&mut sf.frame, &list, settings.fusion.guidance, settings.fusion.solver);
+    fusion.0.fuse(&mut sf.frame, &list, settings.quality.fusion_guidance, settings.quality.fusion_solver);
 }

@@ -10,7 +10,7 @@ use crate::physics::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_tempera
 use crate::physics::reflection::{SphereQuadrature, Sun};
 use crate::physics::skin::StagnationModel;
 use crate::physics::transmittance::Transmittance;
-use crate::scenario::{BlobSpec, FusionSpec};
+use crate::scenario::{BlobSettings, Quality};
 
 /// Frame counter and time step.
 #[derive(Resource, Debug, Clone, Copy)]
@@ -43,10 +43,10 @@ pub struct SimSettings {
     pub keep_float: bool,
     /// Produce per-frame target masks.
     pub masks: bool,
-    /// Fusion mode and solver.
-    pub fusion: FusionSpec,
+    /// Every accuracy switch (the fusion's solver and guidance are read from it each frame).
+    pub quality: Quality,
     /// How targets are drawn.
-    pub blob: BlobSpec,
+    pub blob: BlobSettings,
     /// SNR from which a target is `detectable`.
     pub detectable_snr: f64,
 }

@@ -23,7 +23,7 @@ use crate::physics::nonideal::{FocalPlane, NonIdeal};
 use crate::physics::random::SplitMix64;
 use crate::physics::reflection::SphereQuadrature;
 use crate::physics::sky::{Dome, DomeInputs};
-use crate::scenario::sensor::{PsfToml, ResolvedSensor};
+use crate::scenario::sensor::{PsfSettings, ResolvedSensor};
 use crate::scenario::{CheckedScenario, Pointing};
 
 /// Switches for a run.
@@ -82,7 +82,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         vibration: options.vibration,
         keep_float: options.keep_float,
         masks: options.masks,
-        fusion: spec.fusion,
+        quality: scenario.quality,
         blob: sensor_spec.blob,
         detectable_snr: spec.labels.detectable_snr,
     });
@@ -91,7 +91,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         stagnation: spec.atmosphere.stagnation,
         sun: spec.sun,
         atmosphere: spec.atmosphere.transmittance,
-        quadrature: SphereQuadrature::default(),
+        quadrature: SphereQuadrature::new(scenario.quality.reflection_grid[0], scenario.quality.reflection_grid[1]),
     };
 
     let intrinsics = sensor_spec.intrinsics;
@@ -144,7 +144,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
                 Skin {
                     emissivity: t.emissivity,
                     brdf: t.brdf,
-                    reflection: t.reflection,
+                    reflection: scenario.quality.reflection,
                     mach: t.mach,
                     heating_k: t.heating_k,
                 },
@@ -190,7 +190,7 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
     })
     .map_err(|e| SetupError { field: format!("sky.dome.{}", e.name), message: e.to_string() })?;
     let dome = Arc::new(dome);
-    let lut = RadianceLut::new(band, measure);
+    let lut = RadianceLut::new(band, measure, scenario.quality.radiance_table_step_k);
     let placement = sky.placement();
     let plane = match (&sky.generate, &scenario.sky_image, placement) {
         (_, Some(path), Some(placement)) => {
@@ -223,7 +223,11 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
         }
         _ => None,
     };
-    Ok(Sky { plane: plane.map(Arc::new), sampling: sky.sampling, miss: sky.miss, dome })
+    let plane = plane.map(|mut p| {
+        p.set_span_tolerance(scenario.quality.span_tolerance_px);
+        Arc::new(p)
+    });
+    Ok(Sky { plane, sampling: scenario.quality.sky_sampling, miss: sky.miss, dome })
 }
 
 /// The steady cameras (no vibration, no pointing noise) of the run's frames, for planning: every frame up to
@@ -320,7 +324,7 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
 /// Whether blurring the background can change a pixel by more than `skip_below_dn`: always for an image
 /// layer; for the dome alone, the blur of a smooth field changes it by `½·M₂·|L''|` (M₂ the kernel's second
 /// moment in px², L'' the largest curvature per px²), which is compared with the threshold.
-fn frame_needs_blur(psf: &Psf, cfg: &PsfToml, sky: &Sky, sensor: &ResolvedSensor, dn_per_radiance: f64) -> bool {
+fn frame_needs_blur(psf: &Psf, cfg: &PsfSettings, sky: &Sky, sensor: &ResolvedSensor, dn_per_radiance: f64) -> bool {
     if sky.plane.is_some() || cfg.skip_below_dn <= 0.0 {
         return true;
     }

@@ -8,12 +8,13 @@ use glam::DVec3;
 
 use super::Viewer;
 use crate::imaging::fusion::{Guidance, Solver};
+use crate::imaging::sky_plane::Sampling;
 use crate::imaging::target_blob::BlobSampling;
 use crate::physics::planck::Band;
 use crate::physics::reflection::ReflectionGeometry;
 use crate::scenario::edit::shift_altitude;
 use crate::scenario::trajectory::TrajectorySpec;
-use crate::scenario::{FieldError, TargetModel};
+use crate::scenario::{FieldError, QualityPreset, QualitySpec, TargetModel};
 
 /// Where a new target goes: the next click on the sensor image places it at `range_m` along that pixel's line
 /// of sight, flying level at `speed_m_s` on `heading_deg`.
@@ -173,11 +174,6 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
             num(ui, "BRDF specular ks", &mut t.brdf.ks, 0.005, "");
             num(ui, "BRDF Fresnel f0", &mut t.brdf.f0, 0.005, "");
             num(ui, "BRDF roughness", &mut t.brdf.roughness, 0.005, "");
-            ui.horizontal(|ui| {
-                ui.selectable_value(&mut t.reflection, ReflectionGeometry::Facet, "facet");
-                ui.selectable_value(&mut t.reflection, ReflectionGeometry::Ellipsoid, "ellipsoid");
-                ui.label("reflection");
-            });
         });
     }
     egui::CollapsingHeader::new("add a target").default_open(false).show(ui, |ui| {
@@ -220,36 +216,8 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
             ui.selectable_value(&mut b.model, TargetModel::Paper, "paper blob");
             ui.label("target model");
         });
-        ui.horizontal(|ui| {
-            let s = &mut draft.sensor.blob.sampling;
-            ui.selectable_value(s, BlobSampling::Auto, "auto");
-            ui.selectable_value(s, BlobSampling::Point, "point");
-            ui.selectable_value(s, BlobSampling::Integrated { n: 4 }, "4×4");
-            ui.label("sampling (paper blob)");
-        });
-        ui.horizontal(|ui| {
-            let g = &mut draft.fusion.guidance;
-            ui.selectable_value(g, Guidance::Normal, "normal");
-            ui.selectable_value(g, Guidance::Mixed, "mixed");
-            ui.selectable_value(g, Guidance::Additive, "additive");
-            ui.label("fusion guidance");
-        });
-        ui.horizontal(|ui| {
-            let s = &mut draft.fusion.solver;
-            let iterative = Solver::Sor { tolerance: 0.01, max_iterations: 2000 };
-            ui.selectable_value(s, Solver::Direct, "direct");
-            if ui.selectable_label(matches!(s, Solver::Sor { .. }), "SOR").clicked() {
-                *s = iterative;
-            }
-            if ui.selectable_label(matches!(s, Solver::Jacobi { .. }), "Jacobi").clicked() {
-                *s = Solver::Jacobi { tolerance: 0.01, max_iterations: 5000 };
-            }
-            ui.label("solver");
-        });
-        if let Solver::Sor { tolerance, .. } | Solver::Jacobi { tolerance, .. } = &mut draft.fusion.solver {
-            num(ui, "solver tolerance", tolerance, 0.001, " DN");
-        }
     });
+    egui::CollapsingHeader::new("quality").default_open(false).show(ui, |ui| quality_panel(ui, &mut draft.quality));
     egui::CollapsingHeader::new("sun").default_open(false).show(ui, |ui| {
         num(ui, "azimuth", &mut draft.sun.azimuth_deg, 1.0, "°");
         num(ui, "elevation", &mut draft.sun.elevation_deg, 0.5, "°");
@@ -270,3 +238,85 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
         }
     }
 }
+
+/// The `[quality]` preset and the switches worth trying in the window; a choice becomes an override of the
+/// preset's value (picking the preset again drops every override).
+fn quality_panel(ui: &mut egui::Ui, q: &mut QualitySpec) {
+    let resolved = q.resolve().unwrap_or_default();
+    ui.horizontal(|ui| {
+        for p in [QualityPreset::Draft, QualityPreset::Standard, QualityPreset::Reference] {
+            if ui.selectable_label(q.preset == p && q.overrides().is_empty(), p.name()).clicked() {
+                *q = QualitySpec::of(p);
+            }
+        }
+        ui.label("preset");
+    });
+    let overrides = q.overrides();
+    if !overrides.is_empty() {
+        ui.weak(format!("{} with overrides: {}", q.preset.name(), overrides.join(", ")));
+    }
+    ui.horizontal(|ui| {
+        let mut s = resolved.sky_sampling;
+        ui.selectable_value(&mut s, Sampling::Nearest, "nearest");
+        ui.selectable_value(&mut s, Sampling::Bilinear, "bilinear");
+        ui.selectable_value(&mut s, Sampling::Supersample { n: 4 }, "4×4");
+        ui.label("sky sampling");
+        if s != resolved.sky_sampling {
+            q.sky_sampling = Some(s);
+        }
+    });
+    ui.horizontal(|ui| {
+        let mut s = resolved.blob_sampling;
+        ui.selectable_value(&mut s, BlobSampling::Auto, "auto");
+        ui.selectable_value(&mut s, BlobSampling::Point, "point");
+        ui.selectable_value(&mut s, BlobSampling::Integrated { n: 4 }, "4×4");
+        ui.label("paper blob sampling");
+        if s != resolved.blob_sampling {
+            q.blob_sampling = Some(s);
+        }
+    });
+    ui.horizontal(|ui| {
+        let mut r = resolved.reflection;
+        ui.selectable_value(&mut r, ReflectionGeometry::Facet, "facet");
+        ui.selectable_value(&mut r, ReflectionGeometry::Ellipsoid, "ellipsoid");
+        ui.label("sun reflection");
+        if r != resolved.reflection {
+            q.reflection = Some(r);
+        }
+    });
+    ui.horizontal(|ui| {
+        let mut g = resolved.fusion_guidance;
+        ui.selectable_value(&mut g, Guidance::Normal, "normal");
+        ui.selectable_value(&mut g, Guidance::Mixed, "mixed");
+        ui.selectable_value(&mut g, Guidance::Additive, "additive");
+        ui.label("fusion guidance");
+        if g != resolved.fusion_guidance {
+            q.fusion_guidance = Some(g);
+        }
+    });
+    let mut s = resolved.fusion_solver;
+    ui.horizontal(|ui| {
+        if ui.selectable_label(s == Solver::Direct, "direct").clicked() {
+            s = Solver::Direct;
+        }
+        if ui.selectable_label(matches!(s, Solver::Sor { .. }), "SOR").clicked() && !matches!(s, Solver::Sor { .. }) {
+            s = Solver::Sor { tolerance: ITERATIVE_TOLERANCE_DN, max_iterations: 2000 };
+        }
+        if ui.selectable_label(matches!(s, Solver::Jacobi { .. }), "Jacobi").clicked()
+            && !matches!(s, Solver::Jacobi { .. })
+        {
+            s = Solver::Jacobi { tolerance: ITERATIVE_TOLERANCE_DN, max_iterations: 5000 };
+        }
+        ui.label("fusion solver");
+    });
+    if let Solver::Sor { tolerance, .. } | Solver::Jacobi { tolerance, .. } = &mut s {
+        num(ui, "solver tolerance", tolerance, 1e-4, " DN");
+    }
+    if s != resolved.fusion_solver {
+        q.fusion_solver = Some(s);
+    }
+}
+
+/// The tolerance an iterative fusion solver starts from when picked in the window, DN: the value
+/// docs/accuracy.md measures the solvers at.
+const ITERATIVE_TOLERANCE_DN: f64 = 1e-4;

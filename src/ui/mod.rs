@@ -51,6 +51,9 @@ pub struct ViewArgs {
     /// Seed (default: the scenario's).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Accuracy against speed: draft, standard or reference, in place of the scenario's `[quality]` table.
+    #[arg(long, value_name = "PRESET")]
+    pub quality: Option<crate::scenario::QualityPreset>,
 }
 
 /// What the viewer shows and how.
@@ -176,6 +179,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
     let file_frames = crate::scenario::load(&a.scenario).map_err(|e| CliError::Invalid(e.to_string()))?.spec.run.frames;
     let scenario = crate::scenario::load::load_for_frames(&a.scenario, a.frames.map(|n| n.max(file_frames)))
         .map_err(|e| CliError::Invalid(e.to_string()))?;
+    let scenario = crate::cli::run::with_quality(scenario, a.quality)?;
     let options = RunOptions { seed: a.seed, ..RunOptions::default() };
     let rate = scenario.spec.run.frame_rate_hz;
     let title = window_title(&scenario.spec.name, None, 0.0);

@@ -1,0 +1,439 @@
+//! `[quality]`: every approximation the simulation makes that has a cheaper or a more exact setting, in one
+//! place. A preset (`draft`, `standard`, `reference`) gives every switch a value; a field given next to it
+//! overrides the preset's. `irsim record`, `bench` and `view` take `--quality PRESET`, which replaces the whole
+//! table (the file's overrides included).
+//!
+//! `standard` is what a scenario without `[quality]` gets. `reference` puts every switch at its exact setting,
+//! or where a switch has none (a truncated kernel, a quadrature), at the finest the program offers; `draft` gives
+//! up accuracy the eye barely sees for speed. What each switch costs and saves is measured in
+//! `docs/accuracy.md`.
+//!
+//! Pure: no Bevy.
+
+use serde::{Deserialize, Serialize};
+
+use super::{FieldError, fe};
+use crate::imaging::background::SkyBlur;
+use crate::imaging::fusion::{Guidance, Solver};
+use crate::imaging::psf::ConvolutionMethod;
+use crate::imaging::sky_plane::Sampling;
+use crate::imaging::target_blob::BlobSampling;
+use crate::imaging::target_psf::TargetMethod;
+use crate::physics::reflection::ReflectionGeometry;
+
+/// A named set of values for every switch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum QualityPreset {
+    /// Fast previews and large datasets where a fraction of a gray level does not matter.
+    Draft,
+    /// The default: errors well below the sensor's noise.
+    #[default]
+    Standard,
+    /// Every switch at its exact or finest setting: the yardstick the others are measured against.
+    Reference,
+}
+
+impl std::str::FromStr for QualityPreset {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "draft" => Ok(Self::Draft),
+            "standard" => Ok(Self::Standard),
+            "reference" => Ok(Self::Reference),
+            other => Err(format!("`{other}` is not a quality preset: give draft, standard or reference")),
+        }
+    }
+}
+
+impl QualityPreset {
+    /// Its name in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Draft => "draft",
+            Self::Standard => "standard",
+            Self::Reference => "reference",
+        }
+    }
+}
+
+/// Every switch, resolved.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Quality {
+    /// The preset the values came from (before overrides).
+    pub preset: QualityPreset,
+    /// How a ray's hit on a sky image becomes a value.
+    pub sky_sampling: Sampling,
+    /// Largest departure of an interpolated ray-cast coordinate from the exact one, px (0: every ray exact).
+    pub span_tolerance_px: f64,
+    /// Step of the temperature → band radiance table used to calibrate sky images and bake cloud layers, K
+    /// (0: the Planck series for every value).
+    pub radiance_table_step_k: f64,
+    /// How the optics kernel is applied to a frame.
+    pub psf_method: ConvolutionMethod,
+    /// The PSF kernel is cut where the energy outside falls below this fraction.
+    pub psf_energy_cutoff: f64,
+    /// A 16 × 16 px tile is not blurred when the blur cannot change a pixel of it by more than this, DN (0:
+    /// always blur).
+    pub psf_skip_below_dn: f64,
+    /// How the optics blur reaches a sky image.
+    pub sky_blur: SkyBlur,
+    /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
+    pub prefilter_tolerance: f64,
+    /// Quadrature of a target's ellipse ⊗ PSF.
+    pub target_method: TargetMethod,
+    /// Pixel sampling of the paper's blob model.
+    pub blob_sampling: BlobSampling,
+    /// The paper's blob is cut where it falls below this fraction of its peak.
+    pub blob_roi_fraction: f64,
+    /// Shot noise is an exact Poisson count below this mean, electrons, and normal above.
+    pub poisson_normal_threshold_e: f64,
+    /// How the Poisson fusion equation is solved.
+    pub fusion_solver: Solver,
+    /// The gradient field that guides the fusion.
+    pub fusion_guidance: Guidance,
+    /// The sun's reflection: the paper's facet or the average over the ellipsoid.
+    pub reflection: ReflectionGeometry,
+    /// The ellipsoid average's grid: steps in cos θ and in azimuth.
+    pub reflection_grid: [usize; 2],
+}
+
+impl Quality {
+    /// The preset's values.
+    pub fn preset(p: QualityPreset) -> Self {
+        match p {
+            QualityPreset::Standard => Self {
+                preset: p,
+                sky_sampling: Sampling::Bilinear,
+                span_tolerance_px: 1e-5,
+                radiance_table_step_k: 0.02,
+                psf_method: ConvolutionMethod::Separable,
+                psf_energy_cutoff: 0.03,
+                psf_skip_below_dn: 0.1,
+                sky_blur: SkyBlur::Auto,
+                prefilter_tolerance: 0.05,
+                target_method: TargetMethod::Auto,
+                blob_sampling: BlobSampling::Auto,
+                blob_roi_fraction: 1e-3,
+                poisson_normal_threshold_e: 100.0,
+                fusion_solver: Solver::Direct,
+                fusion_guidance: Guidance::Normal,
+                reflection: ReflectionGeometry::Facet,
+                reflection_grid: [24, 48],
+            },
+            QualityPreset::Reference => Self {
+                preset: p,
+                sky_sampling: Sampling::Bilinear,
+                span_tolerance_px: 0.0,
+                radiance_table_step_k: 0.0,
+                psf_method: ConvolutionMethod::Direct,
+                psf_energy_cutoff: MIN_ENERGY_CUTOFF,
+                psf_skip_below_dn: 0.0,
+                sky_blur: SkyBlur::Prefilter,
+                prefilter_tolerance: MIN_PREFILTER_TOLERANCE,
+                target_method: TargetMethod::Reference,
+                blob_sampling: BlobSampling::Integrated { n: 16 },
+                blob_roi_fraction: MIN_ROI_FRACTION,
+                poisson_normal_threshold_e: MAX_POISSON_THRESHOLD_E,
+                fusion_solver: Solver::Direct,
+                fusion_guidance: Guidance::Normal,
+                reflection: ReflectionGeometry::Ellipsoid,
+                reflection_grid: [192, 384],
+            },
+            QualityPreset::Draft => Self {
+                preset: p,
+                sky_sampling: Sampling::Bilinear,
+                span_tolerance_px: 0.02,
+                radiance_table_step_k: 0.1,
+                psf_method: ConvolutionMethod::Separable,
+                psf_energy_cutoff: 0.1,
+                psf_skip_below_dn: 1.0,
+                sky_blur: SkyBlur::Auto,
+                prefilter_tolerance: 0.2,
+                target_method: TargetMethod::Auto,
+                blob_sampling: BlobSampling::Point,
+                blob_roi_fraction: 1e-2,
+                poisson_normal_threshold_e: 10.0,
+                fusion_solver: Solver::Direct,
+                fusion_guidance: Guidance::Normal,
+                reflection: ReflectionGeometry::Facet,
+                reflection_grid: [8, 16],
+            },
+        }
+    }
+
+    /// Each switch as `(name, value as TOML, whether it differs from the preset's)`, for `irsim validate` and
+    /// the viewer.
+    pub fn describe(&self) -> Vec<(&'static str, String, bool)> {
+        let base = Self::preset(self.preset);
+        let json = |q: &Self| serde_json::to_value(q).unwrap_or_default();
+        let (mine, theirs) = (json(self), json(&base));
+        SWITCHES.iter().map(|&name| (name, toml_value(&mine[name]), mine[name] != theirs[name])).collect()
+    }
+}
+
+/// A JSON value as TOML writes it inline: `"auto"`, `0.02`, `[24, 48]`, `{ mode = "bilinear" }`.
+fn toml_value(v: &serde_json::Value) -> String {
+    use serde_json::Value;
+    match v {
+        Value::String(s) => format!("\"{s}\""),
+        Value::Array(a) => format!("[{}]", a.iter().map(toml_value).collect::<Vec<_>>().join(", ")),
+        Value::Object(o) => {
+            format!(
+                "{{ {} }}",
+                o.iter().map(|(k, v)| format!("{k} = {}", toml_value(v))).collect::<Vec<_>>().join(", ")
+            )
+        }
+        other => other.to_string(),
+    }
+}
+
+impl Default for Quality {
+    fn default() -> Self {
+        Self::preset(QualityPreset::Standard)
+    }
+}
+
+/// The switches' names, in the order of the table.
+pub const SWITCHES: [&str; 17] = [
+    "preset",
+    "sky_sampling",
+    "span_tolerance_px",
+    "radiance_table_step_k",
+    "psf_method",
+    "psf_energy_cutoff",
+    "psf_skip_below_dn",
+    "sky_blur",
+    "prefilter_tolerance",
+    "target_method",
+    "blob_sampling",
+    "blob_roi_fraction",
+    "poisson_normal_threshold_e",
+    "fusion_solver",
+    "fusion_guidance",
+    "reflection",
+    "reflection_grid",
+];
+
+/// Smallest `psf_energy_cutoff` (the kernel's radius is also capped at 12 px).
+pub const MIN_ENERGY_CUTOFF: f64 = 1e-6;
+/// Smallest `prefilter_tolerance`.
+pub const MIN_PREFILTER_TOLERANCE: f64 = 1e-3;
+/// Smallest `blob_roi_fraction`.
+pub const MIN_ROI_FRACTION: f64 = 1e-9;
+/// Largest `poisson_normal_threshold_e`: every count exact.
+pub const MAX_POISSON_THRESHOLD_E: f64 = 1e9;
+
+/// The `[quality]` table: a preset and overrides of any of its switches.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct QualitySpec {
+    /// `draft`, `standard` (default) or `reference`.
+    pub preset: QualityPreset,
+    /// See [`Quality::sky_sampling`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sky_sampling: Option<Sampling>,
+    /// See [`Quality::span_tolerance_px`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub span_tolerance_px: Option<f64>,
+    /// See [`Quality::radiance_table_step_k`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radiance_table_step_k: Option<f64>,
+    /// See [`Quality::psf_method`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psf_method: Option<ConvolutionMethod>,
+    /// See [`Quality::psf_energy_cutoff`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psf_energy_cutoff: Option<f64>,
+    /// See [`Quality::psf_skip_below_dn`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psf_skip_below_dn: Option<f64>,
+    /// See [`Quality::sky_blur`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sky_blur: Option<SkyBlur>,
+    /// See [`Quality::prefilter_tolerance`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prefilter_tolerance: Option<f64>,
+    /// See [`Quality::target_method`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_method: Option<TargetMethod>,
+    /// See [`Quality::blob_sampling`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blob_sampling: Option<BlobSampling>,
+    /// See [`Quality::blob_roi_fraction`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blob_roi_fraction: Option<f64>,
+    /// See [`Quality::poisson_normal_threshold_e`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub poisson_normal_threshold_e: Option<f64>,
+    /// See [`Quality::fusion_solver`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fusion_solver: Option<Solver>,
+    /// See [`Quality::fusion_guidance`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fusion_guidance: Option<Guidance>,
+    /// See [`Quality::reflection`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reflection: Option<ReflectionGeometry>,
+    /// See [`Quality::reflection_grid`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reflection_grid: Option<[usize; 2]>,
+}
+
+impl QualitySpec {
+    /// Only the preset: what `--quality` puts in place of a file's table.
+    pub fn of(preset: QualityPreset) -> Self {
+        Self { preset, ..Self::default() }
+    }
+
+    /// The switches this table overrides, by name.
+    pub fn overrides(&self) -> Vec<&'static str> {
+        let v = serde_json::to_value(self).unwrap_or_default();
+        SWITCHES.iter().copied().filter(|&n| n != "preset" && v.get(n).is_some()).collect()
+    }
+
+    /// The preset with the overrides applied, every value checked.
+    ///
+    /// # Errors
+    /// A [`FieldError`] under `quality.`.
+    pub fn resolve(&self) -> Result<Quality, FieldError> {
+        let mut q = Quality::preset(self.preset);
+        macro_rules! set {
+            ($($f:ident),*) => {$(
+                if let Some(v) = self.$f {
+                    q.$f = v;
+                }
+            )*};
+        }
+        set!(
+            sky_sampling,
+            span_tolerance_px,
+            radiance_table_step_k,
+            psf_method,
+            psf_energy_cutoff,
+            psf_skip_below_dn,
+            sky_blur,
+            prefilter_tolerance,
+            target_method,
+            blob_sampling,
+            blob_roi_fraction,
+            poisson_normal_threshold_e,
+            fusion_solver,
+            fusion_guidance,
+            reflection,
+            reflection_grid
+        );
+        let range = |name: &str, v: f64, lo: f64, hi: f64, unit: &str| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(fe(format!("quality.{name}"), format!("{} must be in [{lo}, {hi}]{unit}", super::num(v))))
+            }
+        };
+        if let Sampling::Supersample { n } = q.sky_sampling
+            && !(1..=16).contains(&n)
+        {
+            return Err(fe("quality.sky_sampling.n", format!("{n} must be in 1 … 16")));
+        }
+        range("span_tolerance_px", q.span_tolerance_px, 0.0, 0.5, " px")?;
+        if q.radiance_table_step_k != 0.0 {
+            range("radiance_table_step_k", q.radiance_table_step_k, 0.001, 5.0, " K (or 0: no table)")?;
+        }
+        range("psf_energy_cutoff", q.psf_energy_cutoff, MIN_ENERGY_CUTOFF, 0.2, "")?;
+        range("psf_skip_below_dn", q.psf_skip_below_dn, 0.0, 1e6, " DN")?;
+        range("prefilter_tolerance", q.prefilter_tolerance, MIN_PREFILTER_TOLERANCE, 0.5, "")?;
+        if let BlobSampling::Integrated { n } = q.blob_sampling
+            && !(1..=16).contains(&n)
+        {
+            return Err(fe("quality.blob_sampling.n", format!("{n} must be in 1 … 16")));
+        }
+        if !(q.blob_roi_fraction >= MIN_ROI_FRACTION && q.blob_roi_fraction < 1.0) {
+            return Err(fe(
+                "quality.blob_roi_fraction",
+                format!("{} must be in [{MIN_ROI_FRACTION}, 1)", super::num(q.blob_roi_fraction)),
+            ));
+        }
+        range("poisson_normal_threshold_e", q.poisson_normal_threshold_e, 0.0, MAX_POISSON_THRESHOLD_E, " e⁻")?;
+        match q.fusion_solver {
+            Solver::Direct => {}
+            Solver::Jacobi { tolerance, max_iterations } | Solver::Sor { tolerance, max_iterations } => {
+                if !(tolerance > 0.0 && tolerance.is_finite()) {
+                    return Err(fe(
+                        "quality.fusion_solver.tolerance",
+                        format!("{} must be a finite number > 0", super::num(tolerance)),
+                    ));
+                }
+                if !(1..=super::MAX_SOLVER_ITERATIONS).contains(&max_iterations) {
+                    return Err(fe(
+                        "quality.fusion_solver.max_iterations",
+                        format!("{max_iterations} must be in 1 … {}", super::MAX_SOLVER_ITERATIONS),
+                    ));
+                }
+            }
+        }
+        let [n_z, n_phi] = q.reflection_grid;
+        if !((2..=2000).contains(&n_z) && (4..=4000).contains(&n_phi)) {
+            return Err(fe(
+                "quality.reflection_grid",
+                format!("[{n_z}, {n_phi}] must be [2 … 2000 steps in cos θ, 4 … 4000 in azimuth]"),
+            ));
+        }
+        Ok(q)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_preset_is_valid_and_described_in_full() {
+        for p in [QualityPreset::Draft, QualityPreset::Standard, QualityPreset::Reference] {
+            let q = QualitySpec::of(p).resolve().unwrap();
+            assert_eq!(q, Quality::preset(p));
+            let d = q.describe();
+            assert_eq!(d.len(), SWITCHES.len());
+            assert!(d.iter().all(|(_, v, changed)| !v.is_empty() && v != "null" && !changed), "{d:?}");
+            // the values read back as the table's own syntax
+            let text: String = d.iter().map(|(n, v, _)| format!("{n} = {v}\n")).collect();
+            let again: QualitySpec = toml::from_str(&text).unwrap();
+            assert_eq!(again.resolve().unwrap(), q, "{text}");
+        }
+    }
+
+    #[test]
+    fn overrides_apply_and_are_reported() {
+        let spec: QualitySpec = toml::from_str(
+            "preset = \"draft\"\nreflection = \"ellipsoid\"\nfusion_solver = { method = \"sor\", tolerance = 1e-3, \
+             max_iterations = 500 }",
+        )
+        .unwrap();
+        assert_eq!(spec.overrides(), ["fusion_solver", "reflection"]);
+        let q = spec.resolve().unwrap();
+        assert_eq!(q.reflection, ReflectionGeometry::Ellipsoid);
+        assert_eq!(q.blob_sampling, BlobSampling::Point);
+        let changed: Vec<_> = q.describe().into_iter().filter(|d| d.2).map(|d| d.0).collect();
+        assert_eq!(changed, ["fusion_solver", "reflection"]);
+    }
+
+    #[test]
+    fn bad_values_name_their_field() {
+        for (text, field) in [
+            ("span_tolerance_px = -1", "quality.span_tolerance_px"),
+            ("psf_energy_cutoff = 0.5", "quality.psf_energy_cutoff"),
+            ("sky_sampling = { mode = \"supersample\", n = 40 }", "quality.sky_sampling.n"),
+            ("reflection_grid = [1, 48]", "quality.reflection_grid"),
+            ("radiance_table_step_k = 1e-9", "quality.radiance_table_step_k"),
+            (
+                "fusion_solver = { method = \"jacobi\", tolerance = 0, max_iterations = 10 }",
+                "quality.fusion_solver.tolerance",
+            ),
+        ] {
+            let spec: QualitySpec = toml::from_str(text).unwrap();
+            assert_eq!(spec.resolve().unwrap_err().path, field, "{text}");
+        }
+        assert!(toml::from_str::<QualitySpec>("preset = \"best\"").is_err());
+        assert!(toml::from_str::<QualitySpec>("psf_cutoff = 0.1").is_err());
+    }
+}

@@ -1,0 +1,122 @@
+//! `[quality]`: the presets, overrides, `--quality` and the resolved settings in the manifest; the fields that
+//! moved into it are refused where they were, with the new name.
+
+mod common;
+
+use std::path::Path;
+
+use common::{irsim, root, temp_dir};
+use irsim::scenario::load::{Format, load_str};
+use irsim::scenario::{CheckedScenario, QualityPreset, ScenarioError};
+
+fn load_toml(text: &str) -> Result<CheckedScenario, ScenarioError> {
+    load_str(text, Format::Toml, Path::new("quality.toml"), &root().join("scenarios"))
+}
+
+/// A small valid scenario with a generated sky and one target in view.
+const BASE: &str = r#"
+[run]
+frames = 3
+
+[sensor]
+width = 64
+height = 48
+pixel_pitch_um = 17
+focal_length_mm = 50
+aperture_mm = 50
+band_um = [8, 12]
+
+[observer]
+trajectory = { kind = "constant_velocity", position_m = [0, 0, 1000] }
+pointing = { mode = "look_at", target_m = [0, 3000, 1100] }
+
+[sky]
+generate = { kind = "cumulus", seed = 2 }
+anchor_m = [0, 20000, 2000]
+width_m = 20000
+height_m = 8000
+max_texels = 256
+
+[[targets]]
+name = "a"
+trajectory = { kind = "constant_velocity", position_m = [-20, 3000, 1100], velocity_m_s = [30, 0, 0] }
+semi_axes_m = [2, 1, 0.5]
+"#;
+
+#[test]
+fn moved_fields_are_refused_where_they_were_with_the_new_name() {
+    for (extra, field, new) in [
+        ("[sensor.psf]\nsky_blur = \"frame\"\n", "sensor.psf.sky_blur", "sky_blur"),
+        ("[sensor.psf]\nmethod = \"direct\"\n", "sensor.psf.method", "psf_method"),
+        ("[sensor.blob]\nsampling = { mode = \"point\" }\n", "sensor.blob.sampling", "blob_sampling"),
+        (
+            "[sensor.noise]\npoisson_normal_threshold = 10\n",
+            "sensor.noise.poisson_normal_threshold",
+            "poisson_normal_threshold_e",
+        ),
+        ("[fusion]\nsolver = { method = \"direct\" }\n", "fusion", "fusion_solver"),
+    ] {
+        // sub-tables of [sensor] go before [observer]
+        let text = if extra.starts_with("[sensor.") {
+            BASE.replacen("[observer]", &format!("{extra}\n[observer]"), 1)
+        } else {
+            format!("{BASE}\n{extra}")
+        };
+        let e = load_toml(&text).expect_err(field);
+        assert_eq!(e.field, field, "{e}");
+        assert!(e.line > 0 && e.message.contains(&format!("[quality] {new}")), "{e}");
+    }
+    let text = BASE.replacen("max_texels = 256", "max_texels = 256\nsampling = { mode = \"nearest\" }", 1);
+    assert_eq!(load_toml(&text).unwrap_err().field, "sky.sampling");
+    let text = BASE.replacen("semi_axes_m = [2, 1, 0.5]", "semi_axes_m = [2, 1, 0.5]\nreflection = \"ellipsoid\"", 1);
+    assert_eq!(load_toml(&text).unwrap_err().field, "targets[0].reflection");
+}
+
+#[test]
+fn a_preset_and_overrides_resolve_into_the_scenario() {
+    let s = load_toml(BASE).unwrap();
+    assert_eq!(s.quality.preset, QualityPreset::Standard);
+    let s = load_toml(&format!("{BASE}\n[quality]\npreset = \"reference\"\npsf_skip_below_dn = 0.5\n")).unwrap();
+    assert_eq!(s.quality.preset, QualityPreset::Reference);
+    assert_eq!(s.quality.psf_skip_below_dn, 0.5);
+    // the sensor's resolved settings come from it
+    let psf = s.sensor.psf.expect("psf on");
+    assert_eq!((psf.skip_below_dn, psf.method), (0.5, s.quality.psf_method));
+    assert_eq!(s.sensor.noise.poisson_normal_threshold, s.quality.poisson_normal_threshold_e);
+    let e = load_toml(&format!("{BASE}\n[quality]\nspan_tolerance_px = 2\n")).unwrap_err();
+    assert_eq!(e.field, "quality.span_tolerance_px", "{e}");
+    assert!(e.line > 0, "{e}");
+}
+
+#[test]
+fn every_preset_records_and_the_manifest_says_what_it_resolved_to() {
+    let dir = temp_dir("quality");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = dir.join("s.toml");
+    std::fs::write(&scenario, format!("{BASE}\n[quality]\npreset = \"draft\"\nreflection = \"ellipsoid\"\n")).unwrap();
+    let scenario = scenario.to_str().unwrap();
+    for preset in ["draft", "standard", "reference"] {
+        let out = dir.join(preset);
+        let out = out.to_str().unwrap();
+        let (code, _, err) = irsim(&["record", scenario, "--out", out, "--quality", preset, "--quiet"]);
+        assert_eq!(code, 0, "{err}");
+        // the file's override is dropped, and said to be
+        assert!(err.contains("reflection") && err.contains("not used"), "{err}");
+        let manifest: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(Path::new(out).join("manifest.json")).unwrap()).unwrap();
+        let q = &manifest["resolved"]["quality"];
+        assert_eq!(q["preset"], preset);
+        let reflection = if preset == "reference" { "ellipsoid" } else { "facet" };
+        assert_eq!(q["reflection"], reflection, "{manifest:#}");
+        assert_eq!(manifest["scenario"]["quality"]["preset"], preset);
+        assert!(manifest["resolved"]["sky_blur_used"].is_string(), "{manifest:#}");
+    }
+    // without the flag the file's table holds, and `validate` prints it, overrides starred
+    let (code, out, err) = irsim(&["validate", scenario]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("   preset = \"draft\"") && out.contains("  *reflection = \"ellipsoid\""), "{out}");
+    let (code, _, err) = irsim(&["record", scenario, "--out", "x", "--quality", "best"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("draft, standard or reference"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
