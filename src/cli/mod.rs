@@ -65,6 +65,16 @@ pub enum Command {
     View(crate::ui::ViewArgs),
 }
 
+/// Writes `text` and a newline to standard output: a closed pipe (`irsim validate S | head -1`) or a full disk is
+/// a failure with its reason (exit 1), not a panic.
+///
+/// # Errors
+/// [`CliError::Failed`] when standard output cannot be written.
+pub(crate) fn say(text: &str) -> Result<(), CliError> {
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{text}").map_err(|e| CliError::Failed(format!("writing to standard output: {e}")))
+}
+
 /// Parses `args`, runs the command and returns the process exit code.
 pub fn run<I, T>(args: I) -> i32
 where
@@ -80,10 +90,7 @@ where
         }
     };
     let result = match &cli.command {
-        Command::Calc(cmd) => calc::run(cmd).and_then(|value| {
-            let mut out = std::io::stdout().lock();
-            writeln!(out, "{value}").map_err(|e| CliError::Failed(format!("writing to standard output: {e}")))
-        }),
+        Command::Calc(cmd) => calc::run(cmd).and_then(|value| say(&value.to_string())),
         Command::Record(a) => run::record(a),
         Command::Validate(a) => run::validate(a),
         Command::Sky(a) => run::sky(a),

@@ -169,8 +169,8 @@ pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
     let s = load_scenario(&a.scenario)?;
     let mut app = headless_app(&s, RunOptions::default())
         .map_err(|e| CliError::Invalid(located(&a.scenario, &e.field, &e.message).to_string()))?;
-    println!(
-        "{}: ok ({} targets, {} frames of {}×{} at {} Hz)",
+    let mut text = format!(
+        "{}: ok ({} targets, {} frames of {}×{} at {} Hz)\n",
         a.scenario.display(),
         s.spec.targets.len(),
         s.spec.run.frames,
@@ -180,16 +180,16 @@ pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
     );
     let resolved = resolved_settings(&mut app, &s);
     let given = s.spec.quality.overrides();
-    println!("[quality] as resolved (* = given in the file):");
+    text.push_str("[quality] as resolved (* = given in the file):");
     for (name, value, _) in s.quality.describe() {
-        println!("  {}{name} = {value}", if given.contains(&name) { "*" } else { " " });
+        text.push_str(&format!("\n  {}{name} = {value}", if given.contains(&name) { "*" } else { " " }));
     }
     if let Some(choice) =
         resolved["sky_blur_used"].as_str().filter(|_| s.spec.sky.has_layer() && s.sensor.psf.is_some())
     {
-        println!("  sky blur used: {choice}");
+        text.push_str(&format!("\n  sky blur used: {choice}"));
     }
-    Ok(())
+    super::say(&text)
 }
 
 /// `irsim record`.
@@ -396,9 +396,7 @@ pub fn record_scenario(
 /// error.
 pub fn sky(a: &SkyArgs) -> Result<(), CliError> {
     write_sky(a)?;
-    println!("{}", a.out.display());
-    println!("calibration = {{ mode = \"kelvin\", scale_k = 0.01 }}");
-    Ok(())
+    super::say(&format!("{}\ncalibration = {{ mode = \"kelvin\", scale_k = 0.01 }}", a.out.display()))
 }
 
 /// Generates the sky `a` describes and writes it to `a.out`.
@@ -592,7 +590,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             let scenario = load_for_frames(path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
             let scenario = with_quality(scenario, a.quality)?;
             let (fps, details) = time_headless(&scenario, frames)?;
-            println!("{:<40} {fps:>9.1} frames/s", path.display());
+            super::say(&format!("{:<40} {fps:>9.1} frames/s", path.display()))?;
             details.iter().for_each(|d| eprintln!("{d}"));
         }
         return Ok(());
@@ -647,7 +645,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             if n > 1 { "s" } else { "" },
             if recording { ", png16 recording" } else { ", no disk" }
         );
-        println!("{case:<40} {fps:>9.1} frames/s");
+        super::say(&format!("{case:<40} {fps:>9.1} frames/s"))?;
         details.iter().for_each(|d| eprintln!("{d}"));
     }
     let _ = std::fs::remove_dir_all(&dir);

@@ -8,19 +8,19 @@ use std::marker::PhantomData;
 
 use glam::{DVec2, DVec3};
 use serde::de::{Error, IgnoredAny, SeqAccess, Visitor};
-use serde::{Deserializer, Serialize, Serializer};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-struct Exact<const N: usize>;
+struct Exact<T, const N: usize>(PhantomData<T>);
 
-impl<'de, const N: usize> Visitor<'de> for Exact<N> {
-    type Value = [f64; N];
+impl<'de, T: Deserialize<'de> + Copy + Default, const N: usize> Visitor<'de> for Exact<T, N> {
+    type Value = [T; N];
 
     fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "exactly {N} numbers")
     }
 
     fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
-        let mut out = [0.0; N];
+        let mut out = [T::default(); N];
         for (i, slot) in out.iter_mut().enumerate() {
             *slot = seq.next_element()?.ok_or_else(|| A::Error::invalid_length(i, &self))?;
         }
@@ -40,7 +40,7 @@ impl<'de, const N: usize> Visitor<'de> for Exact<N> {
 /// # Errors
 /// The format's error for a non-sequence, a non-number or a length other than `N`.
 pub fn array<'de, D: Deserializer<'de>, const N: usize>(d: D) -> Result<[f64; N], D::Error> {
-    d.deserialize_seq(Exact::<N>)
+    d.deserialize_seq(Exact::<f64, N>(PhantomData))
 }
 
 /// `[f64; 2]`, exactly two numbers.
@@ -94,7 +94,7 @@ pub mod opt_dvec3 {
     /// # Errors
     /// See [`array()`].
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<DVec3>, D::Error> {
-        d.deserialize_option(OptionOf::<3>(PhantomData)).map(|v| v.map(DVec3::from_array))
+        d.deserialize_option(OptionOf::<f64, 3>(PhantomData)).map(|v| v.map(DVec3::from_array))
     }
 
     /// Writes `[x, y, z]` or nothing.
@@ -115,7 +115,7 @@ pub mod opt_dvec2 {
     /// # Errors
     /// See [`array()`].
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<DVec2>, D::Error> {
-        d.deserialize_option(OptionOf::<2>(PhantomData)).map(|v| v.map(DVec2::from_array))
+        d.deserialize_option(OptionOf::<f64, 2>(PhantomData)).map(|v| v.map(DVec2::from_array))
     }
 
     /// Writes `[u, v]` or nothing.
@@ -174,10 +174,31 @@ pub mod rows4 {
     }
 }
 
-struct OptionOf<const N: usize>(PhantomData<[f64; N]>);
+/// `Option<[usize; 2]>`, exactly two whole numbers when present.
+pub mod opt_counts2 {
+    use super::*;
 
-impl<'de, const N: usize> Visitor<'de> for OptionOf<N> {
-    type Value = Option<[f64; N]>;
+    /// Reads nothing, or exactly two whole numbers.
+    ///
+    /// # Errors
+    /// The format's error for a non-sequence, a value that is not a whole number ≥ 0, or a length other than 2.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[usize; 2]>, D::Error> {
+        d.deserialize_option(OptionOf::<usize, 2>(PhantomData))
+    }
+
+    /// Writes the two numbers.
+    ///
+    /// # Errors
+    /// The serializer's.
+    pub fn serialize<S: Serializer>(v: &Option<[usize; 2]>, s: S) -> Result<S::Ok, S::Error> {
+        v.serialize(s)
+    }
+}
+
+struct OptionOf<T, const N: usize>(PhantomData<[T; N]>);
+
+impl<'de, T: Deserialize<'de> + Copy + Default, const N: usize> Visitor<'de> for OptionOf<T, N> {
+    type Value = Option<[T; N]>;
 
     fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "exactly {N} numbers")
@@ -192,7 +213,7 @@ impl<'de, const N: usize> Visitor<'de> for OptionOf<N> {
     }
 
     fn visit_some<D: Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
-        array(d).map(Some)
+        d.deserialize_seq(Exact::<T, N>(PhantomData)).map(Some)
     }
 }
 

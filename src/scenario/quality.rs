@@ -277,7 +277,7 @@ pub struct QualitySpec {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reflection: Option<ReflectionGeometry>,
     /// See [`Quality::reflection_grid`].
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none", with = "crate::physics::exact::opt_counts2")]
     pub reflection_grid: Option<[usize; 2]>,
 }
 
@@ -435,5 +435,7 @@ mod tests {
         }
         assert!(toml::from_str::<QualitySpec>("preset = \"best\"").is_err());
         assert!(toml::from_str::<QualitySpec>("psf_cutoff = 0.1").is_err());
+        // a grid of three numbers is not read as its first two
+        assert!(toml::from_str::<QualitySpec>("reflection_grid = [24, 48, 3]").is_err());
     }
 }
