@@ -338,11 +338,6 @@ impl SkyPlane {
         self.span_tolerance_px = if px > 0.0 { px } else { 0.0 };
     }
 
-    /// See [`SkyPlane::set_span_tolerance`].
-    pub fn span_tolerance_px(&self) -> f64 {
-        self.span_tolerance_px
-    }
-
     /// The image.
     pub fn image(&self) -> &SkyImage {
         &self.image

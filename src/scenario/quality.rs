@@ -16,7 +16,7 @@ use super::{FieldError, fe};
 use crate::imaging::background::SkyBlur;
 use crate::imaging::fusion::{Guidance, Solver};
 use crate::imaging::psf::ConvolutionMethod;
-use crate::imaging::sky_plane::Sampling;
+use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::target_psf::TargetMethod;
 use crate::physics::reflection::ReflectionGeometry;
@@ -106,7 +106,7 @@ impl Quality {
             QualityPreset::Standard => Self {
                 preset: p,
                 sky_sampling: Sampling::Bilinear,
-                span_tolerance_px: 1e-5,
+                span_tolerance_px: SPAN_TOLERANCE_PX,
                 radiance_table_step_k: 0.02,
                 psf_method: ConvolutionMethod::Separable,
                 psf_energy_cutoff: 0.03,

@@ -255,45 +255,16 @@ fn quality_panel(ui: &mut egui::Ui, q: &mut QualitySpec) {
     if !overrides.is_empty() {
         ui.weak(format!("{} with overrides: {}", q.preset.name(), overrides.join(", ")));
     }
-    ui.horizontal(|ui| {
-        let mut s = resolved.sky_sampling;
-        ui.selectable_value(&mut s, Sampling::Nearest, "nearest");
-        ui.selectable_value(&mut s, Sampling::Bilinear, "bilinear");
-        ui.selectable_value(&mut s, Sampling::Supersample { n: 4 }, "4×4");
-        ui.label("sky sampling");
-        if s != resolved.sky_sampling {
-            q.sky_sampling = Some(s);
-        }
-    });
-    ui.horizontal(|ui| {
-        let mut s = resolved.blob_sampling;
-        ui.selectable_value(&mut s, BlobSampling::Auto, "auto");
-        ui.selectable_value(&mut s, BlobSampling::Point, "point");
-        ui.selectable_value(&mut s, BlobSampling::Integrated { n: 4 }, "4×4");
-        ui.label("paper blob sampling");
-        if s != resolved.blob_sampling {
-            q.blob_sampling = Some(s);
-        }
-    });
-    ui.horizontal(|ui| {
-        let mut r = resolved.reflection;
-        ui.selectable_value(&mut r, ReflectionGeometry::Facet, "facet");
-        ui.selectable_value(&mut r, ReflectionGeometry::Ellipsoid, "ellipsoid");
-        ui.label("sun reflection");
-        if r != resolved.reflection {
-            q.reflection = Some(r);
-        }
-    });
-    ui.horizontal(|ui| {
-        let mut g = resolved.fusion_guidance;
-        ui.selectable_value(&mut g, Guidance::Normal, "normal");
-        ui.selectable_value(&mut g, Guidance::Mixed, "mixed");
-        ui.selectable_value(&mut g, Guidance::Additive, "additive");
-        ui.label("fusion guidance");
-        if g != resolved.fusion_guidance {
-            q.fusion_guidance = Some(g);
-        }
-    });
+    let samplings =
+        [(Sampling::Nearest, "nearest"), (Sampling::Bilinear, "bilinear"), (Sampling::Supersample { n: 4 }, "4×4")];
+    pick(ui, "sky sampling", resolved.sky_sampling, &samplings, &mut q.sky_sampling);
+    let blob =
+        [(BlobSampling::Auto, "auto"), (BlobSampling::Point, "point"), (BlobSampling::Integrated { n: 4 }, "4×4")];
+    pick(ui, "paper blob sampling", resolved.blob_sampling, &blob, &mut q.blob_sampling);
+    let reflection = [(ReflectionGeometry::Facet, "facet"), (ReflectionGeometry::Ellipsoid, "ellipsoid")];
+    pick(ui, "sun reflection", resolved.reflection, &reflection, &mut q.reflection);
+    let guidance = [(Guidance::Normal, "normal"), (Guidance::Mixed, "mixed"), (Guidance::Additive, "additive")];
+    pick(ui, "fusion guidance", resolved.fusion_guidance, &guidance, &mut q.fusion_guidance);
     let mut s = resolved.fusion_solver;
     ui.horizontal(|ui| {
         if ui.selectable_label(s == Solver::Direct, "direct").clicked() {
@@ -315,6 +286,20 @@ fn quality_panel(ui: &mut egui::Ui, q: &mut QualitySpec) {
     if s != resolved.fusion_solver {
         q.fusion_solver = Some(s);
     }
+}
+
+/// One switch as a row of choices: picking one other than the value in use makes it the switch's override.
+fn pick<T: Copy + PartialEq>(ui: &mut egui::Ui, label: &str, in_use: T, choices: &[(T, &str)], slot: &mut Option<T>) {
+    ui.horizontal(|ui| {
+        let mut v = in_use;
+        for &(choice, name) in choices {
+            ui.selectable_value(&mut v, choice, name);
+        }
+        ui.label(label);
+        if v != in_use {
+            *slot = Some(v);
+        }
+    });
 }
 
 /// The tolerance an iterative fusion solver starts from when picked in the window, DN: the value
