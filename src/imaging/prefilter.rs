@@ -38,6 +38,8 @@ use super::sky_plane::{SkyImage, SkyPlane};
 pub const MAX_TEXTURE_RADIUS: usize = 40;
 /// Texture crops are aligned to blocks of this many texels.
 const BLOCK_TEXELS: usize = 32;
+/// Side of the blocks, aligned to the image's texel grid, that the FFT method of a texture build works on.
+const FFT_BLOCK_TEXELS: usize = 128;
 /// Prefiltered crops kept (a view whose Jacobian sits on a lattice boundary alternates between two keys).
 const CACHE_ENTRIES: usize = 4;
 
@@ -305,26 +307,49 @@ impl PrefilterCache {
     }
 
     /// `rect` of `source`'s image prefiltered by `filter`, read from the whole image (its edges replicated).
+    ///
+    /// A texel's value must not depend on the crop it is built in (a frame's result depends on its own camera
+    /// alone, whichever crop the cache holds): the direct method computes every texel from its own
+    /// neighbourhood, and the FFT method works on blocks of [`FFT_BLOCK_TEXELS`] aligned to the image's own
+    /// grid, each read with the kernel's reach around it, so a texel is always computed in the same block at the
+    /// same transform size (one transform of the whole crop would round differently for crops of other sizes).
     fn build(&mut self, source: &SkyPlane, filter: &TextureFilter, rect: TexelRect) -> SkyPlane {
         let r = filter.radius();
         let m = filter.per_texel;
         let (cw, ch) = (rect[2] - rect[0], rect[3] - rect[1]);
-        let (pw, ph) = (cw + 2 * r, ch + 2 * r);
-        let region =
-            source.image().region_clamped(rect[0] as isize - r as isize, rect[1] as isize - r as isize, pw, ph);
-        let region = Frame::from_pixels(pw, ph, region);
         let (fw, fh) = (cw * m, ch * m);
         let mut pixels = vec![0.0f32; fw * fh];
+        let image = source.image();
         for (phase, kernel) in filter.phases.iter().enumerate() {
             let (a, b) = (phase % m, phase / m);
+            let mut place = |blurred: &Frame, [x0, y0, bw, bh]: [usize; 4]| {
+                // `blurred` holds texels x0.., y0.. of the image at offset (r, r); copy its part inside `rect`
+                let pw = blurred.width();
+                for y in y0.max(rect[1])..(y0 + bh).min(rect[3]) {
+                    let row = &mut pixels[((y - rect[1]) * m + b) * fw..((y - rect[1]) * m + b + 1) * fw];
+                    for x in x0.max(rect[0])..(x0 + bw).min(rect[2]) {
+                        row[(x - rect[0]) * m + a] = blurred.pixels()[(y - y0 + r) * pw + x - x0 + r];
+                    }
+                }
+            };
+            let read = |x0: usize, y0: usize, w: usize, h: usize| {
+                let region =
+                    image.region_clamped(x0 as isize - r as isize, y0 as isize - r as isize, w + 2 * r, h + 2 * r);
+                Frame::from_pixels(w + 2 * r, h + 2 * r, region)
+            };
             let method = build_method(kernel);
-            let mut frame = region.clone();
-            self.convolver.apply(kernel, &mut frame, method);
-            for y in 0..ch {
-                let src = &frame.pixels()[(y + r) * pw + r..(y + r) * pw + r + cw];
-                let row = &mut pixels[(y * m + b) * fw..(y * m + b + 1) * fw];
-                for (x, &v) in src.iter().enumerate() {
-                    row[x * m + a] = v;
+            if method == ConvolutionMethod::Direct {
+                let mut frame = read(rect[0], rect[1], cw, ch);
+                self.convolver.apply(kernel, &mut frame, method);
+                place(&frame, [rect[0], rect[1], cw, ch]);
+                continue;
+            }
+            let s = FFT_BLOCK_TEXELS;
+            for by in (rect[1] / s..rect[3].div_ceil(s)).map(|k| k * s) {
+                for bx in (rect[0] / s..rect[2].div_ceil(s)).map(|k| k * s) {
+                    let mut frame = read(bx, by, s, s);
+                    self.convolver.apply(kernel, &mut frame, method);
+                    place(&frame, [bx, by, s, s]);
                 }
             }
         }
@@ -343,7 +368,11 @@ fn build_method(kernel: &Kernel) -> ConvolutionMethod {
 fn build_taps(kernel: &Kernel) -> f64 {
     match build_method(kernel) {
         ConvolutionMethod::Direct => ((2 * kernel.radius() + 1).pow(2)) as f64,
-        _ => 200.0,
+        // the transform of a block and its reach, per texel of the block
+        _ => {
+            let side = (FFT_BLOCK_TEXELS + 4 * kernel.radius()) as f64;
+            200.0 * side * side / (FFT_BLOCK_TEXELS * FFT_BLOCK_TEXELS) as f64
+        }
     }
 }
 
