@@ -93,7 +93,7 @@ fn every_preset_records_and_the_manifest_says_what_it_resolved_to() {
     let dir = temp_dir("quality");
     std::fs::create_dir_all(&dir).unwrap();
     let scenario = dir.join("s.toml");
-    std::fs::write(&scenario, format!("{BASE}\n[quality]\npreset = \"draft\"\nreflection = \"ellipsoid\"\n")).unwrap();
+    std::fs::write(&scenario, format!("{BASE}\n[quality]\npreset = \"draft\"\nreflection = \"facet\"\n")).unwrap();
     let scenario = scenario.to_str().unwrap();
     for preset in ["draft", "standard", "reference"] {
         let out = dir.join(preset);
@@ -106,15 +106,14 @@ fn every_preset_records_and_the_manifest_says_what_it_resolved_to() {
             serde_json::from_str(&std::fs::read_to_string(Path::new(out).join("manifest.json")).unwrap()).unwrap();
         let q = &manifest["resolved"]["quality"];
         assert_eq!(q["preset"], preset);
-        let reflection = if preset == "reference" { "ellipsoid" } else { "facet" };
-        assert_eq!(q["reflection"], reflection, "{manifest:#}");
+        assert_eq!(q["reflection"], "ellipsoid", "{manifest:#}");
         assert_eq!(manifest["scenario"]["quality"]["preset"], preset);
         assert!(manifest["resolved"]["sky_blur_used"].is_string(), "{manifest:#}");
     }
     // without the flag the file's table holds, and `validate` prints it, overrides starred
     let (code, out, err) = irsim(&["validate", scenario]);
     assert_eq!(code, 0, "{err}");
-    assert!(out.contains("   preset = \"draft\"") && out.contains("  *reflection = \"ellipsoid\""), "{out}");
+    assert!(out.contains("   preset = \"draft\"") && out.contains("  *reflection = \"facet\""), "{out}");
     let (code, _, err) = irsim(&["record", scenario, "--out", "x", "--quality", "best"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("draft, standard or reference"), "{err}");

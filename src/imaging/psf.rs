@@ -43,6 +43,9 @@ const FINE_PER_PX: usize = 32;
 const KERNEL_GRID_PER_PX: usize = 16;
 /// Largest kernel radius, px.
 pub const MAX_RADIUS_PX: usize = 12;
+/// The energy cut-off that sets [`Psf::region_radius_px`]: the finest the cut-off switch may be set to, so the
+/// region holds the PSF's whole reach at any setting of the switch.
+pub const REGION_ENERGY_CUTOFF: f64 = 1e-6;
 /// Wavelengths averaged over the band.
 const BAND_SAMPLES: usize = 24;
 
@@ -148,6 +151,7 @@ pub struct Psf {
     point: Kernel,
     area: Kernel,
     fwhm_px: f64,
+    region_radius: usize,
 }
 
 impl Psf {
@@ -166,6 +170,7 @@ impl Psf {
         let point_grid = otf.spatial(KERNEL_GRID_PER_PX, true, true);
         let area_grid = otf.spatial(KERNEL_GRID_PER_PX, false, true);
         let radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.energy_cutoff);
+        let region_radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, REGION_ENERGY_CUTOFF).max(radius);
         let point = Kernel::from_grid(&point_grid, KERNEL_GRID_PER_PX, radius);
         let area = Kernel::from_grid(&area_grid, KERNEL_GRID_PER_PX, radius);
         // the fine table of the PSF itself, over [−R−½, R+½]², renormalised to unit integral
@@ -198,12 +203,21 @@ impl Psf {
             *v = (f64::from(*v) / total) as f32;
         }
         let fwhm_px = fwhm(&fine, side, FINE_PER_PX);
-        Ok(Self { radius, fine, fine_side: side, point, area, fwhm_px })
+        Ok(Self { radius, fine, fine_side: side, point, area, fwhm_px, region_radius })
     }
 
     /// Kernel radius `R`, px: the PSF is taken as 0 beyond `R + ½` px on either axis.
     pub fn radius_px(&self) -> usize {
         self.radius
+    }
+
+    /// Radius of a target's region, px: the PSF's reach at [`REGION_ENERGY_CUTOFF`], whatever the kernel's
+    /// cut-off. The region is where Poisson fusion solves, and with the paper's guidance the solution inside it
+    /// depends on its size (the sky's curvature there is replaced by the harmonic fill of its border), so it is
+    /// a property of the scene and the optics, not of the accuracy switch: a coarser cut-off changes only the
+    /// target's far tail.
+    pub fn region_radius_px(&self) -> usize {
+        self.region_radius
     }
 
     /// Full width at half maximum along the image x axis, px.

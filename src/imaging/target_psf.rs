@@ -69,11 +69,12 @@ impl TargetPsfSpec {
 /// Most quadrature nodes of one target; beyond it the spacing grows (a very near target).
 const MAX_NODES: usize = 40_000;
 
-/// The pixels the target's image covers: the ellipse's box grown by the PSF radius and a pixel, clipped to the
-/// frame, plus a one-pixel margin for the fusion boundary; empty if off-frame.
+/// The pixels the target's image covers: the ellipse's box grown by the PSF's region radius
+/// ([`Psf::region_radius_px`]) and a pixel, clipped to the frame, plus a one-pixel margin for the fusion
+/// boundary; empty if off-frame.
 pub fn psf_region(ellipse: &ImageEllipse, psf: &Psf, width: usize, height: usize) -> PixelRect {
     let [x0, y0, x1, y1] = ellipse.bbox();
-    let grow = psf.radius_px() as f64 + 1.5;
+    let grow = psf.region_radius_px() as f64 + 1.5;
     PixelRect::clipped(
         [(x0 - grow).floor(), (y0 - grow).floor(), (x1 + grow).ceil(), (y1 + grow).ceil()],
         width,
