@@ -119,3 +119,46 @@ fn every_preset_records_and_the_manifest_says_what_it_resolved_to() {
     assert!(err.contains("draft, standard or reference"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `irsim bench report` on the smallest configuration writes the report and its plots, every number in it is
+/// finite, and it refuses to overwrite a report without --force.
+#[test]
+fn bench_report_writes_finite_tables_and_plots() {
+    let dir = temp_dir("report");
+    let scenarios = dir.join("scenarios");
+    std::fs::create_dir_all(&scenarios).unwrap();
+    // the dome alone (no sky image to prefilter), which keeps the reference runs of a debug build short
+    let (sky, targets) = (BASE.find("[sky]").unwrap(), BASE.find("[[targets]]").unwrap());
+    std::fs::write(scenarios.join("small.toml"), format!("{}{}", &BASE[..sky], &BASE[targets..])).unwrap();
+    let out = dir.join("out");
+    let args =
+        ["bench", "report", "--tiny", "--out", out.to_str().unwrap(), "--scenarios", scenarios.to_str().unwrap()];
+    let (code, stdout, err) = irsim(&args);
+    assert_eq!(code, 0, "{stdout}{err}");
+    let md = std::fs::read_to_string(out.join("speed_vs_error.md")).unwrap();
+    for png in ["presets_scenarios.png", "presets_pipeline.png", "switches.png", "scaling.png"] {
+        let image = image::open(out.join(png)).unwrap_or_else(|e| panic!("{png}: {e}"));
+        assert_eq!((image.width(), image.height()), (900, 600), "{png}");
+        assert!(md.contains(&format!("({png})")), "{png} is linked");
+    }
+    // every table cell that is a number is finite, and the error columns are there
+    let mut numbers = 0;
+    for line in md.lines().filter(|l| l.starts_with('|') && !l.starts_with("|---")) {
+        for cell in line.split('|').map(str::trim) {
+            let lower = cell.to_lowercase();
+            assert!(!lower.contains("nan") && !lower.contains("inf"), "{line}");
+            for part in cell.split(" / ") {
+                if let Ok(v) = part.trim_end_matches('×').parse::<f64>() {
+                    assert!(v.is_finite(), "{line}");
+                    numbers += 1;
+                }
+            }
+        }
+    }
+    assert!(numbers > 40, "{numbers} numbers in\n{md}");
+    assert!(md.contains("| small |") && md.contains("`psf_energy_cutoff`"), "{md}");
+    let (code, _, err) = irsim(&args);
+    assert_eq!(code, 2, "a second report needs --force: {err}");
+    assert!(err.contains("--force"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -123,7 +123,11 @@ pub struct SkyArgs {
 
 /// Flags of `irsim bench`.
 #[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct BenchArgs {
+    /// `report`: speed against error of every preset and switch, as Markdown and plots.
+    #[command(subcommand)]
+    pub command: Option<BenchCommand>,
     /// Scenario files to time (headless, no disk) instead of the built-in cases.
     pub scenarios: Vec<PathBuf>,
     /// Frames per case.
@@ -132,6 +136,13 @@ pub struct BenchArgs {
     /// Accuracy against speed: draft, standard or reference, in place of each scenario's `[quality]` table.
     #[arg(long, value_name = "PRESET")]
     pub quality: Option<QualityPreset>,
+}
+
+/// What `irsim bench` can do besides timing.
+#[derive(Debug, clap::Subcommand)]
+pub enum BenchCommand {
+    /// Measure every quality preset and switch against `reference` and write speed_vs_error.md with PNG plots.
+    Report(super::report::ReportArgs),
 }
 
 fn load_scenario(path: &Path) -> Result<CheckedScenario, CliError> {
@@ -483,7 +494,36 @@ fn write_sky(a: &SkyArgs) -> Result<(), CliError> {
     write_atomic(&a.out, &bytes).map_err(|e| CliError::Failed(e.to_string()))
 }
 
-fn bench_scenario(width: u32, height: u32, targets: usize) -> String {
+/// A fresh temporary directory holding the sky image `clear.png` that [`bench_scenario`] files refer to.
+///
+/// # Errors
+/// [`CliError::Failed`] if it cannot be written.
+pub(super) fn bench_dir(name: &str) -> Result<PathBuf, CliError> {
+    let dir = std::env::temp_dir().join(format!("irsim-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| CliError::Failed(e.to_string()))?;
+    write_sky(&SkyArgs {
+        kind: SkyKindArg::Clear,
+        out: dir.join("clear.png"),
+        width: 512,
+        height: 512,
+        seed: 1,
+        cover: 0.45,
+        psd_slope: -3.0,
+        scale: 0.25,
+        elevation_top_deg: 12.0,
+        elevation_bottom_deg: -2.0,
+        band_um: vec![8.0, 12.0],
+        altitude_m: 8000.0,
+        cloud_range_km: 30.0,
+        t0_k: 288.15,
+        force: true,
+    })?;
+    Ok(dir)
+}
+
+/// A scenario of `targets` targets circling in the view of a `width` × `height` paper camera, against the sky
+/// of [`bench_dir`].
+pub(super) fn bench_scenario(width: u32, height: u32, targets: usize) -> String {
     let mut s = format!(
         r#"
 name = "bench_{width}x{height}_{targets}"
@@ -584,6 +624,9 @@ fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<(f64, Vec<St
 /// # Errors
 /// [`CliError::Failed`] if the temporary scenario cannot be written or run.
 pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
+    if let Some(BenchCommand::Report(r)) = &a.command {
+        return super::report::report(r);
+    }
     let frames = a.frames.max(10);
     if !a.scenarios.is_empty() {
         for path in &a.scenarios {
@@ -595,25 +638,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         }
         return Ok(());
     }
-    let dir = std::env::temp_dir().join(format!("irsim-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).map_err(|e| CliError::Failed(e.to_string()))?;
-    write_sky(&SkyArgs {
-        kind: SkyKindArg::Clear,
-        out: dir.join("clear.png"),
-        width: 512,
-        height: 512,
-        seed: 1,
-        cover: 0.45,
-        psd_slope: -3.0,
-        scale: 0.25,
-        elevation_top_deg: 12.0,
-        elevation_bottom_deg: -2.0,
-        band_um: vec![8.0, 12.0],
-        altitude_m: 8000.0,
-        cloud_range_km: 30.0,
-        t0_k: 288.15,
-        force: true,
-    })?;
+    let dir = bench_dir("bench")?;
     for (w, h, n, recording) in [(256, 256, 1, false), (640, 512, 8, false), (256, 256, 1, true)] {
         let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
         std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;
