@@ -15,7 +15,7 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 
 use super::CliError;
-use super::run::{bench_dir, bench_scenario};
+use super::run::{bench_dir, bench_scenario, with_quality_spec};
 use crate::labels::FrameLabels;
 use crate::record::write_atomic;
 use crate::scenario::load::{load_for_frames, located};
@@ -45,6 +45,7 @@ pub struct ReportArgs {
 }
 
 /// How much a report measures.
+#[derive(Clone)]
 struct Plan {
     /// Frames compared per case (noise off).
     error_frames: u64,
@@ -124,24 +125,15 @@ fn failed(e: impl std::fmt::Display) -> CliError {
     CliError::Failed(e.to_string())
 }
 
-/// `scenario` with its `[quality]` table replaced by `spec`.
-fn with_spec(scenario: &CheckedScenario, spec: QualitySpec) -> Result<CheckedScenario, CliError> {
-    let mut s = scenario.spec.clone();
-    s.quality = spec;
-    let base = scenario.source.parent().map(Path::to_path_buf).unwrap_or_default();
-    s.checked_in(&scenario.source, &base)
-        .map_err(|e| CliError::Invalid(located(&scenario.source, &e.path, &e.message).to_string()))
-}
-
 fn preset(scenario: &CheckedScenario, p: QualityPreset) -> Result<CheckedScenario, CliError> {
-    with_spec(scenario, QualitySpec::of(p))
+    with_quality_spec(scenario, QualitySpec::of(p))
 }
 
 /// `reference` with one switch set to `value` (TOML); `None` if the value does not parse for the switch.
 fn one_switch(scenario: &CheckedScenario, name: &str, value: &str) -> Result<CheckedScenario, CliError> {
     let text = format!("preset = \"reference\"\n{name} = {value}\n");
     let spec: QualitySpec = toml::from_str(&text).map_err(|e| failed(format!("switch {name} = {value}: {e}")))?;
-    with_spec(scenario, spec)
+    with_quality_spec(scenario, spec)
 }
 
 fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
@@ -446,6 +438,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
          rms / max DN | draft centroid px | draft speed-up over standard |\n|---|---|---|---|---|---|---|---|---|"
     );
     let mut preset_points: Vec<Series> = vec![("standard".into(), Vec::new()), ("draft".into(), Vec::new())];
+    let mut skip_rows = Vec::new();
     for (path, s) in scenario_paths.iter().zip(&scenarios) {
         let name = path.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         progress(&format!("  {name}"));
@@ -467,6 +460,12 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
             centroid_cell(&ed),
             st.ms_per_frame / dr.ms_per_frame
         );
+        // the skip of section 5 against the same standard run
+        let mut no_skip: QualitySpec = toml::from_str("psf_skip_below_dn = 0").map_err(failed)?;
+        no_skip.preset = QualityPreset::Standard;
+        let all = measure(&with_quality_spec(s, no_skip)?, &plan)?;
+        let skipped = errors(&st, &all);
+        skip_rows.push(format!("| {name} | {:.2} | {:.2} |", all.ms_per_frame - st.ms_per_frame, skipped.max_dn));
         preset_points[0].1.push((st.ms_per_frame, es.rms_dn.max(FLOOR), name.clone()));
         preset_points[1].1.push((dr.ms_per_frame, ed.rms_dn.max(FLOOR), name));
     }
@@ -583,7 +582,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     progress("scaling");
     let _ = writeln!(md, "## Scaling (standard preset)\n");
     // timing alone, unless there is no timing run (then the compared frames are the timed ones)
-    let plan_timing = Plan { error_frames: if plan.time_frames > 0 { 0 } else { plan.error_frames }, ..Plan::new(a) };
+    let plan_timing = Plan { error_frames: if plan.time_frames > 0 { 0 } else { plan.error_frames }, ..plan.clone() };
     let mut by_targets = Vec::new();
     for &n in &plan.targets {
         let s = preset(&synthetic(plan.target_size.0, plan.target_size.1, n)?, QualityPreset::Standard)?;
@@ -638,8 +637,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     )?;
     let _ = writeln!(md, "![scaling](scaling.png)\n");
 
-    // 5. what the skips save
-    progress("skips");
+    // 5. what the skips save (measured with the presets, section 1)
     let _ = writeln!(md, "## Model only what a scene needs\n");
     let _ = writeln!(
         md,
@@ -647,14 +645,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
          keep their values. Standard (0.1 DN) against none (0), on each scenario.\n\n| scenario | ms saved per \
          frame | max DN changed |\n|---|---|---|"
     );
-    for (path, s) in scenario_paths.iter().zip(&scenarios) {
-        let name = path.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let skip = measure(&preset(s, QualityPreset::Standard)?, &plan)?;
-        let mut spec: QualitySpec = toml::from_str("psf_skip_below_dn = 0").map_err(failed)?;
-        spec.preset = QualityPreset::Standard;
-        let all = measure(&with_spec(s, spec)?, &plan)?;
-        let e = errors(&skip, &all);
-        let _ = writeln!(md, "| {name} | {:.2} | {:.2} |", all.ms_per_frame - skip.ms_per_frame, e.max_dn);
+    for row in &skip_rows {
+        let _ = writeln!(md, "{row}");
     }
     let _ = writeln!(
         md,

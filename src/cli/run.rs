@@ -165,8 +165,16 @@ pub fn with_quality(scenario: CheckedScenario, preset: Option<QualityPreset>) ->
             dropped.join(", ")
         );
     }
+    with_quality_spec(&scenario, QualitySpec::of(preset))
+}
+
+/// `scenario` with its `[quality]` table replaced by `quality`, checked again.
+///
+/// # Errors
+/// [`CliError::Invalid`] if the scenario does not check with it.
+pub fn with_quality_spec(scenario: &CheckedScenario, quality: QualitySpec) -> Result<CheckedScenario, CliError> {
     let mut spec = scenario.spec.clone();
-    spec.quality = QualitySpec::of(preset);
+    spec.quality = quality;
     let base = scenario.source.parent().map(Path::to_path_buf).unwrap_or_default();
     spec.checked_in(&scenario.source, &base)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.path, &e.message).to_string()))
