@@ -142,9 +142,10 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
     };
     let (mut frames, mut labels) = (Vec::new(), Vec::new());
     let mut width = 0;
-    let t = Instant::now();
+    let mut ms_per_frame = f64::NAN;
     if plan.error_frames > 0 {
         let mut app = setup(RunOptions { noise: false, keep_float: true, ..RunOptions::default() })?;
+        let t = Instant::now();
         for _ in 0..plan.error_frames {
             labels.push(step(&mut app));
             // the frame before quantization, so that a difference is not a rounding flip
@@ -153,9 +154,9 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
             width = f.width();
             frames.push(f.pixels().to_vec());
         }
+        // without timed frames (the smallest configuration), the compared frames' own time, noise off
+        ms_per_frame = t.elapsed().as_secs_f64() * 1e3 / plan.error_frames as f64;
     }
-    // without timed frames (the smallest configuration), the compared frames' own time, noise off
-    let mut ms_per_frame = t.elapsed().as_secs_f64() * 1e3 / plan.error_frames.max(1) as f64;
     if plan.time_frames > 0 {
         let mut app = setup(RunOptions::default())?;
         for _ in 0..2 {
@@ -286,6 +287,11 @@ fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
             .configure_mesh()
             .x_desc(x_desc)
             .y_desc(y_desc)
+            // plain numbers, fewer of them: a log axis within one decade otherwise labels every digit
+            .x_labels(8)
+            .y_labels(8)
+            .x_label_formatter(&|v| format!("{v}"))
+            .y_label_formatter(&|v| format!("{v}"))
             .label_style(("sans-serif", 15))
             .axis_desc_style(("sans-serif", 17))
             .draw()
@@ -374,7 +380,6 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     if md_path.exists() && !a.force {
         return Err(CliError::Invalid(format!("{}: holds a report already (--force replaces it)", a.out.display())));
     }
-    std::fs::create_dir_all(&a.out).map_err(|e| failed(format!("{}: {e}", a.out.display())))?;
     let _ = plotters::style::register_font(
         "sans-serif",
         FontStyle::Normal,
@@ -405,6 +410,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
             .map_err(|e| CliError::Invalid(e.to_string()))
     };
     let scenarios = scenario_paths.iter().map(|p| load(p)).collect::<Result<Vec<_>, _>>()?;
+    // the directory only once the input is known to be good
+    std::fs::create_dir_all(&a.out).map_err(|e| failed(format!("{}: {e}", a.out.display())))?;
     let mut md = String::new();
     let mode = if a.tiny {
         " --tiny"
