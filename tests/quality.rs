@@ -162,3 +162,31 @@ fn bench_report_writes_finite_tables_and_plots() {
     assert!(err.contains("--force"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `fusion_skip_below_sigma`: a target under the threshold is added to the frame exactly as the `additive`
+/// guidance adds it, and at 0 every target is fused as before.
+#[test]
+fn a_target_below_the_fusion_threshold_is_added_not_fused() {
+    let dir = temp_dir("fusion_skip");
+    std::fs::create_dir_all(&dir).unwrap();
+    let record = |name: &str, quality: &str| -> Vec<Vec<u8>> {
+        let scenario = dir.join(format!("{name}.toml"));
+        std::fs::write(&scenario, format!("{BASE}\n[quality]\n{quality}\n")).unwrap();
+        let out = dir.join(name);
+        let args = ["record", scenario.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-noise", "--quiet"];
+        let (code, _, err) = irsim(&args);
+        assert_eq!(code, 0, "{err}");
+        let mut files: Vec<_> = std::fs::read_dir(out.join("frames")).unwrap().map(|e| e.unwrap().path()).collect();
+        files.sort();
+        assert_eq!(files.len(), 3, "{files:?}");
+        files.iter().map(|f| std::fs::read(f).unwrap()).collect()
+    };
+    let skipped = record("skipped", "fusion_skip_below_sigma = 100");
+    let additive = record("additive", "fusion_guidance = \"additive\"");
+    let fused = record("fused", "fusion_skip_below_sigma = 0");
+    assert_eq!(skipped, additive);
+    assert_ne!(skipped, fused, "the target's fusion must change the frames");
+    let e = load_toml(&format!("{BASE}\n[quality]\nfusion_skip_below_sigma = -1\n")).unwrap_err();
+    assert_eq!(e.field, "quality.fusion_skip_below_sigma", "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

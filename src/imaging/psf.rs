@@ -43,8 +43,8 @@ const FINE_PER_PX: usize = 32;
 const KERNEL_GRID_PER_PX: usize = 16;
 /// Largest kernel radius, px.
 pub const MAX_RADIUS_PX: usize = 12;
-/// The energy cut-off that sets [`Psf::region_radius_px`]: the finest the cut-off switch may be set to, so the
-/// region holds the PSF's whole reach at any setting of the switch.
+/// The energy cut-off that sets [`Psf::region_radius_px`] in the `standard` and `reference` qualities: the finest
+/// the cut-off switch may be set to, so the region holds the PSF's whole reach at any setting of the switch.
 pub const REGION_ENERGY_CUTOFF: f64 = 1e-6;
 /// Wavelengths averaged over the band.
 const BAND_SAMPLES: usize = 24;
@@ -63,6 +63,9 @@ pub struct PsfSpec {
     pub motion_sigma_px: f64,
     /// The kernel ends where the energy outside it falls below this fraction.
     pub energy_cutoff: f64,
+    /// A target's region (where it is drawn and fused) reaches where the PSF's energy outside falls below this
+    /// fraction ([`Psf::region_radius_px`]); never less than the kernel's reach.
+    pub region_energy_cutoff: f64,
 }
 
 impl Default for PsfSpec {
@@ -73,6 +76,7 @@ impl Default for PsfSpec {
             aberration_sigma_px: 0.3,
             motion_sigma_px: 0.0,
             energy_cutoff: 0.03,
+            region_energy_cutoff: REGION_ENERGY_CUTOFF,
         }
     }
 }
@@ -92,6 +96,10 @@ impl PsfSpec {
         let c = self.energy_cutoff;
         if !(c.is_finite() && (1e-6..=0.2).contains(&c)) {
             return Err(ParamError { name: "energy_cutoff", value: c, range: "[1e-6, 0.2]".into() });
+        }
+        let c = self.region_energy_cutoff;
+        if !(c.is_finite() && (1e-6..=0.2).contains(&c)) {
+            return Err(ParamError { name: "region_energy_cutoff", value: c, range: "[1e-6, 0.2]".into() });
         }
         Ok(())
     }
@@ -170,7 +178,7 @@ impl Psf {
         let point_grid = otf.spatial(KERNEL_GRID_PER_PX, true, true);
         let area_grid = otf.spatial(KERNEL_GRID_PER_PX, false, true);
         let radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.energy_cutoff);
-        let region_radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, REGION_ENERGY_CUTOFF).max(radius);
+        let region_radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.region_energy_cutoff).max(radius);
         let point = Kernel::from_grid(&point_grid, KERNEL_GRID_PER_PX, radius);
         let area = Kernel::from_grid(&area_grid, KERNEL_GRID_PER_PX, radius);
         // the fine table of the PSF itself, over [−R−½, R+½]², renormalised to unit integral
@@ -211,11 +219,11 @@ impl Psf {
         self.radius
     }
 
-    /// Radius of a target's region, px: the PSF's reach at [`REGION_ENERGY_CUTOFF`], whatever the kernel's
-    /// cut-off. The region is where Poisson fusion solves, and with the paper's guidance the solution inside it
-    /// depends on its size (the sky's curvature there is replaced by the harmonic fill of its border), so it is
-    /// a property of the scene and the optics, not of the accuracy switch: a coarser cut-off changes only the
-    /// target's far tail.
+    /// Radius of a target's region, px: the PSF's reach at [`PsfSpec::region_energy_cutoff`] (default
+    /// [`REGION_ENERGY_CUTOFF`]), whatever the kernel's cut-off. The region is where Poisson fusion solves, and
+    /// with the paper's guidance the solution inside it depends on its size (the sky's curvature there is
+    /// replaced by the harmonic fill of its border), so it has its own switch: a coarser kernel cut-off changes
+    /// only the target's far tail, a smaller region changes the fused sky around the target.
     pub fn region_radius_px(&self) -> usize {
         self.region_radius
     }

@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use super::{FieldError, fe};
 use crate::imaging::background::SkyBlur;
 use crate::imaging::fusion::{Guidance, Solver};
-use crate::imaging::psf::ConvolutionMethod;
+use crate::imaging::psf::{ConvolutionMethod, REGION_ENERGY_CUTOFF};
 use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::target_psf::TargetMethod;
@@ -81,6 +81,9 @@ pub struct Quality {
     pub psf_method: ConvolutionMethod,
     /// The PSF kernel is cut where the energy outside falls below this fraction.
     pub psf_energy_cutoff: f64,
+    /// A target's region (where it is drawn and Poisson-fused) ends where the PSF's energy outside falls below
+    /// this fraction.
+    pub region_energy_cutoff: f64,
     /// A 16 × 16 px tile is not blurred when the blur cannot change a pixel of it by more than this, DN (0:
     /// always blur).
     pub psf_skip_below_dn: f64,
@@ -98,6 +101,9 @@ pub struct Quality {
     pub poisson_normal_threshold_e: f64,
     /// How the Poisson fusion equation is solved.
     pub fusion_solver: Solver,
+    /// A target whose peak is below this many noise σ (at its background) is added to the frame instead of
+    /// fused (0: every target fused).
+    pub fusion_skip_below_sigma: f64,
     /// The gradient field that guides the fusion.
     pub fusion_guidance: Guidance,
     /// The sun's reflection: the paper's facet or the average over the ellipsoid.
@@ -116,6 +122,7 @@ impl Quality {
             radiance_table_step_k: 0.02,
             psf_method: ConvolutionMethod::Separable,
             psf_energy_cutoff: 0.01,
+            region_energy_cutoff: REGION_ENERGY_CUTOFF,
             psf_skip_below_dn: 0.1,
             sky_blur: SkyBlur::Prefilter,
             prefilter_tolerance: 0.05,
@@ -124,12 +131,13 @@ impl Quality {
             blob_roi_fraction: 1e-3,
             poisson_normal_threshold_e: 100.0,
             fusion_solver: Solver::Direct,
+            fusion_skip_below_sigma: 0.0,
             fusion_guidance: Guidance::Normal,
             reflection: ReflectionGeometry::Ellipsoid,
             reflection_grid: [24, 48],
         };
-        // the other two say where they differ from it (sky sampling, fusion and reflection geometry are the
-        // same in all three)
+        // the other two say where they differ from it (sky sampling, the fusion solver and guidance, and the
+        // reflection geometry are the same in all three)
         match p {
             QualityPreset::Standard => standard,
             QualityPreset::Reference => Self {
@@ -152,6 +160,7 @@ impl Quality {
                 span_tolerance_px: 0.02,
                 radiance_table_step_k: 0.1,
                 psf_energy_cutoff: 0.1,
+                fusion_skip_below_sigma: DRAFT_FUSION_SKIP_BELOW_SIGMA,
                 psf_skip_below_dn: 1.0,
                 sky_blur: SkyBlur::Auto,
                 prefilter_tolerance: 0.2,
@@ -197,13 +206,14 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 17] = [
+pub const SWITCHES: [&str; 19] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
     "radiance_table_step_k",
     "psf_method",
     "psf_energy_cutoff",
+    "region_energy_cutoff",
     "psf_skip_below_dn",
     "sky_blur",
     "prefilter_tolerance",
@@ -212,6 +222,7 @@ pub const SWITCHES: [&str; 17] = [
     "blob_roi_fraction",
     "poisson_normal_threshold_e",
     "fusion_solver",
+    "fusion_skip_below_sigma",
     "fusion_guidance",
     "reflection",
     "reflection_grid",
@@ -226,6 +237,9 @@ pub const MIN_PREFILTER_TOLERANCE: f64 = 1e-3;
 /// against 0.63 at cloud edges, docs/accuracy.md), and at 0.001 perspective alone sends 94 % of crossing_pair's
 /// frame that way.
 pub const REFERENCE_PREFILTER_TOLERANCE: f64 = 0.01;
+/// The draft preset's `fusion_skip_below_sigma`: a target whose peak is under the noise σ is not detectable in
+/// one frame.
+pub const DRAFT_FUSION_SKIP_BELOW_SIGMA: f64 = 1.0;
 /// Smallest `blob_roi_fraction`.
 pub const MIN_ROI_FRACTION: f64 = 1e-9;
 /// Largest `poisson_normal_threshold_e`: every count exact.
@@ -252,6 +266,9 @@ pub struct QualitySpec {
     /// See [`Quality::psf_energy_cutoff`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub psf_energy_cutoff: Option<f64>,
+    /// See [`Quality::region_energy_cutoff`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub region_energy_cutoff: Option<f64>,
     /// See [`Quality::psf_skip_below_dn`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub psf_skip_below_dn: Option<f64>,
@@ -276,6 +293,9 @@ pub struct QualitySpec {
     /// See [`Quality::fusion_solver`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fusion_solver: Option<Solver>,
+    /// See [`Quality::fusion_skip_below_sigma`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fusion_skip_below_sigma: Option<f64>,
     /// See [`Quality::fusion_guidance`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fusion_guidance: Option<Guidance>,
@@ -318,6 +338,7 @@ impl QualitySpec {
             radiance_table_step_k,
             psf_method,
             psf_energy_cutoff,
+            region_energy_cutoff,
             psf_skip_below_dn,
             sky_blur,
             prefilter_tolerance,
@@ -326,6 +347,7 @@ impl QualitySpec {
             blob_roi_fraction,
             poisson_normal_threshold_e,
             fusion_solver,
+            fusion_skip_below_sigma,
             fusion_guidance,
             reflection,
             reflection_grid
@@ -347,7 +369,9 @@ impl QualitySpec {
             range("radiance_table_step_k", q.radiance_table_step_k, 0.001, 5.0, " K (or 0: no table)")?;
         }
         range("psf_energy_cutoff", q.psf_energy_cutoff, MIN_ENERGY_CUTOFF, 0.2, "")?;
+        range("region_energy_cutoff", q.region_energy_cutoff, REGION_ENERGY_CUTOFF, 0.2, "")?;
         range("psf_skip_below_dn", q.psf_skip_below_dn, 0.0, 1e6, " DN")?;
+        range("fusion_skip_below_sigma", q.fusion_skip_below_sigma, 0.0, 100.0, " σ")?;
         range("prefilter_tolerance", q.prefilter_tolerance, MIN_PREFILTER_TOLERANCE, 0.5, "")?;
         if let BlobSampling::Integrated { n } = q.blob_sampling
             && !(1..=16).contains(&n)

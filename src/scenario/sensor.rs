@@ -220,6 +220,8 @@ pub struct PsfSettings {
     pub motion_sigma_px: f64,
     /// Kernel cut where the energy outside falls below this fraction.
     pub energy_cutoff: f64,
+    /// A target's region ends where the PSF's energy outside falls below this fraction.
+    pub region_energy_cutoff: f64,
     /// How the kernel is applied to the frame.
     pub method: ConvolutionMethod,
     /// A 16 × 16 px tile of the frame is not blurred when the blur cannot change any of its pixels by more than
@@ -240,6 +242,7 @@ impl PsfSettings {
             aberration_sigma_px: self.aberration_sigma_px,
             motion_sigma_px: self.motion_sigma_px,
             energy_cutoff: self.energy_cutoff,
+            region_energy_cutoff: self.region_energy_cutoff,
         }
     }
 }
@@ -526,6 +529,7 @@ impl SensorSpec {
                 aberration_sigma_px: p.aberration_sigma_px,
                 motion_sigma_px: p.motion_sigma_px,
                 energy_cutoff: quality.psf_energy_cutoff,
+                region_energy_cutoff: quality.region_energy_cutoff,
                 method: quality.psf_method,
                 skip_below_dn: quality.psf_skip_below_dn,
                 sky_blur: quality.sky_blur,

@@ -5,7 +5,7 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{Fusion, FusionSystems, SensorFrame, SimSettings, TargetPatches};
-use crate::imaging::fusion::Patch;
+use crate::imaging::fusion::{Guidance, Patch};
 
 /// Fuses the targets.
 pub struct FusionPlugin;
@@ -27,7 +27,17 @@ pub fn fuse_targets(
     if patches.used == 0 {
         return;
     }
-    let list: Vec<Patch<'_>> =
-        patches.patches[..patches.used].iter().map(|(rect, values)| Patch { rect: *rect, values }).collect();
-    fusion.0.fuse(&mut sf.frame, &list, settings.quality.fusion_guidance, settings.quality.fusion_solver);
+    let q = &settings.quality;
+    let list = |additive: bool| -> Vec<Patch<'_>> {
+        let used = patches.patches[..patches.used].iter().zip(&patches.additive);
+        used.filter(|(_, a)| **a == additive).map(|((rect, values), _)| Patch { rect: *rect, values }).collect()
+    };
+    let faint = list(true);
+    if !faint.is_empty() {
+        fusion.0.fuse(&mut sf.frame, &faint, Guidance::Additive, q.fusion_solver);
+    }
+    let fused = list(false);
+    if !fused.is_empty() {
+        fusion.0.fuse(&mut sf.frame, &fused, q.fusion_guidance, q.fusion_solver);
+    }
 }

@@ -80,6 +80,9 @@ pub struct TargetPatches {
     pub patches: Vec<(PixelRect, Vec<f32>)>,
     /// How many entries of `patches` are in use this frame.
     pub used: usize,
+    /// Per entry: added to the frame instead of fused (a target too faint for the fusion to matter,
+    /// `[quality] fusion_skip_below_sigma`).
+    pub additive: Vec<bool>,
 }
 
 /// The fusion engine (planned transforms, buffers).

@@ -72,6 +72,11 @@ pub fn draw_targets(
         };
         fp.peak_radiance = peak;
         fp.patch = Some(patches.used);
+        // a target whose peak is under the set fraction of the noise is added rather than fused
+        let faint =
+            (peak * sensor.dn_per_radiance).abs() < settings.quality.fusion_skip_below_sigma * sensor.noise_dn(bg);
+        patches.additive.resize(patches.used + 1, false);
+        patches.additive[patches.used] = faint;
         patches.used += 1;
     }
 }
