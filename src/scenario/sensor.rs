@@ -210,18 +210,9 @@ impl Default for PsfToml {
 /// The optics blur, resolved: the physics from `[sensor.psf]`, the numerics from `[quality]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PsfSettings {
-    /// Diffraction by the circular pupil.
-    pub diffraction: bool,
-    /// The pixel's photosensitive aperture.
-    pub pixel_aperture: bool,
-    /// Gaussian for aberrations and defocus, px rms.
-    pub aberration_sigma_px: f64,
-    /// Gaussian for line-of-sight motion during the integration time, px rms.
-    pub motion_sigma_px: f64,
-    /// Kernel cut where the energy outside falls below this fraction.
-    pub energy_cutoff: f64,
-    /// A target's region ends where the PSF's energy outside falls below this fraction.
-    pub region_energy_cutoff: f64,
+    /// The PSF's parameters: what it holds from `[sensor.psf]`, where it and a target's region are cut from
+    /// `[quality]`.
+    pub spec: PsfSpec,
     /// How the kernel is applied to the frame.
     pub method: ConvolutionMethod,
     /// A 16 × 16 px tile of the frame is not blurred when the blur cannot change any of its pixels by more than
@@ -231,20 +222,6 @@ pub struct PsfSettings {
     pub sky_blur: SkyBlur,
     /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
     pub prefilter_tolerance: f64,
-}
-
-impl PsfSettings {
-    /// The PSF's parameters.
-    pub fn spec(&self) -> PsfSpec {
-        PsfSpec {
-            diffraction: self.diffraction,
-            pixel_aperture: self.pixel_aperture,
-            aberration_sigma_px: self.aberration_sigma_px,
-            motion_sigma_px: self.motion_sigma_px,
-            energy_cutoff: self.energy_cutoff,
-            region_energy_cutoff: self.region_energy_cutoff,
-        }
-    }
 }
 
 /// The target model.
@@ -524,22 +501,29 @@ impl SensorSpec {
         let psf = if self.psf.enabled {
             let p = &self.psf;
             let settings = PsfSettings {
-                diffraction: p.diffraction,
-                pixel_aperture: p.pixel_aperture,
-                aberration_sigma_px: p.aberration_sigma_px,
-                motion_sigma_px: p.motion_sigma_px,
-                energy_cutoff: quality.psf_energy_cutoff,
-                region_energy_cutoff: quality.region_energy_cutoff,
+                spec: PsfSpec {
+                    diffraction: p.diffraction,
+                    pixel_aperture: p.pixel_aperture,
+                    aberration_sigma_px: p.aberration_sigma_px,
+                    motion_sigma_px: p.motion_sigma_px,
+                    energy_cutoff: quality.psf_energy_cutoff,
+                    region_energy_cutoff: quality.region_energy_cutoff,
+                },
                 method: quality.psf_method,
                 skip_below_dn: quality.psf_skip_below_dn,
                 sky_blur: quality.sky_blur,
                 prefilter_tolerance: quality.prefilter_tolerance,
             };
-            settings.spec().validate().map_err(|e| {
-                if e.name == "energy_cutoff" {
-                    fe("quality.psf_energy_cutoff", format!("{} is outside {}", super::num(e.value), e.range))
-                } else {
-                    super::at("sensor.psf")(e)
+            settings.spec.validate().map_err(|e| {
+                // the cuts come from [quality]
+                let switch = match e.name {
+                    "energy_cutoff" => Some("psf_energy_cutoff"),
+                    "region_energy_cutoff" => Some("region_energy_cutoff"),
+                    _ => None,
+                };
+                match switch {
+                    Some(s) => fe(format!("quality.{s}"), format!("{} is outside {}", super::num(e.value), e.range)),
+                    None => super::at("sensor.psf")(e),
                 }
             })?;
             Some(settings)

@@ -279,7 +279,7 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
     let psf = match resolved.psf {
         Some(p) => Some(Arc::new(
             Psf::new(
-                &p.spec(),
+                &p.spec,
                 &PsfOptics {
                     f_number: model.optics.f_number(),
                     pixel_pitch_m: model.detector.pixel_pitch_m,

@@ -75,8 +75,8 @@ pub fn draw_targets(
         // a target whose peak is under the set fraction of the noise is added rather than fused
         let faint =
             (peak * sensor.dn_per_radiance).abs() < settings.quality.fusion_skip_below_sigma * sensor.noise_dn(bg);
-        patches.additive.resize(patches.used + 1, false);
-        patches.additive[patches.used] = faint;
+        patches.additive.truncate(patches.used);
+        patches.additive.push(faint);
         patches.used += 1;
     }
 }
