@@ -159,12 +159,16 @@ fn sky_texture(plane: &SkyPlane, map: ColorMap) -> Image {
 #[derive(Component)]
 pub(super) struct Ellipsoid(u32);
 
-/// The shared unit sphere and a material per target colour.
+/// The shared unit spheres, coarse and fine, and a material per target colour.
 #[derive(Default)]
 pub(super) struct EllipsoidAssets {
-    sphere: Option<Handle<Mesh>>,
+    spheres: Option<[Handle<Mesh>; 2]>,
     materials: Vec<(u32, Handle<ViewMaterial>)>,
 }
+
+/// An ellipsoid drawn smaller than this (px across) uses the coarse sphere: 12 × 6 faces look round at that size,
+/// and under software rendering each triangle costs (ten aircraft of 24 × 12 faces were 5 760 triangles).
+const COARSE_BELOW_PX: f32 = 48.0;
 
 /// One ellipsoid per aircraft, at its pose, scaled by its semi-axes times the draw factor.
 #[allow(clippy::too_many_arguments)]
@@ -172,13 +176,20 @@ pub(super) fn sync_ellipsoids(
     mut commands: Commands,
     scale: Option<Res<DrawScale>>,
     aircraft: Query<(&Aircraft, &Kinematics, &Body)>,
-    mut shown: Query<(Entity, &Ellipsoid, &mut Transform)>,
+    mut shown: Query<(Entity, &Ellipsoid, &mut Transform, &mut Mesh3d)>,
     mut assets: Local<EllipsoidAssets>,
     mut meshes: ResMut<Assets<Mesh>>,
     mut materials: ResMut<Assets<ViewMaterial>>,
 ) {
-    let factor =
-        |id: u32| scale.as_ref().and_then(|s| s.0.iter().find(|(i, _)| *i == id).map(|(_, f)| *f)).unwrap_or(1.0);
+    let drawn = |id: u32| scale.as_ref().and_then(|s| s.get(id));
+    let factor = |id: u32| drawn(id).map_or(1.0, |d| d.factor);
+    let spheres = assets
+        .spheres
+        .get_or_insert_with(|| {
+            [meshes.add(Sphere::new(1.0).mesh().uv(12, 6)), meshes.add(Sphere::new(1.0).mesh().uv(32, 16))]
+        })
+        .clone();
+    let mesh = |id: u32| spheres[usize::from(drawn(id).is_some_and(|d| d.size_px >= COARSE_BELOW_PX))].clone();
     let pose = |k: &Kinematics, body: &Body, f: f32| {
         let m = body.body_to_world(k.velocity_m_s);
         // to_view is a rotation (x, y, z) → (x, z, −y): it maps the body's axes as it maps points
@@ -189,10 +200,14 @@ pub(super) fn sync_ellipsoids(
         Transform { translation: to_view(k.position_m), rotation, scale: (body.semi_axes_m * 1e-3).as_vec3() * f }
     };
     let mut seen = Vec::new();
-    for (entity, ellipsoid, mut transform) in &mut shown {
+    for (entity, ellipsoid, mut transform, mut mesh3d) in &mut shown {
         match aircraft.iter().find(|(a, _, _)| a.id == ellipsoid.0) {
             Some((a, k, body)) => {
                 *transform = pose(k, body, factor(a.id));
+                let want = mesh(a.id);
+                if mesh3d.0 != want {
+                    mesh3d.0 = want;
+                }
                 seen.push(a.id);
             }
             None => commands.entity(entity).despawn(),
@@ -202,7 +217,6 @@ pub(super) fn sync_ellipsoids(
         if seen.contains(&a.id) {
             continue;
         }
-        let sphere = assets.sphere.get_or_insert_with(|| meshes.add(Sphere::new(1.0).mesh().uv(24, 12))).clone();
         let material = match assets.materials.iter().find(|(id, _)| *id == a.id) {
             Some((_, m)) => m.clone(),
             None => {
@@ -211,6 +225,6 @@ pub(super) fn sync_ellipsoids(
                 m
             }
         };
-        commands.spawn((Mesh3d(sphere), MeshMaterial3d(material), pose(k, body, factor(a.id)), Ellipsoid(a.id)));
+        commands.spawn((Mesh3d(mesh(a.id)), MeshMaterial3d(material), pose(k, body, factor(a.id)), Ellipsoid(a.id)));
     }
 }

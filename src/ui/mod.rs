@@ -269,6 +269,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
             pace_window,
             scene::orbit_camera,
             scene::draw_encounter,
+            scene::pace_view,
             meshes::sync_sky_quad,
             meshes::sync_ellipsoids,
             finish_screenshot_run.run_if(resource_exists::<ScreenshotPlan>),
@@ -299,9 +300,9 @@ fn window_title(name: &str, frame: Option<u64>, t_s: f64) -> String {
     }
 }
 
-/// egui on its own camera after the 3D view's: the 3D camera clears the whole window (to the panels' colour: the
-/// panels themselves paint no background, which saves a window-sized fill under software rendering) and leaves
-/// its picture in the shared intermediate texture; egui draws over it and writes the window once.
+/// egui on the window's one camera: it clears the window to the panels' colour (the panels themselves paint no
+/// background, which saves a window-sized fill under software rendering) and shows the 3D camera's picture
+/// (`scene::ViewImage`) as an image.
 fn setup_egui(mut commands: Commands, mut settings: ResMut<EguiGlobalSettings>) {
     settings.auto_create_primary_context = false;
     commands.spawn((
@@ -310,7 +311,7 @@ fn setup_egui(mut commands: Commands, mut settings: ResMut<EguiGlobalSettings>) 
         Msaa::Off,
         bevy::core_pipeline::tonemapping::Tonemapping::None,
         bevy::camera::visibility::RenderLayers::none(),
-        Camera { order: 1, clear_color: ClearColorConfig::None, ..default() },
+        Camera { order: 1, clear_color: ClearColorConfig::Custom(scene::BACKGROUND), ..default() },
     ));
 }
 

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use bevy_egui::{EguiContexts, egui};
 
-use super::scene::{DrawScale, palette};
+use super::scene::{DrawScale, ViewImage, palette};
 use super::state::{ColorMap, Pace, Stretch, display_window, to_rgba};
 use super::{Viewer, edits};
 use crate::cli::run::{RecordPlan, record_scenario};
@@ -108,12 +108,14 @@ const SHORTCUTS: [(&str, &str); 11] = [
 ];
 
 /// Draws every panel and records the 3D view's rectangle.
+#[allow(clippy::too_many_arguments)]
 pub fn draw_panels(
     mut contexts: EguiContexts,
     mut viewer: ResMut<Viewer>,
     mut texture: Local<SensorTexture>,
     mut images: ResMut<Assets<Image>>,
     scale: Option<Res<DrawScale>>,
+    view_image: Option<ResMut<ViewImage>>,
     sensor: Query<(&Sensor, &SensorFrame)>,
     observer: Query<&CameraPose, With<Observer>>,
 ) -> Result {
@@ -121,7 +123,7 @@ pub fn draw_panels(
     update_texture(&mut contexts, &mut images, v, &mut texture);
     let ctx = contexts.ctx_mut()?.clone();
     if ctx.global_style().visuals.panel_fill != egui::Color32::TRANSPARENT {
-        // the panels paint no background: the 3D camera's clear does (see `setup_egui`)
+        // the panels paint no background: egui's camera clears the window (see `setup_egui`)
         ctx.all_styles_mut(|style| style.visuals.panel_fill = egui::Color32::TRANSPARENT);
     }
     let mut root = egui::Ui::new(
@@ -139,9 +141,25 @@ pub fn draw_panels(
     egui::Panel::left("sensor").resizable(true).default_size(left_default).show(&mut root, |ui| {
         sensor_panel(ui, v, &texture, sensor.single().ok(), observer.single().ok());
     });
+    let every = view_image.as_ref().map_or(1, |image| image.every);
+    let view_id = view_image.map(|mut image| {
+        let handle = image.handle.clone();
+        *image.egui_id.get_or_insert_with(|| contexts.add_image(bevy_egui::EguiTextureHandle::Strong(handle)))
+    });
     let central = egui::CentralPanel::default().frame(egui::Frame::NONE).show(&mut root, |ui| {
+        let rect = ui.max_rect();
+        if let Some(id) = view_id {
+            let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+            ui.painter().image(id, rect, uv, egui::Color32::WHITE);
+        }
         ui.label(egui::RichText::new("3D view — drag to orbit, right-drag to pan, wheel to zoom, F to focus").weak());
-        ui.max_rect()
+        if every > 1 {
+            ui.label(
+                egui::RichText::new(format!("drawn every {every} frames while playing (software renderer)")).weak(),
+            )
+            .on_hover_text("without a GPU the 3D view costs as much as all the panels together; the sensor image shows every frame");
+        }
+        rect
     });
     let r = central.inner;
     v.view_rect = [r.min.x, r.min.y, r.max.x, r.max.y];
@@ -322,7 +340,7 @@ fn details(ui: &mut egui::Ui, v: &mut Viewer, scale: Option<&DrawScale>) {
             ui.label(format!("{:.1}", t.snr));
             ui.label(format!("{:.1}", t.scr));
             ui.label(format!("{:.1}", t.peak_dn));
-            let factor = scale.and_then(|s| s.0.iter().find(|(id, _)| *id == t.id)).map_or(1.0, |(_, f)| *f);
+            let factor = scale.and_then(|s| s.get(t.id)).map_or(1.0, |d| d.factor);
             ui.label(if factor > 1.0 { format!("{factor:.0}") } else { "1".into() });
             ui.end_row();
         }
@@ -492,7 +510,9 @@ fn sensor_panel(
     ui.separator();
     let t_now = v.labels.t_s;
     let height = (ui.available_height() - 40.0).max(80.0);
-    v.history.show(ui, t_now, height);
+    let run = &v.built.spec.run;
+    let run_s = (run.start_time_s, run.start_time_s + (v.playback.frames.max(2) - 1) as f64 / run.frame_rate_hz);
+    v.history.show(ui, t_now, run_s, height);
     if let (Some((x, y)), Some(pose)) = (clicked, pose) {
         add_target_at(v, pose, x, y);
     }

@@ -3,7 +3,7 @@
 //! smaller than a few screen pixels), the observer and the sensor's view frustum, drawn as lines; an orbit
 //! camera (left drag orbits, right drag pans, wheel zooms, F focuses the first target in the frame).
 
-use bevy::camera::Viewport;
+use bevy::camera::RenderTarget;
 use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
 use bevy::prelude::*;
 use bevy::window::PrimaryWindow;
@@ -38,14 +38,99 @@ impl Orbit {
     }
 }
 
-/// Enlargement of each aircraft's drawn ellipsoid (1 where it is large enough on screen).
+/// The picture the 3D camera draws, shown by egui in the view's rectangle. A texture of the view's own size (not
+/// a viewport on the window) keeps the camera's colour and depth attachments, and their clears, to the view: under
+/// software rendering a viewport on the window cost as much as the whole window, whatever the viewport's size.
+#[derive(Resource, Debug, Clone)]
+pub struct ViewImage {
+    /// The render target.
+    pub handle: Handle<Image>,
+    /// Its size, physical pixels.
+    pub size: UVec2,
+    /// egui's id for it, once registered.
+    pub egui_id: Option<bevy_egui::egui::TextureId>,
+    /// While playing, the camera draws every this many displayed frames (see [`pace_view`]).
+    pub every: u32,
+    /// What the picture was drawn from, and how many displayed frames ago.
+    drawn: Option<ViewKey>,
+    since: u32,
+    displayed: u64,
+}
+
+/// What the 3D view's picture depends on, bit for bit: the camera's pose, the frame on show, the scenario's
+/// revision and the picture's size.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct ViewKey {
+    pose: [u32; 7],
+    shown: Option<u64>,
+    revision: u64,
+    size: UVec2,
+}
+
+/// The 3D camera draws only when its picture would change: while the simulation plays under software rendering,
+/// at most every second displayed frame (the sensor image still shows every frame; a CPU renderer spends as much
+/// on the 3D view as on all the panels), on a GPU every frame; while paused, when the view is moved or the
+/// frame changes. It also draws through the first 60 displayed frames (pipelines compile in the background and
+/// an early picture can miss a mesh) and at least every 30th, so a picture is never stale for long.
+pub fn pace_view(
+    viewer: Res<Viewer>,
+    adapter: Option<Res<bevy::render::renderer::RenderAdapterInfo>>,
+    mut view_image: ResMut<ViewImage>,
+    mut camera: Query<(&mut Camera, &Transform), With<Orbit>>,
+) {
+    let Ok((mut cam, transform)) = camera.single_mut() else { return };
+    let software = adapter.is_some_and(|a| a.0.device_type == wgpu_types::DeviceType::Cpu);
+    view_image.every = if software { 2 } else { 1 };
+    let (t, r) = (transform.translation, transform.rotation);
+    let key = ViewKey {
+        pose: [t.x, t.y, t.z, r.x, r.y, r.z, r.w].map(f32::to_bits),
+        shown: viewer.playback.shown,
+        revision: viewer.built_revision,
+        size: view_image.size,
+    };
+    let v = &mut *view_image;
+    v.displayed += 1;
+    v.since = v.since.saturating_add(1);
+    let changed = v.drawn.as_ref() != Some(&key);
+    let due = v.displayed <= 60 || v.since >= 30;
+    let paced = !viewer.playback.playing || v.since >= v.every;
+    let draw = due || (changed && paced);
+    if draw {
+        v.drawn = Some(key);
+        v.since = 0;
+    }
+    if cam.is_active != draw {
+        cam.is_active = draw;
+    }
+}
+
+/// How each aircraft's ellipsoid is drawn.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Drawn {
+    /// The target's id.
+    pub id: u32,
+    /// Enlargement (1 where it is large enough on screen).
+    pub factor: f32,
+    /// Its largest diameter on screen as drawn, physical pixels.
+    pub size_px: f32,
+}
+
+/// How each aircraft's ellipsoid is drawn this frame.
 #[derive(Resource, Debug, Default, Clone)]
-pub struct DrawScale(pub Vec<(u32, f32)>);
+pub struct DrawScale(pub Vec<Drawn>);
+
+impl DrawScale {
+    /// The target's entry, if it has one.
+    pub fn get(&self, id: u32) -> Option<Drawn> {
+        self.0.iter().find(|d| d.id == id).copied()
+    }
+}
 
 /// The 3D camera, framing every trajectory over the run and the observer, seen from behind and above the
 /// observer's line of sight.
 pub fn spawn_view_camera(
     mut commands: Commands,
+    mut images: ResMut<Assets<Image>>,
     viewer: Res<Viewer>,
     paths: Query<&FlightPath>,
     observer: Query<&FlightPath, With<Observer>>,
@@ -74,15 +159,25 @@ pub fn spawn_view_camera(
     // the view is narrower than high in the default layout: fit the sphere in a width half the height
     let half_fov_h = ((PerspectiveProjection::default().fov / 2.0).tan() * 0.5).atan();
     let orbit = Orbit { focus, yaw, pitch: 10_f32.to_radians(), distance: radius / half_fov_h.sin() * 1.1 };
+    // resized to the view's rectangle by `orbit_camera` once the panels are laid out
+    let size = UVec2::splat(64);
+    let mut image = Image::new_target_texture(size.x, size.y, wgpu_types::TextureFormat::Rgba8UnormSrgb, None);
+    // shown pixel for pixel: nearest sampling is exact, and cheaper than bilinear for a CPU renderer
+    image.sampler = bevy::image::ImageSampler::nearest();
+    let handle = images.add(image);
+    commands.insert_resource(ViewImage {
+        handle: handle.clone(),
+        size,
+        egui_id: None,
+        every: 1,
+        drawn: None,
+        since: 0,
+        displayed: 0,
+    });
     commands.spawn((
         Camera3d::default(),
-        Camera {
-            order: 0,
-            clear_color: ClearColorConfig::Custom(BACKGROUND),
-            // egui's camera writes the window (see `setup_egui`)
-            output_mode: bevy::camera::CameraOutputMode::Skip,
-            ..default()
-        },
+        Camera { order: 0, clear_color: ClearColorConfig::Custom(BACKGROUND), ..default() },
+        RenderTarget::Image(handle.into()),
         Projection::Perspective(PerspectiveProjection { near: 0.01, far: 1e5, ..default() }),
         Msaa::Off,
         // lines need no tonemapping (and its lookup tables are not built in)
@@ -94,7 +189,7 @@ pub fn spawn_view_camera(
 }
 
 /// Orbit, pan, zoom and focus from the mouse and F, only while the pointer is over the 3D view and egui does
-/// not want it; keeps the camera's viewport on the view's rectangle.
+/// not want it; keeps the camera's picture the size of the view's rectangle.
 #[allow(clippy::too_many_arguments)]
 pub fn orbit_camera(
     viewer: Res<Viewer>,
@@ -104,21 +199,22 @@ pub fn orbit_camera(
     scroll: Res<AccumulatedMouseScroll>,
     egui: Res<bevy_egui::input::EguiWantsInput>,
     window: Single<&Window, With<PrimaryWindow>>,
-    mut camera: Query<(&mut Camera, &mut Transform, &mut Orbit)>,
+    mut view_image: ResMut<ViewImage>,
+    mut images: ResMut<Assets<Image>>,
+    mut camera: Query<(&mut Transform, &mut Orbit)>,
     targets: Query<(&Aircraft, &Kinematics)>,
 ) {
-    let Ok((mut cam, mut transform, mut orbit)) = camera.single_mut() else { return };
+    let Ok((mut transform, mut orbit)) = camera.single_mut() else { return };
     let [x0, y0, x1, y1] = viewer.view_rect;
     let scale = window.scale_factor();
-    let (pw, ph) = (window.physical_width(), window.physical_height());
-    let pos = UVec2::new((x0 * scale) as u32, (y0 * scale) as u32)
-        .min(UVec2::new(pw.saturating_sub(1), ph.saturating_sub(1)));
-    let size = UVec2::new(((x1 - x0) * scale) as u32, ((y1 - y0) * scale) as u32)
-        .min(UVec2::new(pw - pos.x, ph - pos.y))
-        .max(UVec2::ONE);
-    let viewport = Viewport { physical_position: pos, physical_size: size, ..default() };
-    if cam.viewport.as_ref().is_none_or(|v| v.physical_position != pos || v.physical_size != size) {
-        cam.viewport = Some(viewport);
+    let most = UVec2::new(window.physical_width(), window.physical_height()).max(UVec2::ONE);
+    let size =
+        UVec2::new(((x1 - x0) * scale).round() as u32, ((y1 - y0) * scale).round() as u32).clamp(UVec2::ONE, most);
+    if size != view_image.size
+        && let Some(mut image) = images.get_mut(&view_image.handle)
+    {
+        image.resize(wgpu_types::Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 });
+        view_image.size = size;
     }
     let over_view = window.cursor_position().is_some_and(|c| c.x >= x0 && c.x < x1 && c.y >= y0 && c.y < y1);
     let free = over_view && !egui.wants_pointer_input() && !egui.is_using_pointer();
@@ -154,12 +250,13 @@ pub fn draw_encounter(
     clock: Res<SimClock>,
     viewer: Res<Viewer>,
     mut scale: ResMut<DrawScale>,
-    camera: Query<(&Transform, &Projection, &Camera), With<Orbit>>,
+    view_image: Res<ViewImage>,
+    camera: Query<(&Transform, &Projection), With<Orbit>>,
     observer: Query<(&CameraPose, &FlightPath), With<Observer>>,
     aircraft: Query<(&Aircraft, &Kinematics, &Body, &FlightPath)>,
     sky: Query<&Sky>,
 ) {
-    let Ok((view_t, projection, view_cam)) = camera.single() else { return };
+    let Ok((view_t, projection)) = camera.single() else { return };
     let spec = &viewer.built.spec;
     let t_now = viewer.playback.shown.map_or(clock.t_s(), |k| spec.run.start_time_s + k as f64 * clock.dt_s);
     let t0 = spec.run.start_time_s;
@@ -202,7 +299,7 @@ pub fn draw_encounter(
         Projection::Perspective(p) => p.fov,
         _ => 0.8,
     };
-    let view_h = view_cam.viewport.as_ref().map_or(600.0, |v| v.physical_size.y as f32);
+    let view_h = view_image.size.y as f32;
     let px_per_rad = view_h / fov;
     scale.0.clear();
     for (a, k, body, fp) in &aircraft {
@@ -213,7 +310,7 @@ pub fn draw_encounter(
         let size_px = (body.semi_axes_m.max_element() as f32 * 1e-3 / distance) * px_per_rad;
         let factor = if size_px < MIN_DRAWN_PX { MIN_DRAWN_PX / size_px.max(1e-6) } else { 1.0 };
         // the ellipsoid itself is a mesh (`meshes::sync_ellipsoids`)
-        scale.0.push((a.id, factor));
+        scale.0.push(Drawn { id: a.id, factor, size_px: 2.0 * size_px * factor });
     }
     if let Ok((pose, fp)) = observer.single() {
         path(&mut gizmos, fp, Color::srgb(0.9, 0.9, 0.9));
