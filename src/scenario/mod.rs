@@ -523,7 +523,7 @@ impl Scenario {
         if !(self.labels.detectable_snr.is_finite() && self.labels.detectable_snr >= 0.0) {
             return Err(fe(
                 "labels.detectable_snr",
-                format!("{} must be a finite number ≥ 0", self.labels.detectable_snr),
+                format!("{} must be a finite number ≥ 0", num(self.labels.detectable_snr)),
             ));
         }
 
@@ -550,10 +550,13 @@ impl Scenario {
                     return Err(fe("observer.pointing.roll_deg", "must be finite"));
                 }
                 if !(lag_s.is_finite() && (0.0..=10.0).contains(lag_s)) {
-                    return Err(fe("observer.pointing.lag_s", format!("{lag_s} must be in [0, 10] s")));
+                    return Err(fe("observer.pointing.lag_s", format!("{} must be in [0, 10] s", num(*lag_s))));
                 }
                 if !(noise_urad.is_finite() && (0.0..=1e5).contains(noise_urad)) {
-                    return Err(fe("observer.pointing.noise_urad", format!("{noise_urad} must be in [0, 1e5] µrad")));
+                    return Err(fe(
+                        "observer.pointing.noise_urad",
+                        format!("{} must be in [0, 1e5] µrad", num(*noise_urad)),
+                    ));
                 }
             }
             Pointing::YawPitchRoll(a) => {
@@ -593,7 +596,7 @@ impl Scenario {
             g.validate().map_err(at("sky.generate"))?;
         }
         if !(sky.cloud_offset_k.is_finite() && (-100.0..=100.0).contains(&sky.cloud_offset_k)) {
-            return Err(fe("sky.cloud_offset_k", format!("{} must be in [−100, 100] K", sky.cloud_offset_k)));
+            return Err(fe("sky.cloud_offset_k", format!("{} must be in [−100, 100] K", num(sky.cloud_offset_k))));
         }
         if let Some(b) = sky.cloud_base_m
             && !(b.is_finite() && (-5000.0..=86000.0).contains(&b))
@@ -645,7 +648,10 @@ impl Scenario {
             {
                 return Err(fe(
                     "sky.miss.value",
-                    format!("{value} must be a radiance in [0, {largest:e}] (0 K … a 6000 K black body in the band)"),
+                    format!(
+                        "{} must be a radiance in [0, {largest:e}] (0 K … a 6000 K black body in the band)",
+                        num(f64::from(value))
+                    ),
                 ));
             }
             match &sky.image {
@@ -671,7 +677,7 @@ impl Scenario {
 
         let a = &self.atmosphere;
         if !(a.t0_k.is_finite() && a.t0_k > 100.0 && a.t0_k < 400.0) {
-            return Err(fe("atmosphere.t0_k", format!("{} must be in (100, 400) K", a.t0_k)));
+            return Err(fe("atmosphere.t0_k", format!("{} must be in (100, 400) K", num(a.t0_k))));
         }
         a.transmittance.validate().map_err(at("atmosphere.transmittance"))?;
         a.stagnation.validate().map_err(|e| fe("atmosphere.stagnation", e))?;

@@ -588,7 +588,8 @@ fn sensor_param_error(e: &ParamError, spec: &SensorSpec) -> FieldError {
         other => format!("sensor.detector.{other}"),
     };
     // the thermal-detector `full_well` gain has no value to show
-    let value = if e.name == "gain" && e.value.is_nan() { String::new() } else { format!("{} ", e.value) };
+    let value =
+        if e.name == "gain" && e.value.is_nan() { String::new() } else { format!("{} ", crate::physics::Num(e.value)) };
     fe(path, format!("{value}is outside its allowed range {}", e.range))
 }
 

@@ -90,9 +90,14 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
         });
         if n > 0 && ui.button("remove").clicked() {
             let i = v.selected.min(n - 1);
-            if v.session.remove_target(i).is_ok() {
-                v.selected = v.selected.saturating_sub(1);
-            }
+            let name = v.session.draft.targets[i].name.clone();
+            v.target_status = match v.session.remove_target(i) {
+                Ok(_) => {
+                    v.selected = v.selected.saturating_sub(1);
+                    format!("removed {name}")
+                }
+                Err(e) => format!("not removed: {}: {}", e.path, e.message),
+            };
         }
     });
     // the direction a speed edit keeps when the draft's velocity is zero on the way (typing 0.5 passes through 0)
@@ -186,6 +191,9 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
             a.armed = !a.armed;
         }
     });
+    if !v.target_status.is_empty() {
+        ui.label(&v.target_status);
+    }
     let draft = &mut v.session.draft;
     egui::CollapsingHeader::new("sensor").default_open(false).show(ui, |ui| {
         let band = draft.sensor.band_um.unwrap_or(v.session.applied.sensor.model.band);

@@ -78,8 +78,10 @@ pub struct Viewer {
     pub save_path: String,
     /// See `save_path`.
     pub save_overwrite: bool,
-    /// What the last recording, target added or rebuild said.
+    /// What the last recording or rebuild said.
     pub status: String,
+    /// What the last target added or removed said (shown under the target editor).
+    pub target_status: String,
     /// What the last save said.
     pub save_status: String,
     /// The Record button's settings and job.
@@ -233,6 +235,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
         save_path,
         save_overwrite: false,
         status: String::new(),
+        target_status: String::new(),
         save_status: String::new(),
         record: panels::RecordUi::new(last),
         playback,

@@ -320,8 +320,16 @@ fn details(ui: &mut egui::Ui, v: &mut Viewer, scale: Option<&DrawScale>) {
     ui.separator();
     ui.strong("Targets (ground truth of this frame)");
     egui::Grid::new("targets").striped(true).num_columns(7).show(ui, |ui| {
-        for h in ["id", "name", "range km", "SNR", "SCR", "peak DN", "drawn ×"] {
-            ui.strong(h);
+        for (h, hint) in [
+            ("id", "the target's id in the labels"),
+            ("name", "its name in the scenario"),
+            ("range km", "distance from the observer"),
+            ("SNR", "|peak ΔDN| over the temporal noise σ at its sky"),
+            ("SCR", "|peak ΔDN| over the σ of the noise-free sky around it"),
+            ("peak ΔDN", "peak gray value above its sky, DN: negative where the target is darker than the sky"),
+            ("drawn ×", "enlargement of its ellipsoid in the 3D view"),
+        ] {
+            ui.strong(h).on_hover_text(hint);
         }
         ui.end_row();
         for t in &v.labels.targets {
@@ -534,8 +542,8 @@ fn add_target_at(v: &mut Viewer, pose: &CameraPose, x: f64, y: f64) {
         Ok(i) => {
             v.selected = i;
             v.new_target.armed = false;
-            v.status = format!("added {} at {:.0} m range", v.session.applied.spec.targets[i].name, a.range_m);
+            v.target_status = format!("added {} at {:.0} m range", v.session.applied.spec.targets[i].name, a.range_m);
         }
-        Err(e) => v.status = format!("not added: {}: {}", e.path, e.message),
+        Err(e) => v.target_status = format!("not added: {}: {}", e.path, e.message),
     }
 }

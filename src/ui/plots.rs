@@ -238,7 +238,8 @@ impl History {
         ui.horizontal(|ui| {
             ui.selectable_value(&mut self.quantity, Quantity::Snr, "SNR");
             ui.selectable_value(&mut self.quantity, Quantity::Range, "range km");
-            ui.selectable_value(&mut self.quantity, Quantity::Peak, "peak DN");
+            ui.selectable_value(&mut self.quantity, Quantity::Peak, "peak ΔDN")
+                .on_hover_text("peak gray value above the target's sky, DN (negative: darker than the sky)");
             ui.weak(format!("over the {} frames computed", self.frames.len()));
         });
         let quantity = self.quantity;
