@@ -6,6 +6,7 @@
 //! show (frame `k` is computed directly at `t0 + k/rate`, so seeking gives exactly the frame `irsim record`
 //! writes as frame `k`); Bevy's own fixed clock never steps it.
 
+mod blit;
 mod edits;
 mod meshes;
 mod panels;
@@ -208,7 +209,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
             })
             .set(bevy::log::LogPlugin { level: bevy::log::Level::WARN, ..default() }),
     );
-    app.add_plugins((EguiPlugin::default(), meshes::ViewMeshesPlugin));
+    app.add_plugins((EguiPlugin::default(), meshes::ViewMeshesPlugin, blit::ViewBlitPlugin));
     // the viewer steps the simulation itself (see the module docs): Bevy's fixed clock must never do it
     app.insert_resource(Time::<Fixed>::from_seconds(1e9));
     app.add_plugins(IrSimPlugins);

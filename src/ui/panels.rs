@@ -115,7 +115,7 @@ pub fn draw_panels(
     mut texture: Local<SensorTexture>,
     mut images: ResMut<Assets<Image>>,
     scale: Option<Res<DrawScale>>,
-    view_image: Option<ResMut<ViewImage>>,
+    view_image: Option<Res<ViewImage>>,
     sensor: Query<(&Sensor, &SensorFrame)>,
     observer: Query<&CameraPose, With<Observer>>,
 ) -> Result {
@@ -142,15 +142,11 @@ pub fn draw_panels(
         sensor_panel(ui, v, &texture, sensor.single().ok(), observer.single().ok());
     });
     let every = view_image.as_ref().map_or(1, |image| image.every);
-    let view_id = view_image.map(|mut image| {
-        let handle = image.handle.clone();
-        *image.egui_id.get_or_insert_with(|| contexts.add_image(bevy_egui::EguiTextureHandle::Strong(handle)))
-    });
+    let view_id = view_image.map(|image| image.handle.id());
     let central = egui::CentralPanel::default().frame(egui::Frame::NONE).show(&mut root, |ui| {
         let rect = ui.max_rect();
         if let Some(id) = view_id {
-            let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
-            ui.painter().image(id, rect, uv, egui::Color32::WHITE);
+            ui.painter().add(super::blit::blit(rect, id));
         }
         ui.label(egui::RichText::new("3D view — drag to orbit, right-drag to pan, wheel to zoom, F to focus").weak());
         if every > 1 {
@@ -446,7 +442,17 @@ fn sensor_panel(
     let mut clicked = None;
     egui::ScrollArea::both().max_height(image_height).show(ui, |ui| {
         let sense = if v.new_target.armed { egui::Sense::click() } else { egui::Sense::hover() };
-        let response = ui.add(egui::Image::new((id, size)).sense(sense));
+        let (rect, response) = ui.allocate_exact_size(size, sense);
+        match t.handle.as_ref().filter(|_| super::blit::fits(ui.ctx(), rect)) {
+            Some(handle) => {
+                ui.painter().add(super::blit::blit(rect, handle.id()));
+            }
+            // zoomed beyond the window: egui's own image (a paint callback's viewport cannot leave the window)
+            None => {
+                let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+                ui.painter().image(id, rect, uv, egui::Color32::WHITE);
+            }
+        }
         if v.new_target.armed {
             response.clone().on_hover_cursor(egui::CursorIcon::Crosshair);
         }

@@ -38,7 +38,7 @@ impl Orbit {
     }
 }
 
-/// The picture the 3D camera draws, shown by egui in the view's rectangle. A texture of the view's own size (not
+/// The picture the 3D camera draws, copied into the view's rectangle in egui's pass (`blit`). A texture of the view's own size (not
 /// a viewport on the window) keeps the camera's colour and depth attachments, and their clears, to the view: under
 /// software rendering a viewport on the window cost as much as the whole window, whatever the viewport's size.
 #[derive(Resource, Debug, Clone)]
@@ -47,8 +47,6 @@ pub struct ViewImage {
     pub handle: Handle<Image>,
     /// Its size, physical pixels.
     pub size: UVec2,
-    /// egui's id for it, once registered.
-    pub egui_id: Option<bevy_egui::egui::TextureId>,
     /// While playing, the camera draws every this many displayed frames (see [`pace_view`]).
     pub every: u32,
     /// What the picture was drawn from, and how many displayed frames ago.
@@ -165,15 +163,7 @@ pub fn spawn_view_camera(
     // shown pixel for pixel: nearest sampling is exact, and cheaper than bilinear for a CPU renderer
     image.sampler = bevy::image::ImageSampler::nearest();
     let handle = images.add(image);
-    commands.insert_resource(ViewImage {
-        handle: handle.clone(),
-        size,
-        egui_id: None,
-        every: 1,
-        drawn: None,
-        since: 0,
-        displayed: 0,
-    });
+    commands.insert_resource(ViewImage { handle: handle.clone(), size, every: 1, drawn: None, since: 0, displayed: 0 });
     commands.spawn((
         Camera3d::default(),
         Camera { order: 0, clear_color: ClearColorConfig::Custom(BACKGROUND), ..default() },
