@@ -381,8 +381,10 @@ fn build_trajectory(
         return Err(fe(
             culprit(Exceeds::Position),
             format!(
-                "leaves the modelled world during the run (t = {t0} … {t1} s): a coordinate may reach {reach_m:e} m, \
-                 more than {MAX_COORDINATE_M:e} m"
+                "leaves the modelled world during the run (t = {} … {} s): a coordinate may reach {reach_m:e} m, \
+                 more than {MAX_COORDINATE_M:e} m",
+                num(t0),
+                num(t1)
             ),
         ));
     }
@@ -390,8 +392,10 @@ fn build_trajectory(
         return Err(fe(
             culprit(Exceeds::Speed),
             format!(
-                "is too fast during the run (t = {t0} … {t1} s): its speed may reach {speed_m_s:e} m/s, more than \
-                 {MAX_SPEED_M_S:e} m/s"
+                "is too fast during the run (t = {} … {} s): its speed may reach {speed_m_s:e} m/s, more than \
+                 {MAX_SPEED_M_S:e} m/s",
+                num(t0),
+                num(t1)
             ),
         ));
     }

@@ -166,10 +166,16 @@ impl TrajectorySpec {
                     return Err(err("center_m", "must be finite"));
                 }
                 if !(radius_m.is_finite() && (1e-3..=MAX_COORDINATE_M).contains(radius_m)) {
-                    return Err(err("radius_m", format!("{radius_m} must be in [0.001, {MAX_COORDINATE_M:e}] m")));
+                    return Err(err(
+                        "radius_m",
+                        format!("{} must be in [0.001, {MAX_COORDINATE_M:e}] m", crate::physics::Num(*radius_m)),
+                    ));
                 }
                 if !(speed_m_s.is_finite() && (0.0..=MAX_SPEED_M_S).contains(speed_m_s)) {
-                    return Err(err("speed_m_s", format!("{speed_m_s} must be in [0, {MAX_SPEED_M_S:e}] m/s")));
+                    return Err(err(
+                        "speed_m_s",
+                        format!("{} must be in [0, {MAX_SPEED_M_S:e}] m/s", crate::physics::Num(*speed_m_s)),
+                    ));
                 }
                 if !start_bearing_deg.is_finite() {
                     return Err(err("start_bearing_deg", "must be finite"));
@@ -240,7 +246,10 @@ fn spline(points: impl Iterator<Item = [f64; 4]>, field: &str) -> Result<Traject
             return Err(err(format!("{field}[{i}]"), "must be finite numbers"));
         }
         if i > 0 && !(r[0] > rows[i - 1][0]) {
-            return Err(err(format!("{field}[{i}]"), format!("time {} must be after {}", r[0], rows[i - 1][0])));
+            return Err(err(
+                format!("{field}[{i}]"),
+                format!("time {} must be after {}", crate::physics::Num(r[0]), crate::physics::Num(rows[i - 1][0])),
+            ));
         }
     }
     let t: Vec<f64> = rows.iter().map(|r| r[0]).collect();

@@ -440,6 +440,9 @@ fn sensor_panel(
     let size = egui::vec2(w * zoom, h * zoom);
     let mut hovered = None;
     let mut clicked = None;
+    // solid scroll bars, shown whenever the zoomed image is larger than its area (egui's default floating bars
+    // appear only under the pointer, so a zoomed image gave no sign that it scrolls)
+    ui.spacing_mut().scroll = egui::style::ScrollStyle::solid();
     egui::ScrollArea::both().max_height(image_height).show(ui, |ui| {
         let sense = if v.new_target.armed { egui::Sense::click() } else { egui::Sense::hover() };
         let (rect, response) = ui.allocate_exact_size(size, sense);
