@@ -90,11 +90,13 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
         });
         if n > 0 && ui.button("remove").clicked() {
             let i = v.selected.min(n - 1);
-            let name = v.session.draft.targets[i].name.clone();
+            let target = v.session.draft.targets[i].clone();
             v.target_status = match v.session.remove_target(i) {
-                Ok(_) => {
+                Ok(()) => {
                     v.selected = v.selected.saturating_sub(1);
-                    format!("removed {name}")
+                    let text = format!("removed {}", target.name);
+                    v.removed = Some((i, target));
+                    text
                 }
                 Err(e) => format!("not removed: {}: {}", e.path, e.message),
             };
@@ -192,7 +194,12 @@ pub fn edit_panel(ui: &mut egui::Ui, v: &mut Viewer) {
         }
     });
     if !v.target_status.is_empty() {
-        ui.label(&v.target_status);
+        ui.horizontal(|ui| {
+            ui.label(&v.target_status);
+            if v.removed.is_some() && ui.button("undo").on_hover_text("put the removed target back").clicked() {
+                undo_remove(v);
+            }
+        });
     }
     let draft = &mut v.session.draft;
     egui::CollapsingHeader::new("sensor").default_open(false).show(ui, |ui| {
@@ -313,3 +320,21 @@ fn pick<T: Copy + PartialEq>(ui: &mut egui::Ui, label: &str, in_use: T, choices:
 /// The tolerance an iterative fusion solver starts from when picked in the window, DN: the value
 /// docs/accuracy.md measures the solvers at.
 const ITERATIVE_TOLERANCE_DN: f64 = 1e-4;
+
+/// Puts the last removed target back where it was; a refusal (another target took its name since) is said and
+/// the scenario in use stays.
+fn undo_remove(v: &mut Viewer) {
+    let Some((i, target)) = v.removed.take() else { return };
+    let name = target.name.clone();
+    let at = i.min(v.session.draft.targets.len());
+    v.target_status = match v.session.edit(|s| s.targets.insert(at, target)) {
+        Ok(_) => {
+            v.selected = at;
+            format!("restored {name}")
+        }
+        Err(e) => {
+            v.session.revert();
+            format!("not restored: {}: {}", e.path, e.message)
+        }
+    };
+}

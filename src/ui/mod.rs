@@ -83,6 +83,8 @@ pub struct Viewer {
     pub status: String,
     /// What the last target added or removed said (shown under the target editor).
     pub target_status: String,
+    /// The last target removed and where it was, for *undo*.
+    pub removed: Option<(usize, crate::scenario::TargetSpec)>,
     /// What the last save said.
     pub save_status: String,
     /// The Record button's settings and job.
@@ -237,6 +239,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
         save_overwrite: false,
         status: String::new(),
         target_status: String::new(),
+        removed: None,
         save_status: String::new(),
         record: panels::RecordUi::new(last),
         playback,

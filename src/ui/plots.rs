@@ -398,7 +398,8 @@ fn value_range(series: &[(u32, Vec<Vec<[f64; 2]>>)], hidden: &[u32]) -> Option<(
 
 /// A value range with room: 5 % below, 25 % above (values rise as targets close in), never empty.
 fn padded(lo: f64, hi: f64) -> (f64, f64) {
-    let span = (hi - lo).max(1e-3 * hi.abs().max(1.0));
+    // one value (or a flat line): a tenth of its size around it, not a sliver that labels the fourth decimal
+    let span = (hi - lo).max(0.1 * hi.abs().max(lo.abs())).max(1e-9);
     (lo - 0.05 * span, hi + 0.25 * span)
 }
 
