@@ -308,8 +308,8 @@ fn window_title(name: &str, frame: Option<u64>, t_s: f64) -> String {
 }
 
 /// egui on the window's one camera: it clears the window to the panels' colour (the panels themselves paint no
-/// background, which saves a window-sized fill under software rendering) and shows the 3D camera's picture
-/// (`scene::ViewImage`) as an image.
+/// background, which saves a window-sized fill under software rendering); the 3D camera's picture
+/// (`scene::ViewImage`) is copied into its pass by `blit`.
 fn setup_egui(mut commands: Commands, mut settings: ResMut<EguiGlobalSettings>) {
     settings.auto_create_primary_context = false;
     commands.spawn((

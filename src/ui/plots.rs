@@ -2,7 +2,7 @@
 //! marked.
 //!
 //! egui_plot draws the frame, axes, grid, legend, the time on show and the hover read-out; the targets' lines are
-//! drawn here, on the CPU, into one texture of the plot's size in screen pixels ([`rasterize`]) that the plot
+//! drawn here, on the CPU, into one texture of the plot's size in screen pixels ([`Canvas`]) that the plot
 //! shows as an image. Drawn as egui shapes, ten anti-aliased lines of 200 frames each were about 20 000 triangles
 //! a displayed frame, which under software rendering (Mesa's llvmpipe) cost more than all the rest of the window's
 //! widgets together; the texture is one quad, redrawn only when the history, the quantity, the plot's size or the
@@ -272,7 +272,7 @@ impl History {
         };
         self.raster.y_range = Some((y0, y1));
         let t_last = series.iter().flat_map(|s| s.1.iter().flatten()).fold(t_now_s, |t, p| t.max(p[0]));
-        let (x0, x1) = time_axis(run_s, t_now_s.min(run_s.0), t_last);
+        let (x0, x1) = time_axis(run_s, t_now_s, t_last);
         let bounds = [x0, x1, y0, y1];
         let ppp = ui.ctx().pixels_per_point();
         let key = RasterKey {
@@ -321,11 +321,10 @@ impl History {
             let new = self.series(quantity, from..=to);
             let canvas = &mut self.raster.canvas;
             draw(canvas, &new);
-            let t = |k: u64| self.frames.get(&k).map_or(x0, |f| f.0);
+            let column = |k: u64| to_px(&[self.frames.get(&k).map_or(x0, |f| f.0), y0])[0];
             let reach = (LINE_WIDTH_PT * 2.0 * ppp).max(DOT_RADIUS_PT * ppp) + 2.0;
-            let columns = |t: f64| ((t - x0) / (x1 - x0) * w as f64) as f32;
-            let a = ((columns(t(from)) - reach).floor().max(0.0) as usize).min(w);
-            let b = ((columns(t(to)) + reach).ceil().max(0.0) as usize).min(w);
+            let a = ((column(from) - reach).floor().max(0.0) as usize).min(w);
+            let b = ((column(to) + reach).ceil().max(0.0) as usize).min(w);
             if b > a
                 && let Some(texture) = self.raster.texture.as_mut()
             {

@@ -38,9 +38,8 @@ impl Orbit {
     }
 }
 
-/// The picture the 3D camera draws, copied into the view's rectangle in egui's pass (`blit`). A texture of the view's own size (not
-/// a viewport on the window) keeps the camera's colour and depth attachments, and their clears, to the view: under
-/// software rendering a viewport on the window cost as much as the whole window, whatever the viewport's size.
+/// The picture the 3D camera draws, copied into the view's rectangle in egui's pass (`blit`). A texture of the
+/// view's own size keeps the picture between frames the camera does not draw (`pace_view`).
 #[derive(Resource, Debug, Clone)]
 pub struct ViewImage {
     /// The render target.
@@ -159,9 +158,7 @@ pub fn spawn_view_camera(
     let orbit = Orbit { focus, yaw, pitch: 10_f32.to_radians(), distance: radius / half_fov_h.sin() * 1.1 };
     // resized to the view's rectangle by `orbit_camera` once the panels are laid out
     let size = UVec2::splat(64);
-    let mut image = Image::new_target_texture(size.x, size.y, wgpu_types::TextureFormat::Rgba8UnormSrgb, None);
-    // shown pixel for pixel: nearest sampling is exact, and cheaper than bilinear for a CPU renderer
-    image.sampler = bevy::image::ImageSampler::nearest();
+    let image = Image::new_target_texture(size.x, size.y, wgpu_types::TextureFormat::Rgba8UnormSrgb, None);
     let handle = images.add(image);
     commands.insert_resource(ViewImage { handle: handle.clone(), size, every: 1, drawn: None, since: 0, displayed: 0 });
     commands.spawn((
@@ -247,6 +244,20 @@ pub fn draw_encounter(
     sky: Query<&Sky>,
 ) {
     let Ok((view_t, projection)) = camera.single() else { return };
+    // screen pixels per km at 1 km distance, to size the ellipsoids
+    let fov = match projection {
+        Projection::Perspective(p) => p.fov,
+        _ => 0.8,
+    };
+    let px_per_rad = view_image.size.y as f32 / fov;
+    scale.0.clear();
+    for (a, k, body, _) in &aircraft {
+        let distance = to_view(k.position_m).distance(view_t.translation).max(1e-6);
+        let size_px = (body.semi_axes_m.max_element() as f32 * 1e-3 / distance) * px_per_rad;
+        let factor = if size_px < MIN_DRAWN_PX { MIN_DRAWN_PX / size_px.max(1e-6) } else { 1.0 };
+        // the ellipsoid itself is a mesh (`meshes::sync_ellipsoids`)
+        scale.0.push(Drawn { id: a.id, factor, size_px: 2.0 * size_px * factor });
+    }
     let spec = &viewer.built.spec;
     let t_now = viewer.playback.shown.map_or(clock.t_s(), |k| spec.run.start_time_s + k as f64 * clock.dt_s);
     let t0 = spec.run.start_time_s;
@@ -284,23 +295,8 @@ pub fn draw_encounter(
             prev = p;
         }
     };
-    // screen pixels per km at 1 km distance, to size the ellipsoids
-    let fov = match projection {
-        Projection::Perspective(p) => p.fov,
-        _ => 0.8,
-    };
-    let view_h = view_image.size.y as f32;
-    let px_per_rad = view_h / fov;
-    scale.0.clear();
-    for (a, k, body, fp) in &aircraft {
-        let color = palette(a.id);
-        path(&mut gizmos, fp, color);
-        let centre = to_view(k.position_m);
-        let distance = centre.distance(view_t.translation).max(1e-6);
-        let size_px = (body.semi_axes_m.max_element() as f32 * 1e-3 / distance) * px_per_rad;
-        let factor = if size_px < MIN_DRAWN_PX { MIN_DRAWN_PX / size_px.max(1e-6) } else { 1.0 };
-        // the ellipsoid itself is a mesh (`meshes::sync_ellipsoids`)
-        scale.0.push(Drawn { id: a.id, factor, size_px: 2.0 * size_px * factor });
+    for (a, _, _, fp) in &aircraft {
+        path(&mut gizmos, fp, palette(a.id));
     }
     if let Ok((pose, fp)) = observer.single() {
         path(&mut gizmos, fp, Color::srgb(0.9, 0.9, 0.9));
