@@ -1,7 +1,7 @@
-//! Opaque pictures (the 3D view's, the sensor image) drawn into egui's pass by a paint callback with its own,
+//! Opaque pictures (the 3D view's, the sensor image, the plot) drawn into egui's pass by a paint callback with its own,
 //! trivial pipeline (`view_blit.wgsl`): the nearest texel copied to each pixel. egui's image shader converts every
-//! pixel to gamma space and back and blends it, which under software rendering cost about 7 ms a frame for a
-//! 330 × 780 view.
+//! pixel to gamma space and back and blends it, which under software rendering cost about 7 ms a frame for a 330 × 780
+//! view.
 
 use bevy::asset::AssetId;
 use bevy::prelude::*;

@@ -13,6 +13,7 @@ mod panels;
 mod plots;
 mod scene;
 pub mod state;
+mod uploads;
 
 use std::path::PathBuf;
 
@@ -115,6 +116,10 @@ pub struct Viewer {
     pub step_ms_total: f64,
     /// Total milliseconds spent mapping frames to display colours and uploading them.
     pub map_ms_total: f64,
+    /// Total milliseconds of the main world's updates (`First` to `Last`), and when the one under way began.
+    pub update_ms_total: f64,
+    /// See `update_ms_total`.
+    pub update_began: Option<std::time::Instant>,
     /// Wall-clock times of the first and the latest computed frame.
     pub started: Option<std::time::Instant>,
     /// See `started`.
@@ -211,7 +216,7 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
             })
             .set(bevy::log::LogPlugin { level: bevy::log::Level::WARN, ..default() }),
     );
-    app.add_plugins((EguiPlugin::default(), meshes::ViewMeshesPlugin, blit::ViewBlitPlugin));
+    app.add_plugins((EguiPlugin::default(), meshes::ViewMeshesPlugin, blit::ViewBlitPlugin, uploads::LiveImagesPlugin));
     // the viewer steps the simulation itself (see the module docs): Bevy's fixed clock must never do it
     app.insert_resource(Time::<Fixed>::from_seconds(1e9));
     app.add_plugins(IrSimPlugins);
@@ -255,6 +260,8 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
         step_ms: 0.0,
         step_ms_total: 0.0,
         map_ms_total: 0.0,
+        update_ms_total: 0.0,
+        update_began: None,
         started: None,
         latest: None,
         cpu_s: (None, None),
@@ -267,6 +274,8 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
         app.insert_resource(ScreenshotPlan::new(a.frames.unwrap_or(1), a.screenshot.clone()));
     }
     app.add_systems(Startup, (setup_egui, scene::spawn_view_camera));
+    app.add_systems(First, update_began);
+    app.add_systems(Last, update_ended);
     app.add_systems(
         Update,
         (
@@ -392,6 +401,18 @@ fn drive_simulation(world: &mut World) {
         viewer.labels = ready.labels;
         viewer.frame = Some(ready.frame);
         viewer.computed += 1;
+    }
+}
+
+/// Notes when the main world's update begins (see [`Viewer::update_ms_total`]).
+fn update_began(mut viewer: ResMut<Viewer>) {
+    viewer.update_began = Some(std::time::Instant::now());
+}
+
+/// Adds the main world's update to [`Viewer::update_ms_total`] once frames are being counted.
+fn update_ended(mut viewer: ResMut<Viewer>) {
+    if let (Some(began), Some(_)) = (viewer.update_began, viewer.started) {
+        viewer.update_ms_total += began.elapsed().as_secs_f64() * 1e3;
     }
 }
 
@@ -578,6 +599,7 @@ fn summary(viewer: &Viewer) {
     if n > 1 && seconds > 0.0 {
         let per_frame_ms = seconds * 1e3 / (n - 1) as f64;
         let (sim, map) = (viewer.step_ms_total / n as f64, viewer.map_ms_total / n as f64);
+        let update = viewer.update_ms_total / n as f64;
         let cpu = match viewer.cpu_s {
             (Some(a), Some(b)) => format!(
                 "; CPU {:.1} ms per frame ({:.2} cores busy)",
@@ -587,10 +609,12 @@ fn summary(viewer: &Viewer) {
             _ => String::new(),
         };
         eprintln!(
-            "{n} frames shown in {seconds:.2} s: {:.1} frames/s, {per_frame_ms:.1} ms per frame: simulation {sim:.1} \
-             ms, display mapping {map:.1} ms, the rest (egui, 3D view, rendering, presenting) {:.1} ms{cpu}",
+            "{n} frames shown in {seconds:.2} s: {:.1} frames/s, {per_frame_ms:.1} ms per frame: the main world's \
+             update {update:.1} ms (simulation {sim:.1} ms, display mapping {map:.1} ms, egui and the rest {:.1} ms), \
+             then {:.1} ms handing over to the renderer and waiting for it{cpu}",
             (n - 1) as f64 / seconds,
-            per_frame_ms - sim - map
+            update - sim - map,
+            per_frame_ms - update
         );
     }
 }

@@ -10,6 +10,7 @@ use bevy_egui::{EguiContexts, egui};
 
 use super::scene::{DrawScale, ViewImage, palette};
 use super::state::{ColorMap, Pace, Stretch, display_window, to_rgba};
+use super::uploads::{LiveImage, LiveImages, Writes};
 use super::{Viewer, edits};
 use crate::cli::run::{RecordPlan, record_scenario};
 use crate::record::FrameFormat;
@@ -80,15 +81,12 @@ fn start_recording(r: &mut RecordUi, scenario: &crate::scenario::CheckedScenario
     r.job = Some(job);
 }
 
-/// The texture the sensor panel shows and what it was made from: a Bevy image updated in place (the renderer
-/// rewrites the same GPU texture), shown by egui as a user texture.
+/// The picture the sensor panel shows and what it was made from: its pixels are written straight into the same
+/// GPU texture each frame (see [`super::uploads`]).
 #[derive(Default)]
 pub struct SensorTexture {
-    handle: Option<Handle<Image>>,
-    id: Option<egui::TextureId>,
-    size: (usize, usize),
+    image: Option<LiveImage>,
     key: Option<(u64, u64, String)>,
-    rgba: Vec<u8>,
     scratch: super::state::StretchScratch,
     window: (f64, f64),
 }
@@ -114,14 +112,16 @@ pub fn draw_panels(
     mut viewer: ResMut<Viewer>,
     mut texture: Local<SensorTexture>,
     mut images: ResMut<Assets<Image>>,
+    writes: Res<Writes>,
     scale: Option<Res<DrawScale>>,
     view_image: Option<Res<ViewImage>>,
     sensor: Query<(&Sensor, &SensorFrame)>,
     observer: Query<&CameraPose, With<Observer>>,
 ) -> Result {
     let v = &mut *viewer;
-    update_texture(&mut contexts, &mut images, v, &mut texture);
     let ctx = contexts.ctx_mut()?.clone();
+    let mut live = LiveImages::new(&mut images, &mut contexts, &writes);
+    update_texture(&mut live, v, &mut texture);
     if ctx.global_style().visuals.panel_fill != egui::Color32::TRANSPARENT {
         // the panels paint no background: egui's camera clears the window (see `setup_egui`)
         ctx.all_styles_mut(|style| style.visuals.panel_fill = egui::Color32::TRANSPARENT);
@@ -139,7 +139,7 @@ pub fn draw_panels(
     let fit = ((ctx.viewport_rect().height() - 390.0) / sensor_h).clamp(0.25, 1.0);
     let left_default = (sensor_w * fit + 16.0).min(ctx.viewport_rect().width() * 0.5);
     egui::Panel::left("sensor").resizable(true).default_size(left_default).show(&mut root, |ui| {
-        sensor_panel(ui, v, &texture, sensor.single().ok(), observer.single().ok());
+        sensor_panel(ui, v, &mut live, &texture, sensor.single().ok(), observer.single().ok());
     });
     let every = view_image.as_ref().map_or(1, |image| image.every);
     let view_id = view_image.map(|image| image.handle.id());
@@ -184,39 +184,20 @@ fn stretch_name(s: Stretch) -> String {
     }
 }
 
-fn update_texture(contexts: &mut EguiContexts, images: &mut Assets<Image>, v: &mut Viewer, t: &mut SensorTexture) {
+fn update_texture(live: &mut LiveImages, v: &mut Viewer, t: &mut SensorTexture) {
     let Some(frame) = &v.frame else { return };
     let key = (v.computed, v.playback.shown.unwrap_or(0), format!("{:?}{:?}", v.stretch, v.color_map));
-    if t.key.as_ref() == Some(&key) && t.handle.is_some() {
+    if t.key.as_ref() == Some(&key) && t.image.is_some() {
         return;
     }
     let started = std::time::Instant::now();
     t.window = display_window(frame, v.stretch, &mut t.scratch);
-    to_rgba(frame, t.window, v.color_map, &mut t.rgba);
-    let size = (frame.width(), frame.height());
-    let reuse = t.handle.clone().filter(|h| t.size == size && images.contains(h));
-    if let Some(handle) = reuse {
-        if let Some(mut image) = images.get_mut(&handle) {
-            match &mut image.data {
-                // swap the buffers: the old pixels come back to be overwritten next time
-                Some(data) if data.len() == t.rgba.len() => std::mem::swap(data, &mut t.rgba),
-                _ => image.data = Some(t.rgba.clone()),
-            }
-        }
-    } else {
-        let extent = wgpu_types::Extent3d { width: size.0 as u32, height: size.1 as u32, depth_or_array_layers: 1 };
-        let mut image = Image::new(
-            extent,
-            wgpu_types::TextureDimension::D2,
-            t.rgba.clone(),
-            wgpu_types::TextureFormat::Rgba8UnormSrgb,
-            bevy::asset::RenderAssetUsages::default(),
-        );
-        image.sampler = bevy::image::ImageSampler::nearest();
-        let handle = images.add(image);
-        t.id = Some(contexts.add_image(bevy_egui::EguiTextureHandle::Strong(handle.clone())));
-        t.handle = Some(handle);
-        t.size = size;
+    let mut rgba = live.buffer();
+    to_rgba(frame, t.window, v.color_map, &mut rgba);
+    let size = [frame.width() as u32, frame.height() as u32];
+    match &t.image {
+        Some(image) if image.size == size => live.write(image, [0, 0], size, rgba),
+        _ => t.image = Some(live.create(size, rgba, t.image.take())),
     }
     t.key = Some(key);
     v.map_ms_total += started.elapsed().as_secs_f64() * 1e3;
@@ -424,11 +405,12 @@ fn save_and_record(ui: &mut egui::Ui, v: &mut Viewer) {
 fn sensor_panel(
     ui: &mut egui::Ui,
     v: &mut Viewer,
+    live: &mut LiveImages,
     t: &SensorTexture,
     sensor: Option<(&Sensor, &SensorFrame)>,
     pose: Option<&CameraPose>,
 ) {
-    let (Some(frame), Some(id)) = (&v.frame, t.id) else {
+    let (Some(frame), Some(image)) = (&v.frame, &t.image) else {
         ui.label("computing the first frame …");
         return;
     };
@@ -446,15 +428,12 @@ fn sensor_panel(
     egui::ScrollArea::both().max_height(image_height).show(ui, |ui| {
         let sense = if v.new_target.armed { egui::Sense::click() } else { egui::Sense::hover() };
         let (rect, response) = ui.allocate_exact_size(size, sense);
-        match t.handle.as_ref().filter(|_| super::blit::fits(ui.ctx(), rect)) {
-            Some(handle) => {
-                ui.painter().add(super::blit::blit(rect, handle.id()));
-            }
+        if super::blit::fits(ui.ctx(), rect) {
+            ui.painter().add(super::blit::blit(rect, image.asset()));
+        } else {
             // zoomed beyond the window: egui's own image (a paint callback's viewport cannot leave the window)
-            None => {
-                let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
-                ui.painter().image(id, rect, uv, egui::Color32::WHITE);
-            }
+            let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+            ui.painter().image(image.id, rect, uv, egui::Color32::WHITE);
         }
         if v.new_target.armed {
             response.clone().on_hover_cursor(egui::CursorIcon::Crosshair);
@@ -529,7 +508,7 @@ fn sensor_panel(
     let height = (ui.available_height() - 40.0).max(80.0);
     let run = &v.built.spec.run;
     let run_s = (run.start_time_s, run.start_time_s + (v.playback.frames.max(2) - 1) as f64 / run.frame_rate_hz);
-    v.history.show(ui, t_now, run_s, height);
+    v.history.show(ui, live, t_now, run_s, height);
     if let (Some((x, y)), Some(pose)) = (clicked, pose) {
         add_target_at(v, pose, x, y);
     }

@@ -1,19 +1,23 @@
 //! Live plots: each target's SNR, range and peak gray over the frames computed so far, with the frame on show
 //! marked.
 //!
-//! egui_plot draws the frame, axes, grid, legend, the time on show and the hover read-out; the targets' lines are
-//! drawn here, on the CPU, into one texture of the plot's size in screen pixels ([`Canvas`]) that the plot
-//! shows as an image. Drawn as egui shapes, ten anti-aliased lines of 200 frames each were about 20 000 triangles
-//! a displayed frame, which under software rendering (Mesa's llvmpipe) cost more than all the rest of the window's
-//! widgets together; the texture is one quad, redrawn only when the history, the quantity, the plot's size or the
-//! legend's state changes.
+//! egui_plot lays out the plot and draws its frame, axes, legend, the time on show and the hover read-out; the
+//! background, the grid (at egui_plot's own grid marks, in its colours) and the targets' lines are drawn here, on the
+//! CPU, into one opaque picture of the plot's size in screen pixels ([`Canvas`]), copied into the window unblended by
+//! [`super::blit`]. Drawn as egui shapes, ten anti-aliased lines of 200 frames each were about 20 000 triangles a
+//! displayed frame, which under software rendering (Mesa's llvmpipe) cost more than all the rest of the window's
+//! widgets together; and the background, the grid and a blended image of the lines, each filling the plot, cost 5–6 ms
+//! more CPU a frame together than this one picture. The picture is redrawn only when the history, the quantity, the
+//! plot's size or the legend's state changes; playing on, a new frame draws its own segment and sends only the columns
+//! it touched ([`super::uploads`]).
 
 use std::collections::BTreeMap;
 
 use bevy_egui::egui;
-use egui_plot::{Legend, Line, Plot, PlotBounds, PlotImage, PlotMemory, PlotPoint, PlotPoints, VLine};
+use egui_plot::{GridInput, Legend, Line, Plot, PlotBounds, PlotMemory, PlotPoints, VLine};
 
 use super::scene::palette;
+use super::uploads::{LiveImage, LiveImages};
 use crate::labels::FrameLabels;
 
 /// What is plotted.
@@ -49,9 +53,11 @@ pub struct History {
 #[derive(Default)]
 struct Raster {
     key: Option<RasterKey>,
-    texture: Option<egui::TextureHandle>,
-    /// The plot's frame in screen pixels, as last laid out.
+    texture: Option<LiveImage>,
+    /// The plot's frame in screen pixels, as last laid out: its size, and where its top left corner is.
     size_px: [usize; 2],
+    /// See `size_px`: left, top, width and height, unrounded.
+    frame_px: [f32; 4],
     canvas: Canvas,
     /// The value axis's range, which only grows while the data stay inside it (so that a new frame adds a few
     /// pixels to the picture instead of redrawing it).
@@ -64,11 +70,18 @@ struct RasterKey {
     generation: u64,
     quantity: Quantity,
     size_px: [usize; 2],
+    frame_px: [u32; 4],
     bounds: [u64; 4],
     hidden: Vec<u32>,
     highlighted: Option<u32>,
     pixels_per_point: u32,
+    /// Background and grid colours (the theme's).
+    colors: [egui::Color32; 2],
 }
+
+/// egui_plot's default grid spacing, points: marks closer than the first are not drawn, and a line's strength
+/// grows from nothing there to full at the second.
+const GRID_SPACING_PT: (f32, f32) = (8.0, 300.0);
 
 /// Line width and the radius of a lone frame's dot, points.
 const LINE_WIDTH_PT: f32 = 1.5;
@@ -95,21 +108,54 @@ impl Canvas {
         self.coverage.resize(width * height, 0.0);
     }
 
-    /// Columns `columns` of the picture as an egui image (1 × 1 transparent when empty).
-    pub fn image(&self, columns: std::ops::Range<usize>) -> egui::ColorImage {
+    /// Fills the picture with `color` (premultiplied).
+    pub fn fill(&mut self, color: egui::Color32) {
+        for px in self.rgba.chunks_exact_mut(4) {
+            px.copy_from_slice(&color.to_array());
+        }
+    }
+
+    /// A grid line across the picture, one pixel wide, centred on `at_px` (a column when `vertical`, else a row;
+    /// pixel edges at whole numbers), in `color` (premultiplied) over what is there, blended in linear light as
+    /// the window blends egui's shapes; anti-aliased across the two pixels it straddles.
+    pub fn grid_line(&mut self, vertical: bool, at_px: f32, color: egui::Color32) {
+        use egui::ecolor::{gamma_u8_from_linear_f32, linear_f32_from_gamma_u8};
+        let (w, h) = (self.width, self.height);
+        let across = if vertical { w } else { h };
+        if !at_px.is_finite() || across == 0 {
+            return;
+        }
+        let (lo, hi) = (at_px - 0.5, at_px + 0.5);
+        let first = lo.floor().max(0.0) as usize;
+        let [r, g, b, a] = color.to_array();
+        let src = [r, g, b].map(linear_f32_from_gamma_u8);
+        for i in first..(first + 2).min(across) {
+            // the part of pixel i the line covers
+            let c = (hi.min(i as f32 + 1.0) - lo.max(i as f32)).clamp(0.0, 1.0);
+            if c <= 0.0 {
+                continue;
+            }
+            let keep = 1.0 - c * f32::from(a) / 255.0;
+            let (count, index): (usize, Box<dyn Fn(usize) -> usize>) =
+                if vertical { (h, Box::new(move |y| y * w + i)) } else { (w, Box::new(move |x| i * w + x)) };
+            for k in 0..count {
+                let p = index(k) * 4;
+                for (dst, s) in self.rgba[p..p + 3].iter_mut().zip(src) {
+                    *dst = gamma_u8_from_linear_f32(s * c + linear_f32_from_gamma_u8(*dst) * keep);
+                }
+            }
+        }
+    }
+
+    /// Columns `columns` of the picture, row by row, premultiplied sRGBA (one transparent pixel when empty).
+    pub fn pixels(&self, columns: std::ops::Range<usize>) -> ([u32; 2], Vec<u8>) {
         let (w, h) = (self.width, self.height);
         let columns = columns.start.min(w)..columns.end.min(w);
         if columns.is_empty() || h == 0 {
-            return egui::ColorImage::new([1, 1], vec![egui::Color32::TRANSPARENT]);
+            return ([1, 1], vec![0; 4]);
         }
-        let pixels = (0..h)
-            .flat_map(|y| {
-                self.rgba[(y * w + columns.start) * 4..(y * w + columns.end) * 4]
-                    .chunks_exact(4)
-                    .map(|p| egui::Color32::from_rgba_premultiplied(p[0], p[1], p[2], p[3]))
-            })
-            .collect();
-        egui::ColorImage::new([columns.len(), h], pixels)
+        let rgba = (0..h).flat_map(|y| &self.rgba[(y * w + columns.start) * 4..(y * w + columns.end) * 4]).copied();
+        ([columns.len() as u32, h as u32], rgba.collect())
     }
 
     /// Draws one polyline (pixel coordinates, y down; each pixel's centre at +0.5) `width_px` wide, and a dot of
@@ -234,7 +280,14 @@ impl History {
 
     /// Draws the plot of the chosen quantity, `height` points high, over the run's time span `run_s`, with
     /// `t_now_s` marked.
-    pub fn show(&mut self, ui: &mut egui::Ui, t_now_s: f64, run_s: (f64, f64), height: f32) {
+    pub fn show(
+        &mut self,
+        ui: &mut egui::Ui,
+        live: &mut LiveImages<'_, '_, '_>,
+        t_now_s: f64,
+        run_s: (f64, f64),
+        height: f32,
+    ) {
         ui.horizontal(|ui| {
             ui.selectable_value(&mut self.quantity, Quantity::Snr, "SNR");
             ui.selectable_value(&mut self.quantity, Quantity::Range, "range km");
@@ -275,14 +328,17 @@ impl History {
         let (x0, x1) = time_axis(run_s, t_now_s, t_last);
         let bounds = [x0, x1, y0, y1];
         let ppp = ui.ctx().pixels_per_point();
+        let (background, grid) = (ui.visuals().extreme_bg_color, ui.visuals().text_color());
         let key = RasterKey {
             generation: self.generation,
             quantity,
             size_px: self.raster.size_px,
+            frame_px: self.raster.frame_px.map(f32::to_bits),
             bounds: bounds.map(f64::to_bits),
             hidden: hidden.clone(),
             highlighted,
             pixels_per_point: ppp.to_bits(),
+            colors: [background, grid],
         };
         let [w, h] = self.raster.size_px;
         let to_px =
@@ -301,20 +357,49 @@ impl History {
         // part and send only the columns it touched
         let added = std::mem::take(&mut self.added);
         let appended = appended_run(&self.frames, &added);
-        let texture_options = egui::TextureOptions::NEAREST;
         if self.raster.key.as_ref() != Some(&key)
             || self.raster.texture.is_none()
             || (appended.is_none() && !added.is_empty())
         {
             let canvas = &mut self.raster.canvas;
             canvas.reset(w, h);
-            draw(canvas, &series);
-            let image = canvas.image(0..w);
-            match &mut self.raster.texture {
-                Some(t) => t.set(image, texture_options),
-                None => {
-                    self.raster.texture = Some(ui.ctx().load_texture("irsim_history_lines", image, texture_options))
+            canvas.fill(background);
+            // egui_plot's grid: its marks for the plot's bounds, faded by their spacing as it fades them
+            let [left, top, width, height] = self.raster.frame_px;
+            let size_pt = [f64::from(width / ppp), f64::from(height / ppp)];
+            for (vertical, (lo, hi), size_pt, size_px, origin) in
+                [(true, (x0, x1), size_pt[0], width, left), (false, (y0, y1), size_pt[1], height, top)]
+            {
+                let per_pt = (hi - lo) / size_pt.max(1.0);
+                let marks = egui_plot::log_grid_spacer(10)(GridInput {
+                    bounds: (lo, hi),
+                    base_step_size: per_pt * f64::from(GRID_SPACING_PT.0),
+                });
+                let mut lines: Vec<(f32, f32)> = marks
+                    .iter()
+                    .filter_map(|m| {
+                        let spacing_pt = (m.step_size / per_pt) as f32;
+                        let strength = ((spacing_pt - GRID_SPACING_PT.0) / (GRID_SPACING_PT.1 - GRID_SPACING_PT.0))
+                            .clamp(0.0, 1.0);
+                        let frac = ((m.value - lo) / (hi - lo)) as f32;
+                        let at = if vertical { frac } else { 1.0 - frac } * size_px;
+                        // egui puts a one-pixel line in the window pixel it is in; the picture's pixel shown
+                        // there (the blit takes the texel under each pixel's centre) gets all of it
+                        let texel = ((origin + at).floor() + 0.5 - origin).floor();
+                        (spacing_pt > GRID_SPACING_PT.0).then_some((texel + 0.5, strength))
+                    })
+                    .collect();
+                // the stronger lines over the fainter, as egui_plot sorts them
+                lines.sort_by(|a, b| a.1.total_cmp(&b.1));
+                for (at, strength) in lines {
+                    canvas.grid_line(vertical, at, grid.gamma_multiply(strength.sqrt()));
                 }
+            }
+            draw(canvas, &series);
+            let (size, rgba) = canvas.pixels(0..w);
+            match &self.raster.texture {
+                Some(t) if t.size == size => live.write(t, [0, 0], size, rgba),
+                _ => self.raster.texture = Some(live.create(size, rgba, self.raster.texture.take())),
             }
             self.raster.key = Some(key);
         } else if let Some((from, to)) = appended {
@@ -326,12 +411,15 @@ impl History {
             let a = ((column(from) - reach).floor().max(0.0) as usize).min(w);
             let b = ((column(to) + reach).ceil().max(0.0) as usize).min(w);
             if b > a
-                && let Some(texture) = self.raster.texture.as_mut()
+                && let Some(texture) = &self.raster.texture
             {
-                texture.set_partial([a, 0], canvas.image(a..b), texture_options);
+                let (size, rgba) = canvas.pixels(a..b);
+                live.write(texture, [a as u32, 0], size, rgba);
             }
         }
-        let texture = self.raster.texture.as_ref().map(egui::TextureHandle::id);
+        // the picture goes under everything egui_plot draws: its place among the shapes is kept now, and filled
+        // in once the plot has said where its frame is
+        let slot = ui.painter().add(egui::Shape::Noop);
         let response = Plot::new("history")
             .id(plot_id)
             .height(height)
@@ -344,12 +432,10 @@ impl History {
             .allow_drag(false)
             .allow_boxed_zoom(false)
             .allow_double_click_reset(false)
+            .show_background(false)
+            .show_grid(false)
             .show(ui, |plot| {
                 plot.set_plot_bounds(PlotBounds::from_min_max([x0, y0], [x1, y1]));
-                if let Some(texture) = texture {
-                    let centre = PlotPoint::new((x0 + x1) / 2.0, (y0 + y1) / 2.0);
-                    plot.image(PlotImage::new("", texture, centre, egui::vec2((x1 - x0) as f32, (y1 - y0) as f32)));
-                }
                 // legend entries: each target's colour and name (its line is in the image): a line of one point,
                 // its latest, which egui_plot lists and hovers but does not draw
                 for (id, segments) in &series {
@@ -358,8 +444,26 @@ impl History {
                 }
                 plot.vline(VLine::new("now", t_now_s).color(egui::Color32::GRAY));
             });
-        let frame = response.transform.frame().size() * ppp;
-        self.raster.size_px = [frame.x.round().max(0.0) as usize, frame.y.round().max(0.0) as usize];
+        let frame = *response.transform.frame();
+        if let Some(texture) = &self.raster.texture {
+            let picture = if super::blit::fits(ui.ctx(), frame) {
+                egui::Shape::Callback(super::blit::blit(frame, texture.asset()))
+            } else {
+                let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+                egui::Shape::image(texture.id, frame, uv, egui::Color32::WHITE)
+            };
+            ui.painter().set(slot, picture);
+        }
+        // egui_plot's frame line, which it draws with the background
+        ui.painter().with_clip_rect(frame).rect_stroke(
+            frame,
+            2.0,
+            ui.visuals().widgets.noninteractive.bg_stroke,
+            egui::StrokeKind::Inside,
+        );
+        let size = frame.size() * ppp;
+        self.raster.size_px = [size.x.round().max(0.0) as usize, size.y.round().max(0.0) as usize];
+        self.raster.frame_px = [frame.min.x * ppp, frame.min.y * ppp, size.x, size.y];
     }
 }
 
@@ -471,6 +575,36 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_grid_line_fills_the_pixel_it_is_centred_in_and_blends_in_linear_light() {
+        use egui::ecolor::{gamma_u8_from_linear_f32, linear_f32_from_gamma_u8};
+        let gray = |c: &Canvas, x: usize, y: usize| c.rgba[(y * c.width + x) * 4];
+        let mut c = Canvas::default();
+        c.reset(8, 4);
+        c.fill(egui::Color32::from_gray(10));
+        c.grid_line(true, 3.5, egui::Color32::from_gray(140));
+        for y in 0..4 {
+            for x in 0..8 {
+                assert_eq!(gray(&c, x, y), if x == 3 { 140 } else { 10 }, "({x}, {y})");
+                assert_eq!(c.rgba[(y * 8 + x) * 4 + 3], 255, "the picture stays opaque");
+            }
+        }
+        // straddling rows 0 and 1, half over each: half the light, not half the gray level
+        c.fill(egui::Color32::BLACK);
+        c.grid_line(false, 1.0, egui::Color32::from_gray(140));
+        let half = gamma_u8_from_linear_f32(0.5 * linear_f32_from_gamma_u8(140));
+        assert!(half > 70, "{half}");
+        for x in 0..8 {
+            assert_eq!([gray(&c, x, 0), gray(&c, x, 1), gray(&c, x, 2)], [half, half, 0]);
+        }
+        // off the picture, or not a number: nothing
+        c.fill(egui::Color32::BLACK);
+        c.grid_line(true, -3.0, egui::Color32::WHITE);
+        c.grid_line(true, f32::NAN, egui::Color32::WHITE);
+        c.grid_line(false, 99.0, egui::Color32::WHITE);
+        assert!(c.rgba.chunks_exact(4).all(|p| p == [0, 0, 0, 255]));
     }
 
     #[test]
