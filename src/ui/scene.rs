@@ -36,6 +36,33 @@ impl Orbit {
         let dir = Vec3::new(self.yaw.sin() * self.pitch.cos(), self.pitch.sin(), self.yaw.cos() * self.pitch.cos());
         Transform::from_translation(self.focus + dir * self.distance).looking_at(self.focus, Vec3::Y)
     }
+
+    /// The distance from the focus (same direction) at which every point lies inside the middle `fill` of a
+    /// picture of vertical field of view `fov_y` (rad) and width / height `aspect`.
+    fn fit(&self, points: &[Vec3], fov_y: f32, aspect: f32, fill: f32) -> f32 {
+        let t = Orbit { distance: 1.0, ..*self }.transform();
+        let (right, up, forward) = (t.right(), t.up(), t.forward());
+        let tan_y = (fov_y / 2.0).tan() * fill;
+        let tan_x = tan_y * aspect;
+        points
+            .iter()
+            .map(|p| {
+                let v = *p - self.focus;
+                // the point's depth in front of the camera is the distance plus v along the view direction
+                let depth_ahead = v.dot(*forward);
+                (v.dot(*right).abs() / tan_x).max(v.dot(*up).abs() / tan_y) - depth_ahead
+            })
+            .filter(|d| d.is_finite())
+            .fold(0.05, f32::max)
+    }
+}
+
+/// What the opening view frames, fitted to the view's shape once it is laid out (and again while the panels
+/// settle), until the user moves the view.
+#[derive(Resource, Debug, Default)]
+pub struct OpeningFrame {
+    points: Vec<Vec3>,
+    touched: bool,
 }
 
 /// The picture the 3D camera draws, copied into the view's rectangle in egui's pass (`blit`). A texture of the
@@ -124,7 +151,8 @@ impl DrawScale {
 }
 
 /// The 3D camera, framing every trajectory over the run and the observer, seen from behind and above the
-/// observer's line of sight.
+/// observer's line of sight. (The sky plane, 6 to 60 times farther from them than their own extent in the shipped
+/// scenarios, is a backdrop: framing it would shrink the encounter to a speck.)
 pub fn spawn_view_camera(
     mut commands: Commands,
     mut images: ResMut<Assets<Image>>,
@@ -140,11 +168,7 @@ pub fn spawn_view_camera(
     for fp in &paths {
         points.extend((0..=32).map(|i| to_view(fp.0.state(t0 + (t1 - t0) * f64::from(i) / 32.0).0)));
     }
-    let (lo, hi) = points
-        .iter()
-        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
-    let focus = if points.is_empty() { Vec3::ZERO } else { (lo + hi) / 2.0 };
-    let radius = points.iter().map(|p| p.distance(focus)).fold(0.5_f32, f32::max);
+    let (focus, radius) = bounding_sphere(&points);
     // look from the observer toward the targets at mid-run, from 20° to the left and 10° above: low enough that
     // a sky plane behind the targets stands in the background
     let t_mid = (t0 + t1) / 2.0;
@@ -156,6 +180,7 @@ pub fn spawn_view_camera(
     // the view is narrower than high in the default layout: fit the sphere in a width half the height
     let half_fov_h = ((PerspectiveProjection::default().fov / 2.0).tan() * 0.5).atan();
     let orbit = Orbit { focus, yaw, pitch: 10_f32.to_radians(), distance: radius / half_fov_h.sin() * 1.1 };
+    commands.insert_resource(OpeningFrame { points, touched: false });
     // resized to the view's rectangle by `orbit_camera` once the panels are laid out
     let size = UVec2::splat(64);
     let image = Image::new_target_texture(size.x, size.y, wgpu_types::TextureFormat::Rgba8UnormSrgb, None);
@@ -175,6 +200,18 @@ pub fn spawn_view_camera(
     commands.insert_resource(DrawScale::default());
 }
 
+/// The part of the view's width and height the opening view's points fill at most.
+const OPENING_FILL: f32 = 0.9;
+
+/// The centre of the points' bounding box and the farthest point's distance from it (at least 0.5 km).
+fn bounding_sphere(points: &[Vec3]) -> (Vec3, f32) {
+    let (lo, hi) = points
+        .iter()
+        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let centre = if points.is_empty() { Vec3::ZERO } else { (lo + hi) / 2.0 };
+    (centre, points.iter().map(|p| p.distance(centre)).fold(0.5_f32, f32::max))
+}
+
 /// Orbit, pan, zoom and focus from the mouse and F, only while the pointer is over the 3D view and egui does
 /// not want it; keeps the camera's picture the size of the view's rectangle.
 #[allow(clippy::too_many_arguments)]
@@ -188,10 +225,11 @@ pub fn orbit_camera(
     window: Single<&Window, With<PrimaryWindow>>,
     mut view_image: ResMut<ViewImage>,
     mut images: ResMut<Assets<Image>>,
-    mut camera: Query<(&mut Transform, &mut Orbit)>,
+    mut camera: Query<(&mut Transform, &mut Orbit, &Projection)>,
     targets: Query<(&Aircraft, &Kinematics)>,
+    mut opening: ResMut<OpeningFrame>,
 ) {
-    let Ok((mut transform, mut orbit)) = camera.single_mut() else { return };
+    let Ok((mut transform, mut orbit, projection)) = camera.single_mut() else { return };
     let [x0, y0, x1, y1] = viewer.view_rect;
     let scale = window.scale_factor();
     let most = UVec2::new(window.physical_width(), window.physical_height()).max(UVec2::ONE);
@@ -202,11 +240,20 @@ pub fn orbit_camera(
     {
         image.resize(wgpu_types::Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 });
         view_image.size = size;
+        if !opening.touched
+            && let Projection::Perspective(p) = projection
+        {
+            orbit.distance = orbit.fit(&opening.points, p.fov, size.x as f32 / size.y as f32, OPENING_FILL);
+        }
     }
     let over_view = window.cursor_position().is_some_and(|c| c.x >= x0 && c.x < x1 && c.y >= y0 && c.y < y1);
     let free = over_view && !egui.wants_pointer_input() && !egui.is_using_pointer();
     if free {
         let d = motion.delta;
+        let pressed = buttons.pressed(MouseButton::Left) || buttons.pressed(MouseButton::Right);
+        if pressed && d != Vec2::ZERO || scroll.delta.y != 0.0 {
+            opening.touched = true;
+        }
         if buttons.pressed(MouseButton::Left) {
             orbit.yaw -= d.x * 0.005;
             orbit.pitch = (orbit.pitch + d.y * 0.005).clamp(-1.5, 1.5);
@@ -223,6 +270,7 @@ pub fn orbit_camera(
     if keys.just_pressed(KeyCode::KeyF) && !egui.wants_keyboard_input() {
         let first = viewer.labels.targets.iter().find(|t| t.in_frame).or(viewer.labels.targets.first()).map(|t| t.id);
         if let Some((_, k)) = targets.iter().find(|(a, _)| Some(a.id) == first) {
+            opening.touched = true;
             orbit.focus = to_view(k.position_m);
             orbit.distance = orbit.distance.min(5.0);
         }
@@ -340,4 +388,36 @@ pub fn palette(id: u32) -> Color {
         [(1.0, 0.35, 0.3), (0.3, 0.85, 0.4), (0.35, 0.6, 1.0), (1.0, 0.7, 0.2), (0.8, 0.4, 1.0), (0.2, 0.9, 0.9)];
     let (r, g, b) = COLORS[(id as usize).wrapping_sub(1) % COLORS.len()];
     Color::srgb(r, g, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Where `p` lands in the picture, as fractions of its half width and half height from the centre.
+    fn on_screen(orbit: &Orbit, p: Vec3, fov_y: f32, aspect: f32) -> (f32, f32) {
+        let t = orbit.transform();
+        let v = p - t.translation;
+        let depth = v.dot(*t.forward());
+        let tan_y = (fov_y / 2.0).tan();
+        (v.dot(*t.right()) / depth / (tan_y * aspect), v.dot(*t.up()) / depth / tan_y)
+    }
+
+    #[test]
+    fn the_opening_view_fits_its_points_to_the_pictures_shape() {
+        let points = [Vec3::new(-3.0, 0.5, 1.0), Vec3::new(4.0, 2.0, -6.0), Vec3::new(0.5, -1.0, 3.0)];
+        let fov = 0.8;
+        for aspect in [0.4, 1.0, 2.5] {
+            let mut orbit = Orbit { focus: Vec3::new(0.5, 0.5, -1.0), yaw: 0.7, pitch: 0.2, distance: 1.0 };
+            orbit.distance = orbit.fit(&points, fov, aspect, 0.9);
+            let spots: Vec<(f32, f32)> = points.iter().map(|p| on_screen(&orbit, *p, fov, aspect)).collect();
+            // every point inside the middle 90 %, and one on its edge (no closer would do)
+            assert!(spots.iter().all(|(x, y)| x.abs() <= 0.9 + 1e-4 && y.abs() <= 0.9 + 1e-4), "{aspect}: {spots:?}");
+            let widest = spots.iter().map(|(x, y)| x.abs().max(y.abs())).fold(0.0, f32::max);
+            assert!((widest - 0.9).abs() < 1e-3, "{aspect}: {widest}");
+        }
+        // nothing to frame: a small distance, not a NaN
+        let orbit = Orbit { focus: Vec3::ZERO, yaw: 0.0, pitch: 0.0, distance: 1.0 };
+        assert_eq!(orbit.fit(&[], fov, 1.0, 0.9), 0.05);
+    }
 }
