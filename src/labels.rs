@@ -131,8 +131,9 @@ pub struct MaskPatch<'a> {
 }
 
 /// Paints the target mask (`width`-wide, row-major, 0 = sky): a pixel belongs to a target where its patch
-/// reaches 10 % of the patch's peak; where targets overlap the nearest wins.
-pub fn paint_mask(mask: &mut Vec<u8>, width: usize, height: usize, patches: &mut [MaskPatch<'_>]) {
+/// reaches `fraction` of the patch's peak (in magnitude; the scenario's `labels.mask_fraction`, 0.1 by default);
+/// where targets overlap the nearest wins.
+pub fn paint_mask(mask: &mut Vec<u8>, width: usize, height: usize, fraction: f64, patches: &mut [MaskPatch<'_>]) {
     mask.clear();
     mask.resize(width * height, 0);
     patches.sort_by(|a, b| b.range_m.total_cmp(&a.range_m));
@@ -141,7 +142,7 @@ pub fn paint_mask(mask: &mut Vec<u8>, width: usize, height: usize, patches: &mut
         if !(peak > 0.0) {
             continue;
         }
-        let threshold = 0.1 * peak;
+        let threshold = fraction as f32 * peak;
         let rw = p.rect.width();
         for y in p.rect.y0..p.rect.y1 {
             for x in p.rect.x0..p.rect.x1 {
@@ -181,7 +182,24 @@ mod tests {
             MaskPatch { id: 1, range_m: 90.0, rect, values: &far, peak: 1.0 },
         ];
         let mut mask = Vec::new();
-        paint_mask(&mut mask, 4, 3, &mut patches);
+        paint_mask(&mut mask, 4, 3, 0.1, &mut patches);
         assert_eq!(mask, vec![0, 0, 0, 0, 0, 1, 2, 0, 0, 0, 0, 0]);
+    }
+
+    #[test]
+    fn the_mask_fraction_sets_how_much_of_a_target_is_masked() {
+        let rect = PixelRect { x0: 0, y0: 0, x1: 4, y1: 1 };
+        // a dark target (negative contribution) counts by magnitude
+        let values = [-0.04f32, -0.2, -1.0, -0.5];
+        let masked = |fraction: f64| {
+            let mut patches = [MaskPatch { id: 3, range_m: 1.0, rect, values: &values, peak: -1.0 }];
+            let mut mask = Vec::new();
+            paint_mask(&mut mask, 4, 1, fraction, &mut patches);
+            mask
+        };
+        assert_eq!(masked(0.1), vec![0, 3, 3, 3]);
+        assert_eq!(masked(0.5), vec![0, 0, 3, 3]);
+        assert_eq!(masked(1.0), vec![0, 0, 3, 0]);
+        assert_eq!(masked(0.01), vec![3, 3, 3, 3]);
     }
 }

@@ -123,6 +123,18 @@ fn frame_rates_outside_the_range_are_refused_not_a_panic() {
 }
 
 #[test]
+fn mask_fractions_outside_zero_to_one_are_refused() {
+    for fraction in ["0", "-0.1", "1.5", "nan", "inf"] {
+        let text = format!("{BASE}\n[labels]\nmask_fraction = {fraction}\n");
+        let e = refused(load_toml(&text), "labels.mask_fraction");
+        assert!(e.message.contains("(0, 1]"), "{e}");
+    }
+    for fraction in ["1", "0.5", "1e-6"] {
+        load_toml(&format!("{BASE}\n[labels]\nmask_fraction = {fraction}\n")).unwrap();
+    }
+}
+
+#[test]
 fn any_accepted_frame_rate_puts_frame_k_at_t0_plus_k_over_rate() {
     // Bevy clamps a step to 250 ms; the simulation clock must not care
     for (rate, start) in [(1.0, 0.0), (0.01, 5.0), (1e-3, -100.0), (4.0, 0.0), (1e5, 0.0)] {

@@ -83,11 +83,14 @@ pub struct LabelsSpec {
     /// A target in the frame is `detectable` when its SNR (peak signal over the temporal noise at its
     /// background) is at least this.
     pub detectable_snr: f64,
+    /// A pixel belongs to a target's mask where the target's own contribution there reaches this fraction of
+    /// its peak (the contribution's magnitude: a target darker than its sky counts as well).
+    pub mask_fraction: f64,
 }
 
 impl Default for LabelsSpec {
     fn default() -> Self {
-        Self { detectable_snr: 3.0 }
+        Self { detectable_snr: 3.0, mask_fraction: 0.1 }
     }
 }
 
@@ -528,6 +531,16 @@ impl Scenario {
             return Err(fe(
                 "labels.detectable_snr",
                 format!("{} must be a finite number ≥ 0", num(self.labels.detectable_snr)),
+            ));
+        }
+        let fraction = self.labels.mask_fraction;
+        if !(fraction > 0.0 && fraction <= 1.0) {
+            return Err(fe(
+                "labels.mask_fraction",
+                format!(
+                    "{} must be in (0, 1]: the fraction of a target's peak that puts a pixel in its mask",
+                    num(fraction)
+                ),
             ));
         }
 

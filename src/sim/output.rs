@@ -148,7 +148,7 @@ pub fn collect_labels(
                 Some(MaskPatch { id: aircraft.id, range_m: fp.range_m, rect: *rect, values, peak: fp.peak_radiance })
             })
             .collect();
-        paint_mask(out.mask.get_or_insert_with(Vec::new), w, h, &mut drawn);
+        paint_mask(out.mask.get_or_insert_with(Vec::new), w, h, settings.mask_fraction, &mut drawn);
     } else {
         out.mask = None;
     }

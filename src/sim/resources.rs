@@ -49,6 +49,8 @@ pub struct SimSettings {
     pub blob: BlobSettings,
     /// SNR from which a target is `detectable`.
     pub detectable_snr: f64,
+    /// Fraction of a target's peak that puts a pixel in its mask.
+    pub mask_fraction: f64,
 }
 
 /// The scene's physics.

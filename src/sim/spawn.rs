@@ -85,6 +85,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         quality: scenario.quality,
         blob: sensor_spec.blob,
         detectable_snr: spec.labels.detectable_snr,
+        mask_fraction: spec.labels.mask_fraction,
     });
     let scene = SceneParams {
         t0_k: spec.atmosphere.t0_k,
