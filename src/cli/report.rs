@@ -657,9 +657,9 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     }
     let _ = writeln!(
         md,
-        "\nNot measured here: skipping a target's fusion below a fraction of the noise, the sun's reflection when \
-         it is below the horizon or small, and recomputing radiometry only when its inputs change, which are not \
-         switches yet; and OpenCV's `seamlessClone` on the same patches.\n\nThe report took {:.0} s.",
+        "\nNot measured here: skipping the sun's reflection where it is small (below the horizon it is zero and \
+         not computed, exactly), and recomputing radiometry only when its inputs change, which are not switches \
+         yet; and OpenCV's `seamlessClone` on the same patches.\n\nThe report took {:.0} s.",
         started.elapsed().as_secs_f64()
     );
     write_atomic(&md_path, md.as_bytes()).map_err(failed)?;
