@@ -86,7 +86,7 @@ fn start_recording(r: &mut RecordUi, scenario: &crate::scenario::CheckedScenario
 #[derive(Default)]
 pub struct SensorTexture {
     image: Option<LiveImage>,
-    key: Option<(u64, u64, String)>,
+    key: Option<(u64, u64, Stretch, ColorMap)>,
     scratch: super::state::StretchScratch,
     window: (f64, f64),
 }
@@ -186,13 +186,13 @@ fn stretch_name(s: Stretch) -> String {
 
 fn update_texture(live: &mut LiveImages, v: &mut Viewer, t: &mut SensorTexture) {
     let Some(frame) = &v.frame else { return };
-    let key = (v.computed, v.playback.shown.unwrap_or(0), format!("{:?}{:?}", v.stretch, v.color_map));
+    let key = (v.computed, v.playback.shown.unwrap_or(0), v.stretch, v.color_map);
     if t.key.as_ref() == Some(&key) && t.image.is_some() {
         return;
     }
     let started = std::time::Instant::now();
     t.window = display_window(frame, v.stretch, &mut t.scratch);
-    let mut rgba = live.buffer();
+    let mut rgba = live.buffer(frame.pixels().len() * 4);
     to_rgba(frame, t.window, v.color_map, &mut rgba);
     let size = [frame.width() as u32, frame.height() as u32];
     match &t.image {

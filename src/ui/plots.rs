@@ -136,10 +136,10 @@ impl Canvas {
                 continue;
             }
             let keep = 1.0 - c * f32::from(a) / 255.0;
-            let (count, index): (usize, Box<dyn Fn(usize) -> usize>) =
-                if vertical { (h, Box::new(move |y| y * w + i)) } else { (w, Box::new(move |x| i * w + x)) };
+            // column i: every w-th pixel from i; row i: w pixels from i·w
+            let (start, step, count) = if vertical { (i, w, h) } else { (i * w, 1, w) };
             for k in 0..count {
-                let p = index(k) * 4;
+                let p = (start + k * step) * 4;
                 for (dst, s) in self.rgba[p..p + 3].iter_mut().zip(src) {
                     *dst = gamma_u8_from_linear_f32(s * c + linear_f32_from_gamma_u8(*dst) * keep);
                 }
@@ -147,15 +147,53 @@ impl Canvas {
         }
     }
 
-    /// Columns `columns` of the picture, row by row, premultiplied sRGBA (one transparent pixel when empty).
-    pub fn pixels(&self, columns: std::ops::Range<usize>) -> ([u32; 2], Vec<u8>) {
+    /// egui_plot's grid for a plot whose frame is `frame_px` (left, top, width, height in window pixels, at
+    /// `ppp` pixels per point) showing `bounds` (x0, x1, y0, y1): its marks, faded by their spacing as it fades
+    /// them, in `color`, each in the window pixel egui would put it in.
+    pub fn grid(&mut self, frame_px: [f32; 4], ppp: f32, bounds: [f64; 4], color: egui::Color32) {
+        let [left, top, width, height] = frame_px;
+        let [x0, x1, y0, y1] = bounds;
+        for (vertical, (lo, hi), size_px, origin) in [(true, (x0, x1), width, left), (false, (y0, y1), height, top)] {
+            let per_pt = (hi - lo) / f64::from(size_px / ppp).max(1.0);
+            let marks = egui_plot::log_grid_spacer(10)(GridInput {
+                bounds: (lo, hi),
+                base_step_size: per_pt * f64::from(GRID_SPACING_PT.0),
+            });
+            let mut lines: Vec<(f32, f32)> = marks
+                .iter()
+                .filter_map(|m| {
+                    let spacing_pt = (m.step_size / per_pt) as f32;
+                    let strength =
+                        ((spacing_pt - GRID_SPACING_PT.0) / (GRID_SPACING_PT.1 - GRID_SPACING_PT.0)).clamp(0.0, 1.0);
+                    let frac = ((m.value - lo) / (hi - lo)) as f32;
+                    let at = if vertical { frac } else { 1.0 - frac } * size_px;
+                    // egui puts a one-pixel line in the window pixel it is in; the picture's pixel shown there
+                    // (the blit takes the texel under each pixel's centre) gets all of it
+                    let texel = ((origin + at).floor() + 0.5 - origin).floor();
+                    (spacing_pt > GRID_SPACING_PT.0).then_some((texel + 0.5, strength))
+                })
+                .collect();
+            // the stronger lines over the fainter, as egui_plot sorts them
+            lines.sort_by(|a, b| a.1.total_cmp(&b.1));
+            for (at, strength) in lines {
+                self.grid_line(vertical, at, color.gamma_multiply(strength.sqrt()));
+            }
+        }
+    }
+
+    /// Columns `columns` of the picture, row by row, premultiplied sRGBA (one transparent pixel when empty),
+    /// appended to `out`, and their size.
+    pub fn pixels(&self, columns: std::ops::Range<usize>, mut out: Vec<u8>) -> ([u32; 2], Vec<u8>) {
         let (w, h) = (self.width, self.height);
         let columns = columns.start.min(w)..columns.end.min(w);
         if columns.is_empty() || h == 0 {
-            return ([1, 1], vec![0; 4]);
+            out.extend([0; 4]);
+            return ([1, 1], out);
         }
-        let rgba = (0..h).flat_map(|y| &self.rgba[(y * w + columns.start) * 4..(y * w + columns.end) * 4]).copied();
-        ([columns.len() as u32, h as u32], rgba.collect())
+        for y in 0..h {
+            out.extend_from_slice(&self.rgba[(y * w + columns.start) * 4..(y * w + columns.end) * 4]);
+        }
+        ([columns.len() as u32, h as u32], out)
     }
 
     /// Draws one polyline (pixel coordinates, y down; each pixel's centre at +0.5) `width_px` wide, and a dot of
@@ -364,39 +402,9 @@ impl History {
             let canvas = &mut self.raster.canvas;
             canvas.reset(w, h);
             canvas.fill(background);
-            // egui_plot's grid: its marks for the plot's bounds, faded by their spacing as it fades them
-            let [left, top, width, height] = self.raster.frame_px;
-            let size_pt = [f64::from(width / ppp), f64::from(height / ppp)];
-            for (vertical, (lo, hi), size_pt, size_px, origin) in
-                [(true, (x0, x1), size_pt[0], width, left), (false, (y0, y1), size_pt[1], height, top)]
-            {
-                let per_pt = (hi - lo) / size_pt.max(1.0);
-                let marks = egui_plot::log_grid_spacer(10)(GridInput {
-                    bounds: (lo, hi),
-                    base_step_size: per_pt * f64::from(GRID_SPACING_PT.0),
-                });
-                let mut lines: Vec<(f32, f32)> = marks
-                    .iter()
-                    .filter_map(|m| {
-                        let spacing_pt = (m.step_size / per_pt) as f32;
-                        let strength = ((spacing_pt - GRID_SPACING_PT.0) / (GRID_SPACING_PT.1 - GRID_SPACING_PT.0))
-                            .clamp(0.0, 1.0);
-                        let frac = ((m.value - lo) / (hi - lo)) as f32;
-                        let at = if vertical { frac } else { 1.0 - frac } * size_px;
-                        // egui puts a one-pixel line in the window pixel it is in; the picture's pixel shown
-                        // there (the blit takes the texel under each pixel's centre) gets all of it
-                        let texel = ((origin + at).floor() + 0.5 - origin).floor();
-                        (spacing_pt > GRID_SPACING_PT.0).then_some((texel + 0.5, strength))
-                    })
-                    .collect();
-                // the stronger lines over the fainter, as egui_plot sorts them
-                lines.sort_by(|a, b| a.1.total_cmp(&b.1));
-                for (at, strength) in lines {
-                    canvas.grid_line(vertical, at, grid.gamma_multiply(strength.sqrt()));
-                }
-            }
+            canvas.grid(self.raster.frame_px, ppp, [x0, x1, y0, y1], grid);
             draw(canvas, &series);
-            let (size, rgba) = canvas.pixels(0..w);
+            let (size, rgba) = canvas.pixels(0..w, live.buffer(w * h * 4));
             match &self.raster.texture {
                 Some(t) if t.size == size => live.write(t, [0, 0], size, rgba),
                 _ => self.raster.texture = Some(live.create(size, rgba, self.raster.texture.take())),
@@ -413,7 +421,7 @@ impl History {
             if b > a
                 && let Some(texture) = &self.raster.texture
             {
-                let (size, rgba) = canvas.pixels(a..b);
+                let (size, rgba) = canvas.pixels(a..b, live.buffer((b - a) * h * 4));
                 live.write(texture, [a as u32, 0], size, rgba);
             }
         }

@@ -30,9 +30,10 @@ impl Plugin for LiveImagesPlugin {
     }
 
     fn finish(&self, app: &mut App) {
+        let spare = app.world().resource::<Writes>().spare.clone();
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
             render_app
-                .init_resource::<PendingWrites>()
+                .insert_resource(PendingWrites { writes: Vec::new(), spare })
                 .add_systems(ExtractSchedule, take_writes)
                 .add_systems(Render, apply_writes.in_set(RenderSystems::PrepareResources));
         }
@@ -60,8 +61,8 @@ pub struct Writes {
 const MAX_SPARE: usize = 4;
 
 /// Writes taken by the render world and not yet applied (their texture not made yet), and where their buffers
-/// go back to.
-#[derive(Resource, Default)]
+/// go back to (the main world's [`Writes::spare`]).
+#[derive(Resource)]
 struct PendingWrites {
     writes: Vec<Write>,
     spare: Arc<Mutex<Vec<Vec<u8>>>>,
@@ -73,7 +74,6 @@ const MAX_WAIT_FRAMES: u32 = 120;
 fn take_writes(writes: Extract<Res<Writes>>, mut pending: ResMut<PendingWrites>) {
     let mut queued = writes.queued.lock().unwrap_or_else(PoisonError::into_inner);
     pending.writes.append(&mut queued);
-    pending.spare = writes.spare.clone();
 }
 
 fn apply_writes(mut pending: ResMut<PendingWrites>, images: Res<RenderAssets<GpuImage>>, queue: Res<RenderQueue>) {
@@ -131,10 +131,8 @@ impl LiveImage {
 
 /// What making and writing live images needs, borrowed from a system's parameters.
 pub struct LiveImages<'a, 'w, 's> {
-    /// The image assets.
-    pub images: &'a mut Assets<Image>,
-    /// egui, to register the images with.
-    pub contexts: &'a mut EguiContexts<'w, 's>,
+    images: &'a mut Assets<Image>,
+    contexts: &'a mut EguiContexts<'w, 's>,
     writes: &'a Writes,
 }
 
@@ -180,12 +178,12 @@ impl<'a, 'w, 's> LiveImages<'a, 'w, 's> {
         self.writes.queued.lock().unwrap_or_else(PoisonError::into_inner).push(write);
     }
 
-    /// An empty buffer, one already written from if there is one (its memory reused, not allocated afresh).
-    pub fn buffer(&self) -> Vec<u8> {
+    /// An empty buffer for `len` bytes: the smallest spare one already written from that holds them (its memory
+    /// reused, so that the plot's few columns do not take the sensor image's buffer), else a new one.
+    pub fn buffer(&self, len: usize) -> Vec<u8> {
         let mut spare = self.writes.spare.lock().unwrap_or_else(PoisonError::into_inner);
-        // the largest: the next sensor image fits in the last one's
-        let largest = (0..spare.len()).max_by_key(|&i| spare[i].capacity());
-        let mut buffer = largest.map(|i| spare.swap_remove(i)).unwrap_or_default();
+        let fitting = (0..spare.len()).filter(|&i| spare[i].capacity() >= len).min_by_key(|&i| spare[i].capacity());
+        let mut buffer = fitting.map_or_else(|| Vec::with_capacity(len), |i| spare.swap_remove(i));
         buffer.clear();
         buffer
     }
