@@ -14,6 +14,7 @@ use irsim::imaging::fusion::{Guidance, Patch, PoissonFusion, Solver};
 use irsim::imaging::sky_plane::{MissFill, Sampling, SkyImage, SkyPlacement, SkyPlane};
 use irsim::imaging::target_blob::{BlobSampling, GeneralizedGaussian, PixelRect};
 use irsim::physics::noise::{Readout, ReadoutMaps};
+use irsim::physics::random::NormalSampler;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -59,18 +60,22 @@ fn noise(c: &mut Criterion) {
         dn_per_signal: 1.0 / 430.0,
         offset_dn: 1000.0,
         poisson_normal_threshold: 100.0,
+        normal_sampler: NormalSampler::Ziggurat,
     };
     // 2e6 … 2.00001e6 electrons: every pixel on the normal path
     let base: Vec<f32> = (0..256 * 256).map(|i| 2e6 + (i % 11) as f32).collect();
     let mut frame = base.clone();
     let mut frame_number = 0;
-    group.bench_function("normal_path", |b| {
-        b.iter(|| {
-            frame.copy_from_slice(&base);
-            frame_number += 1;
-            model.apply(black_box(&mut frame), 256, ReadoutMaps::default(), true, 1, frame_number, Some(16_383.0));
-        })
-    });
+    for (name, sampler) in [("normal_path", NormalSampler::Ziggurat), ("normal_path_table", NormalSampler::Table)] {
+        let model = Readout { normal_sampler: sampler, ..model };
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                frame.copy_from_slice(&base);
+                frame_number += 1;
+                model.apply(black_box(&mut frame), 256, ReadoutMaps::default(), true, 1, frame_number, Some(16_383.0));
+            })
+        });
+    }
     // 40 … 80 electrons, every pixel an exact Poisson count
     let low: Vec<f32> = (0..256 * 256).map(|i| 40.0 + (i % 41) as f32).collect();
     group.bench_function("poisson_path", |b| {

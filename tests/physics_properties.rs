@@ -117,6 +117,7 @@ fn readout(shot_noise: bool, read_sigma: f32, dn_per_signal: f32) -> Readout {
         dn_per_signal,
         offset_dn: 0.0,
         poisson_normal_threshold: 100.0,
+        normal_sampler: irsim::physics::random::NormalSampler::Ziggurat,
     }
 }
 

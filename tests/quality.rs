@@ -157,6 +157,7 @@ fn bench_report_writes_finite_tables_and_plots() {
     }
     assert!(numbers > 40, "{numbers} numbers in\n{md}");
     assert!(md.contains("| small |") && md.contains("`psf_energy_cutoff`"), "{md}");
+    assert!(md.contains("| `ziggurat` |") && md.contains("| `table` |"), "the normal samplers' rows: {md}");
     let (code, _, err) = irsim(&args);
     assert_eq!(code, 2, "a second report needs --force: {err}");
     assert!(err.contains("--force"), "{err}");

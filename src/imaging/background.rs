@@ -182,7 +182,9 @@ impl BackgroundRenderer {
         // a point-sampled sky needs the pixel aperture in the kernel; an area-averaged one has it already
         let area_sampled = matches!(sky.sampling, Sampling::Supersample { n } if n > 1);
         let kernel = if area_sampled { b.psf.area_kernel() } else { b.psf.point_kernel() };
-        let prefiltered = if b.sky_blur != SkyBlur::Frame && sky.sampling != Sampling::Nearest {
+        // the blurred texture is read nearest where the sky is, bilinearly otherwise
+        let texture_sampling = if sky.sampling == Sampling::Nearest { Sampling::Nearest } else { Sampling::Bilinear };
+        let prefiltered = if b.sky_blur != SkyBlur::Frame {
             let size = (frame.width(), frame.height());
             classify(plane, camera, b.psf.radius_px(), b.tolerance, size, &mut self.clean)
         } else {
@@ -201,7 +203,7 @@ impl BackgroundRenderer {
         stats.tiles_prefiltered = self.clean.iter().filter(|&&c| c).count();
         if stats.tiles_prefiltered == self.clean.len() {
             // every ray meets the image: no misses, nothing made the reference way
-            texture.render(camera, Sampling::Bilinear, sky.miss, frame);
+            texture.render(camera, texture_sampling, sky.miss, frame);
             stats.blur.tiles = self.clean.len();
             return stats;
         }
@@ -227,7 +229,7 @@ impl BackgroundRenderer {
             render_dome(camera, sky.dome, frame, true);
         }
         stats.blur = self.convolver.apply_where_needed_in(kernel, frame, b.method, b.skip_below, Some(&self.rest));
-        texture.render_tiles(camera, Sampling::Bilinear, sky.miss, t, &self.clean, frame);
+        texture.render_tiles(camera, texture_sampling, sky.miss, t, &self.clean, frame);
         stats
     }
 }

@@ -399,6 +399,7 @@ impl SensorModel {
             dn_per_signal: (1.0 / self.adc.gain) as f32,
             offset_dn: self.adc.offset_dn as f32,
             poisson_normal_threshold: poisson_normal_threshold as f32,
+            normal_sampler: super::random::NormalSampler::Ziggurat,
         }
     }
 

@@ -19,7 +19,7 @@
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::random::{SplitMix64, Ziggurat};
+use super::random::{NormalSampler, SplitMix64};
 use super::simd::widest;
 
 /// Identifiers of the stochastic stages; each keys its own random streams.
@@ -74,6 +74,8 @@ pub struct Readout {
     pub offset_dn: f32,
     /// Mean electron count below which shot noise is an exact Poisson count.
     pub poisson_normal_threshold: f32,
+    /// How the normal deviates are drawn.
+    pub normal_sampler: NormalSampler,
 }
 
 /// Optional per-pixel maps of the readout, row-major, the frame's size.
@@ -158,7 +160,6 @@ impl Readout {
         const ONES: [f32; BLOCK] = [1.0; BLOCK];
         const ZEROS: [f32; BLOCK] = [0.0; BLOCK];
         let noisy = noise && (self.shot_noise || self.read_variance > 0.0);
-        let zig = Ziggurat::get();
         let mut normals = SplitMix64::substream(key, 2 * row);
         let mut uniforms = SplitMix64::substream(key, 2 * row + 1);
         let mut z = [0f32; BLOCK];
@@ -174,7 +175,7 @@ impl Readout {
             }
             if noisy {
                 let z = &mut z[..n];
-                zig.fill(&mut normals, z);
+                self.normal_sampler.fill(&mut normals, z);
                 if block.iter().fold(true, |all, &s| all & (s >= threshold)) {
                     let shot = if self.shot_noise { 1.0 } else { 0.0 };
                     for (s, &z) in block.iter_mut().zip(z.iter()) {
@@ -487,6 +488,7 @@ mod tests {
             dn_per_signal: 0.25,
             offset_dn: 100.0,
             poisson_normal_threshold: 100.0,
+            normal_sampler: NormalSampler::Ziggurat,
         }
     }
 

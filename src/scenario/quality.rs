@@ -26,6 +26,7 @@ use crate::imaging::psf::{ConvolutionMethod, REGION_ENERGY_CUTOFF};
 use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::target_psf::TargetMethod;
+use crate::physics::random::NormalSampler;
 use crate::physics::reflection::ReflectionGeometry;
 
 /// A named set of values for every switch.
@@ -99,6 +100,9 @@ pub struct Quality {
     pub blob_roi_fraction: f64,
     /// Shot noise is an exact Poisson count below this mean, electrons, and normal above.
     pub poisson_normal_threshold_e: f64,
+    /// How the noise's normal deviates are drawn: the ziggurat (exact) or a table of 2¹⁶ quantiles (cheaper,
+    /// the tail cut at 4.32 σ).
+    pub normal_sampler: NormalSampler,
     /// How the Poisson fusion equation is solved.
     pub fusion_solver: Solver,
     /// A target whose peak is below this many noise σ (at its background) is added to the frame instead of
@@ -130,14 +134,15 @@ impl Quality {
             blob_sampling: BlobSampling::Auto,
             blob_roi_fraction: 1e-3,
             poisson_normal_threshold_e: 100.0,
+            normal_sampler: NormalSampler::Ziggurat,
             fusion_solver: Solver::Direct,
             fusion_skip_below_sigma: 0.0,
             fusion_guidance: Guidance::Normal,
             reflection: ReflectionGeometry::Ellipsoid,
             reflection_grid: [24, 48],
         };
-        // the other two say where they differ from it (sky sampling, the fusion solver and guidance, and the
-        // reflection geometry are the same in all three)
+        // the other two say where they differ from it (the fusion solver and guidance and the reflection geometry
+        // are the same in all three)
         match p {
             QualityPreset::Standard => standard,
             QualityPreset::Reference => Self {
@@ -157,6 +162,7 @@ impl Quality {
             },
             QualityPreset::Draft => Self {
                 preset: p,
+                sky_sampling: Sampling::Nearest,
                 span_tolerance_px: 0.02,
                 radiance_table_step_k: 0.1,
                 psf_energy_cutoff: 0.1,
@@ -167,6 +173,7 @@ impl Quality {
                 blob_sampling: BlobSampling::Point,
                 blob_roi_fraction: 1e-2,
                 poisson_normal_threshold_e: 10.0,
+                normal_sampler: NormalSampler::Table,
                 reflection_grid: [8, 16],
                 ..standard
             },
@@ -206,7 +213,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 19] = [
+pub const SWITCHES: [&str; 20] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -221,6 +228,7 @@ pub const SWITCHES: [&str; 19] = [
     "blob_sampling",
     "blob_roi_fraction",
     "poisson_normal_threshold_e",
+    "normal_sampler",
     "fusion_solver",
     "fusion_skip_below_sigma",
     "fusion_guidance",
@@ -290,6 +298,9 @@ pub struct QualitySpec {
     /// See [`Quality::poisson_normal_threshold_e`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub poisson_normal_threshold_e: Option<f64>,
+    /// See [`Quality::normal_sampler`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub normal_sampler: Option<NormalSampler>,
     /// See [`Quality::fusion_solver`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fusion_solver: Option<Solver>,
@@ -346,6 +357,7 @@ impl QualitySpec {
             blob_sampling,
             blob_roi_fraction,
             poisson_normal_threshold_e,
+            normal_sampler,
             fusion_solver,
             fusion_skip_below_sigma,
             fusion_guidance,

@@ -21,6 +21,7 @@ use crate::physics::detector::{
 };
 use crate::physics::nonideal::NonIdealSpec;
 use crate::physics::planck::Band;
+use crate::physics::random::NormalSampler;
 
 /// The camera: geometry, optics, detector, electronics.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
@@ -156,6 +157,8 @@ pub struct NoiseSettings {
     pub enabled: bool,
     /// Mean electron count below which shot noise is an exact Poisson count (`[quality]`).
     pub poisson_normal_threshold: f64,
+    /// How the normal deviates are drawn (`[quality]`).
+    pub normal_sampler: NormalSampler,
 }
 
 /// `[sensor.psf]`: the optics blur of the whole frame (and of the targets).
@@ -551,6 +554,7 @@ impl SensorSpec {
             noise: NoiseSettings {
                 enabled: self.noise.enabled,
                 poisson_normal_threshold: quality.poisson_normal_threshold_e,
+                normal_sampler: quality.normal_sampler,
             },
             psf,
             nonideal,
