@@ -10,7 +10,7 @@ use irsim::sim::{RunOptions, build_app, current_frame, step};
 
 fn readout(preset: Preset) -> (irsim::scenario::ResolvedSensor, Readout) {
     let s = SensorSpec { preset: Some(preset), ..Default::default() }.resolve(&Default::default()).unwrap();
-    let r = s.model.readout(100.0);
+    let r = s.model.readout(100.0, irsim::physics::random::NormalSampler::Ziggurat);
     (s, r)
 }
 

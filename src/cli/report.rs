@@ -674,7 +674,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
 /// The normal samplers (`normal_sampler`): time per deviate, and their law against the normal one on `n`
 /// deviates (Kolmogorov–Smirnov distance, the largest deviate, the mass beyond 4 σ).
 fn kernel_section(md: &mut String, n: usize) {
-    use crate::physics::noise::normal_cdf;
+    use crate::physics::noise::{ks_distance_normal, normal_cdf};
     use crate::physics::random::{NormalSampler, SplitMix64};
     let _ = writeln!(
         md,
@@ -698,14 +698,7 @@ fn kernel_section(md: &mut String, n: usize) {
         let beyond = z.iter().filter(|v| v.abs() > 4.0).count() as f64 / n as f64;
         let largest = z.iter().fold(0f32, |m, v| m.max(v.abs()));
         z.sort_by(f32::total_cmp);
-        let ks = z
-            .iter()
-            .enumerate()
-            .map(|(i, &v)| {
-                let c = normal_cdf(f64::from(v));
-                (c - i as f64 / n as f64).abs().max(((i + 1) as f64 / n as f64 - c).abs())
-            })
-            .fold(0.0, f64::max);
+        let ks = ks_distance_normal(&z);
         let name = serde_json::to_value(sampler).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default();
         let _ = writeln!(md, "| `{name}` | {:.2} | {ks:.1e} | {largest:.2} | {beyond:.2e} |", best * 1e9 / n as f64);
     }

@@ -388,8 +388,13 @@ impl SensorModel {
     }
 
     /// The per-frame readout: signal per radiance, dark signal, shot and read noise, well, ADC gain and offset;
-    /// shot noise is an exact Poisson count below `poisson_normal_threshold` electrons.
-    pub fn readout(&self, poisson_normal_threshold: f64) -> super::noise::Readout {
+    /// shot noise is an exact Poisson count below `poisson_normal_threshold` electrons, and the normal deviates
+    /// come from `normal_sampler`.
+    pub fn readout(
+        &self,
+        poisson_normal_threshold: f64,
+        normal_sampler: super::random::NormalSampler,
+    ) -> super::noise::Readout {
         super::noise::Readout {
             signal_per_radiance: self.signal_per_radiance() as f32,
             dark_signal: self.dark_signal() as f32,
@@ -399,7 +404,7 @@ impl SensorModel {
             dn_per_signal: (1.0 / self.adc.gain) as f32,
             offset_dn: self.adc.offset_dn as f32,
             poisson_normal_threshold: poisson_normal_threshold as f32,
-            normal_sampler: super::random::NormalSampler::Ziggurat,
+            normal_sampler,
         }
     }
 

@@ -23,6 +23,7 @@
 use std::convert::Infallible;
 use std::sync::LazyLock;
 
+use rand::TryRng;
 use serde::{Deserialize, Serialize};
 
 /// How the sensor noise draws its standard normal deviates.
@@ -46,8 +47,6 @@ impl NormalSampler {
         }
     }
 }
-
-use rand::TryRng;
 
 /// SplitMix64: a Weyl sequence with increment [`SplitMix64::GAMMA`] through the [`mix64`] finalizer.
 #[derive(Debug, Clone)]
@@ -131,12 +130,13 @@ const QUANTILE_BITS: u32 = 16;
 /// The quantiles `Φ⁻¹((i + ½)/2¹⁶)` of the standard normal law, `i < 2¹⁶` (256 KiB, made once).
 #[derive(Debug)]
 pub struct Quantiles {
-    table: Box<[f32]>,
+    table: Box<[f32; 1 << QUANTILE_BITS]>,
 }
 
 static QUANTILES: LazyLock<Quantiles> = LazyLock::new(|| {
     let n = 1usize << QUANTILE_BITS;
-    Quantiles { table: (0..n).map(|i| inverse_normal_cdf((i as f64 + 0.5) / n as f64) as f32).collect() }
+    let table: Box<[f32]> = (0..n).map(|i| inverse_normal_cdf((i as f64 + 0.5) / n as f64) as f32).collect();
+    Quantiles { table: table.try_into().expect("2¹⁶ entries") }
 });
 
 impl Quantiles {
@@ -149,7 +149,7 @@ impl Quantiles {
     /// `16·(k mod 4)` to `16·(k mod 4) + 15` of draw `⌊k/4⌋`.
     #[inline(always)]
     pub fn fill(&self, rng: &mut SplitMix64, out: &mut [f32]) {
-        let t: &[f32; 1 << QUANTILE_BITS] = self.table[..].try_into().expect("the table has 2¹⁶ entries");
+        let t = &*self.table;
         let mut quads = out.chunks_exact_mut(4);
         for quad in &mut quads {
             let b = rng.next_bits();
@@ -321,7 +321,7 @@ impl Ziggurat {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::physics::noise::normal_cdf;
+    use crate::physics::noise::{ks_distance_normal, normal_cdf};
 
     #[test]
     fn splitmix_matches_the_published_sequence() {
@@ -411,14 +411,7 @@ mod tests {
             assert!((var - 1.0).abs() < 5.0 * (2.0 / n).sqrt(), "{sampler:?}: variance {var}");
             // Kolmogorov–Smirnov distance; 1.63/√n is the 1 % critical value
             samples.sort_by(f32::total_cmp);
-            let ks = samples
-                .iter()
-                .enumerate()
-                .map(|(i, &s)| {
-                    let c = normal_cdf(f64::from(s));
-                    (c - i as f64 / n).abs().max(((i + 1) as f64 / n - c).abs())
-                })
-                .fold(0.0, f64::max);
+            let ks = ks_distance_normal(&samples);
             assert!(ks < 1.63 / n.sqrt(), "{sampler:?}: KS distance {ks}");
             // tails, including the ziggurat's exact sampling beyond R = 3.44: counts within 5 standard errors
             for t in [2.0, 3.0, 3.5, 4.0] {

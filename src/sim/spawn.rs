@@ -275,10 +275,7 @@ fn layer_size(
 fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Sensor, SetupError> {
     let model = &resolved.model;
     let k = model.signal_per_radiance();
-    let readout = crate::physics::noise::Readout {
-        normal_sampler: resolved.noise.normal_sampler,
-        ..model.readout(resolved.noise.poisson_normal_threshold)
-    };
+    let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
     let dn_per_radiance = k / model.adc.gain;
     let psf = match resolved.psf {
         Some(p) => Some(Arc::new(
