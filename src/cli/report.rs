@@ -21,7 +21,7 @@ use crate::record::write_atomic;
 use crate::scenario::load::{load_for_frames, located};
 use crate::scenario::quality::SWITCHES;
 use crate::scenario::{CheckedScenario, Quality, QualityPreset, QualitySpec};
-use crate::sim::{LatestFrame, RunOptions, headless_app, step};
+use crate::sim::{LatestFrame, RunOptions, StageTimings, headless_app, step};
 
 /// `irsim bench report`.
 #[derive(Debug, clap::Args)]
@@ -107,6 +107,8 @@ impl Plan {
 /// A case run twice: noise off for its frames, noise on for its time.
 struct Measured {
     ms_per_frame: f64,
+    /// Mean ms per frame of each pipeline stage in the timed run (empty without one).
+    stage_ms: Vec<(&'static str, f64)>,
     frames: Vec<Vec<f32>>,
     labels: Vec<FrameLabels>,
     width: usize,
@@ -157,18 +159,21 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
         // without timed frames (the smallest configuration), the compared frames' own time, noise off
         ms_per_frame = t.elapsed().as_secs_f64() * 1e3 / plan.error_frames as f64;
     }
+    let mut stage_ms = Vec::new();
     if plan.time_frames > 0 {
-        let mut app = setup(RunOptions::default())?;
+        let mut app = setup(RunOptions { timings: true, ..RunOptions::default() })?;
         for _ in 0..2 {
             step(&mut app);
         }
+        app.world_mut().insert_resource(StageTimings::default());
         let t = Instant::now();
         for _ in 0..plan.time_frames {
             step(&mut app);
         }
         ms_per_frame = t.elapsed().as_secs_f64() * 1e3 / plan.time_frames.max(1) as f64;
+        stage_ms = app.world().get_resource::<StageTimings>().map(StageTimings::mean_ms).unwrap_or_default();
     }
-    Ok(Measured { ms_per_frame, frames, labels, width })
+    Ok(Measured { ms_per_frame, stage_ms, frames, labels, width })
 }
 
 /// The intensity centroid of `frame` in `bbox` grown by 3 px, over the median of the region's border.
@@ -326,10 +331,84 @@ fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
             .map_err(failed)?;
         root.present().map_err(failed)?;
     }
+    write_png(path, w, h, buf)
+}
+
+/// An RGB buffer written as a PNG, atomically.
+fn write_png(path: &Path, w: u32, h: u32, buf: Vec<u8>) -> Result<(), CliError> {
     let image = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| failed("plot buffer size"))?;
     let mut png = Vec::new();
     image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(failed)?;
     write_atomic(path, &png).map_err(failed)
+}
+
+/// One Pareto chart per switch, in a grid: each setting's time per frame against its rms error (log, errors
+/// below [`FLOOR`] drawn at it), labelled with its value; the settings no other beats on both axes joined.
+fn pareto_panels(path: &Path, title: &str, panels: &[Series]) -> Result<(), CliError> {
+    if panels.is_empty() {
+        return Ok(());
+    }
+    let columns = 4usize;
+    let rows = panels.len().div_ceil(columns);
+    let (pw, ph) = (400u32, 290u32);
+    let (w, h) = (pw * columns as u32, ph * rows as u32 + 50);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(failed)?;
+        let root = root.titled(title, ("sans-serif", 24)).map_err(failed)?;
+        let areas = root.split_evenly((rows, columns));
+        for ((name, points), area) in panels.iter().zip(areas) {
+            let (lo, hi) = points.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), p| (lo.min(p.0), hi.max(p.0)));
+            let pad = ((hi - lo) * 0.25).max(hi * 0.05);
+            let top = points.iter().map(|p| p.1).fold(FLOOR, f64::max);
+            let mut chart = ChartBuilder::on(&area)
+                .caption(name, ("sans-serif", 16))
+                .margin(10)
+                .x_label_area_size(34)
+                .y_label_area_size(56)
+                .build_cartesian_2d((lo - pad).max(0.0)..hi + pad, (FLOOR / 2.0..top * 20.0).log_scale())
+                .map_err(failed)?;
+            chart
+                .configure_mesh()
+                .x_desc("ms per frame")
+                .y_desc("rms DN")
+                .x_labels(4)
+                .y_labels(5)
+                .x_label_formatter(&|v| format!("{v:.2}"))
+                .y_label_formatter(&|v| format!("{v:.0e}"))
+                .label_style(("sans-serif", 12))
+                .axis_desc_style(("sans-serif", 13))
+                .draw()
+                .map_err(failed)?;
+            // the front: by time, each point that is more accurate than every faster one
+            let mut by_time: Vec<_> = points.clone();
+            by_time.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut front = Vec::new();
+            let mut best = f64::INFINITY;
+            for p in by_time.iter().rev() {
+                if p.1 < best {
+                    best = p.1;
+                    front.push((p.0, p.1));
+                }
+            }
+            chart.draw_series(LineSeries::new(front, SERIES_COLORS[0].stroke_width(2))).map_err(failed)?;
+            chart
+                .draw_series(points.iter().enumerate().map(|(k, (x, y, label))| {
+                    let color = if k == 0 { RGBColor(120, 120, 120) } else { SERIES_COLORS[k % SERIES_COLORS.len()] };
+                    let mut label = label.clone();
+                    if label.chars().count() > 22 {
+                        label = label.chars().take(21).collect::<String>() + "…";
+                    }
+                    EmptyElement::at((*x, *y))
+                        + Circle::new((0, 0), 5, color.filled())
+                        + Text::new(label, (6, -15), ("sans-serif", 12))
+                }))
+                .map_err(failed)?;
+        }
+        root.present().map_err(failed)?;
+    }
+    write_png(path, w, h, buf)
 }
 
 /// The calendar date (UTC) of the current time.
@@ -364,6 +443,30 @@ fn machine() -> String {
 
 fn progress(what: &str) {
     eprintln!("report: {what}");
+}
+
+/// The skips measured on every scenario, with the pipeline stage whose time each saves.
+const SKIPS: [(&str, &str); 4] = [
+    ("psf_skip_below_dn", "render"),
+    ("fusion_skip_below_sigma", "fusion"),
+    ("reflection_skip_below_dn", "radiometry"),
+    ("radiometry_tolerance", "radiometry"),
+];
+
+/// A switch's value in a preset, as TOML.
+fn skip_value_in(p: QualityPreset, switch: &str) -> String {
+    Quality::preset(p).describe().into_iter().find(|d| d.0 == switch).map(|d| d.1).unwrap_or_default()
+}
+
+/// Whether a skip's value (TOML) turns it on.
+fn skips(value: &str) -> bool {
+    value.parse::<f64>().is_ok_and(|v| v > 0.0)
+}
+
+/// The value that turns a skip on: standard's where standard skips, else draft's.
+fn skip_value(switch: &str) -> String {
+    let standard = skip_value_in(QualityPreset::Standard, switch);
+    if skips(&standard) { standard } else { skip_value_in(QualityPreset::Draft, switch) }
 }
 
 /// `irsim bench report`.
@@ -467,12 +570,28 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
             centroid_cell(&ed),
             st.ms_per_frame / dr.ms_per_frame
         );
-        // the skip of section 5 against the same standard run
-        let mut no_skip: QualitySpec = toml::from_str("psf_skip_below_dn = 0").map_err(failed)?;
-        no_skip.preset = QualityPreset::Standard;
-        let all = measure(&with_quality_spec(s, no_skip)?, &plan)?;
-        let skipped = errors(&st, &all);
-        skip_rows.push(format!("| {name} | {:.2} | {:.2} |", all.ms_per_frame - st.ms_per_frame, skipped.max_dn));
+        // the skips of the last section against the same standard run
+        for &(switch, stage) in &SKIPS {
+            let on = skip_value(switch);
+            let with = |value: &str| -> Result<CheckedScenario, CliError> {
+                let spec: QualitySpec = toml::from_str(&format!("preset = \"standard\"\n{switch} = {value}"))
+                    .map_err(|e| failed(format!("{switch} = {value}: {e}")))?;
+                with_quality_spec(s, spec)
+            };
+            let standard_skips = skips(&skip_value_in(QualityPreset::Standard, switch));
+            let other = measure(&with(if standard_skips { "0" } else { &on })?, &plan)?;
+            let (skipping, full) = if standard_skips { (&st, &other) } else { (&other, &st) };
+            let changed = errors(skipping, full);
+            let stage_of = |m: &Measured| m.stage_ms.iter().find(|x| x.0 == stage).map_or(f64::NAN, |x| x.1);
+            let stage_saved = 1e3 * (stage_of(full) - stage_of(skipping));
+            let stage_cell =
+                if stage_saved.is_finite() { format!("{stage} {stage_saved:.1}") } else { "–".to_string() };
+            skip_rows.push(format!(
+                "| {name} | `{switch} = {on}` | {:.3} | {stage_cell} | {:.3} |",
+                full.ms_per_frame - skipping.ms_per_frame,
+                changed.max_dn
+            ));
+        }
         preset_points[0].1.push((st.ms_per_frame, es.rms_dn.max(FLOOR), name.clone()));
         preset_points[1].1.push((dr.ms_per_frame, ed.rms_dn.max(FLOOR), name));
     }
@@ -552,6 +671,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         (describe(QualityPreset::Reference), describe(QualityPreset::Standard), describe(QualityPreset::Draft));
     let mut switch_points: Vec<Series> =
         vec![("standard's value".into(), Vec::new()), ("draft's value".into(), Vec::new())];
+    let mut panels: Vec<Series> = Vec::new();
     for name in SWITCHES.iter().skip(1) {
         let value =
             |d: &[(&str, String, bool)]| d.iter().find(|x| x.0 == *name).map(|x| x.1.clone()).unwrap_or_default();
@@ -573,6 +693,12 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
                 centroid_cell(&e)
             );
             switch_points[k].1.push((m.ms_per_frame, e.rms_dn.max(FLOOR), (*name).to_string()));
+            if tried.len() == 1 {
+                panels.push(((*name).to_string(), vec![(reference.ms_per_frame, FLOOR, reference_value.clone())]));
+            }
+            if let Some(panel) = panels.last_mut() {
+                panel.1.push((m.ms_per_frame, e.rms_dn.max(FLOOR), v.clone()));
+            }
         }
     }
     plot(
@@ -584,6 +710,16 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         false,
     )?;
     let _ = writeln!(md, "\n![each switch](switches.png)\n");
+    pareto_panels(
+        &a.out.join("switch_pareto.png"),
+        &format!("Per switch: time against error ({base_name}; grey: the reference value)"),
+        &panels,
+    )?;
+    let _ = writeln!(
+        md,
+        "Per switch, its settings' time against error, the reference's in grey at the error floor; the line joins \
+         the settings no other beats on both.\n\n![per switch](switch_pareto.png)\n"
+    );
 
     // 4. scaling
     progress("scaling");
@@ -652,20 +788,27 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     let _ = writeln!(md, "## Model only what a scene needs\n");
     let _ = writeln!(
         md,
-        "`psf_skip_below_dn`: tiles of the per-frame blur that the blur cannot change by more than this many DN \
-         keep their values. Standard (0.1 DN) against none (0), on each scenario.\n\n| scenario | ms saved per \
-         frame | max DN changed |\n|---|---|---|"
+        "Each skip on (the value standard or draft gives it) against off (0), over the `standard` preset, on each \
+         scenario: the time saved per frame (whole frame, and in the stage the skip is in; timing noise is a few \
+         per cent of a frame, so a small saving can show as negative), and the largest change of a pixel, noise off. \
+         `psf_skip_below_dn`: tiles of the per-frame blur that it cannot change by more than this many DN keep \
+         their values. `fusion_skip_below_sigma`: a target whose peak is below this many noise σ is added, not \
+         fused. `reflection_skip_below_dn`: the sun's reflection is not computed where a bound on what it adds \
+         to a pixel is below this (below the horizon it is zero and never computed). `radiometry_tolerance`: a \
+         target's radiometry is computed again only when range, heading or speed change by more than this \
+         fraction.\n\n| scenario | skip | ms saved per frame | µs saved in stage | max DN changed |\n|---|---|---|---|---|"
     );
     for row in &skip_rows {
         let _ = writeln!(md, "{row}");
     }
+    let _ = writeln!(md);
+
     let _ = writeln!(
         md,
-        "\nNot measured here: skipping the sun's reflection where it is small (below the horizon it is zero and \
-         not computed, exactly), and recomputing radiometry only when its inputs change, which are not switches \
-         yet; and OpenCV's `seamlessClone` on the same patches.\n\nThe report took {:.0} s.",
-        started.elapsed().as_secs_f64()
+        "Not in this report: OpenCV's `seamlessClone` on the same patches (`tools/opencv_seamless_clone_timing.py` \
+         times it alone).\n"
     );
+    let _ = writeln!(md, "The report took {:.0} s.", started.elapsed().as_secs_f64());
     write_atomic(&md_path, md.as_bytes()).map_err(failed)?;
     super::say(&format!("wrote {}", md_path.display()))?;
     Ok(())
@@ -703,6 +846,73 @@ fn kernel_section(md: &mut String, n: usize) {
         let _ = writeln!(md, "| `{name}` | {:.2} | {ks:.1e} | {largest:.2} | {beyond:.2e} |", best * 1e9 / n as f64);
     }
     let _ = writeln!(md);
+    planck_rows(md);
+}
+
+/// The `planck` methods: time per band radiance and the largest relative error against the exact series, over
+/// 200–1500 K in 10 K steps, in the 3–5 and 8–12 µm bands, in energy and photons.
+fn planck_rows(md: &mut String) {
+    use crate::physics::planck::{Band, Measure, PlanckMethod};
+    let _ = writeln!(
+        md,
+        "The `planck` switch integrates a target's band radiance (its own, and the path's) over the band. Each \
+         method against the exact series over 200–1500 K in 10 K steps, in the 3–5 and 8–12 µm bands, energy \
+         and photons; time per evaluation on one thread (mean over those 528 calls, best of five). It is \
+         evaluated a few times per target per frame, so even the series costs microseconds a frame.\n\n| \
+         `planck` | ns per evaluation | largest relative error, 3–5 µm | largest relative error, 8–12 µm \
+         |\n|---|---|---|---|"
+    );
+    let bands = [Band::try_new(3.0, 5.0), Band::try_new(8.0, 12.0)];
+    let [Ok(mwir), Ok(lwir)] = bands else { return };
+    let temps: Vec<f64> = (0..=130).map(|k| 200.0 + 10.0 * f64::from(k)).collect();
+    let methods = [
+        PlanckMethod::Series,
+        PlanckMethod::GaussLegendre { points: 2 },
+        PlanckMethod::GaussLegendre { points: 4 },
+        PlanckMethod::GaussLegendre { points: 8 },
+        PlanckMethod::Simpson { intervals: 8 },
+        PlanckMethod::Simpson { intervals: 32 },
+    ];
+    for method in methods {
+        let mut best = f64::INFINITY;
+        let mut sink = 0.0;
+        for _ in 0..5 {
+            let t = Instant::now();
+            for band in [mwir, lwir] {
+                for measure in [Measure::Energy, Measure::Photon] {
+                    for &k in &temps {
+                        sink += method.band_radiance(measure, band, k, 1.0);
+                    }
+                }
+            }
+            best = best.min(t.elapsed().as_secs_f64());
+        }
+        std::hint::black_box(sink);
+        let worst = |band: Band| {
+            let mut e = 0.0f64;
+            for measure in [Measure::Energy, Measure::Photon] {
+                for &k in &temps {
+                    let exact = PlanckMethod::Series.band_radiance(measure, band, k, 1.0);
+                    e = e.max((method.band_radiance(measure, band, k, 1.0) / exact - 1.0).abs());
+                }
+            }
+            e
+        };
+        let text = toml_text(&method);
+        let _ = writeln!(
+            md,
+            "| `{text}` | {:.0} | {:.1e} | {:.1e} |",
+            best * 1e9 / (4 * temps.len()) as f64,
+            worst(mwir),
+            worst(lwir)
+        );
+    }
+    let _ = writeln!(md);
+}
+
+/// A switch value as the `[quality]` table writes it.
+fn toml_text<T: serde::Serialize>(v: &T) -> String {
+    serde_json::to_value(v).map(|j| crate::scenario::quality::toml_value(&j)).unwrap_or_default()
 }
 
 #[cfg(test)]

@@ -112,6 +112,20 @@ impl CookTorrance {
         self.f0 + (1.0 - self.f0) * (1.0 - c).powi(5)
     }
 
+    /// An upper bound on `f·(n·l)` over every normal `n` that sees both unit directions `v` and `l`, sr⁻¹: the
+    /// most a surface element (or the paper's facet, or an average over a body) can reflect per unit of
+    /// irradiance. `k_d/π` bounds the diffuse part; the specular part is `k_s·F·D·G/(π (n·v))`, where `F`
+    /// depends on `v·h` alone, `G/(n·v) ≤ 2(n·h)/(v·h) ≤ 2/(v·h)`, and Beckmann's `D` is largest at `tan²α =
+    /// 2m² − 1` when `m² > ½` (else at `α = 0`). Infinite when `v = −l`.
+    pub fn max_reflectance(&self, v: DVec3, l: DVec3) -> f64 {
+        let vh = 0.5 * (v.normalize_or_zero() + l.normalize_or_zero()).length();
+        let m2 = self.roughness * self.roughness;
+        let d_max = if m2 > 0.5 { 4.0 * m2 * (1.0 / m2 - 2.0).exp() / PI } else { 1.0 / (PI * m2) };
+        let specular = self.ks * self.fresnel(vh) * d_max * 2.0 / (PI * vh);
+        let bound = self.kd / PI + specular;
+        if bound.is_nan() { f64::INFINITY } else { bound }
+    }
+
     /// Beckmann distribution (eq 6) for the angle between `n` and `h` given by its cosine and sine.
     fn beckmann(&self, cos_a: f64, sin_a: f64) -> f64 {
         if !(cos_a > 0.0) {
@@ -258,6 +272,27 @@ mod tests {
         assert_eq!(sin_cos_deg(-90.0).0, -1.0);
         let (s, c) = sin_cos_deg(30.0);
         assert!((s - 0.5).abs() < 2e-16 && (c - 0.75f64.sqrt()).abs() < 2e-16);
+    }
+
+    #[test]
+    fn max_reflectance_bounds_every_normal() {
+        let dir = |th: f64, ph: f64| DVec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
+        for m in [0.05, 0.3, 0.8, 2.0] {
+            let brdf = CookTorrance { kd: 0.4, ks: 0.6, f0: 0.04, roughness: m };
+            for (v, l) in
+                [(dir(0.3, 0.0), dir(0.9, 2.5)), (dir(1.2, 0.0), dir(1.1, 3.0)), (dir(0.0, 0.0), dir(0.5, 1.0))]
+            {
+                let bound = brdf.max_reflectance(v, l);
+                for i in 0..60 {
+                    for j in 0..120 {
+                        let n = dir(std::f64::consts::FRAC_PI_2 * (i as f64 + 0.5) / 60.0, 0.0523 * j as f64);
+                        let f = brdf.evaluate(n, v, l).f_per_sr * n.dot(l).max(0.0);
+                        assert!(f <= bound * (1.0 + 1e-12), "m {m}: {f} > {bound}");
+                    }
+                }
+                assert!(brdf.evaluate_facet(v, l).f_per_sr * 0.5 * (v + l).length() <= bound);
+            }
+        }
     }
 
     #[test]

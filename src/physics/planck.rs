@@ -437,15 +437,24 @@ fn gauss_legendre_20() -> &'static ([f64; 20], [f64; 20]) {
 
 /// Gauss–Legendre nodes and weights of order `N` on [−1, 1].
 fn gauss_legendre<const N: usize>() -> ([f64; N], [f64; N]) {
-    let mut nodes = [0.0; N];
-    let mut weights = [0.0; N];
-    let n = N as f64;
-    for i in 0..N {
-        // Chebyshev-like first guess, then Newton on P_N.
-        let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n + 0.5)).cos();
+    let (x, w) = gauss_legendre_nodes(N);
+    let (mut nodes, mut weights) = ([0.0; N], [0.0; N]);
+    nodes.copy_from_slice(&x);
+    weights.copy_from_slice(&w);
+    (nodes, weights)
+}
+
+/// Gauss–Legendre nodes and weights of order `n ≥ 1` on [−1, 1], by Newton iteration on `P_n`.
+fn gauss_legendre_nodes(n: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut nodes = vec![0.0; n];
+    let mut weights = vec![0.0; n];
+    let nf = n as f64;
+    for i in 0..n {
+        // Chebyshev-like first guess, then Newton on P_n.
+        let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (nf + 0.5)).cos();
         let mut dp = 1.0;
         for _ in 0..100 {
-            let (p, d) = legendre_and_derivative(N, x);
+            let (p, d) = legendre_and_derivative(n, x);
             dp = d;
             let dx = p / d;
             x -= dx;
@@ -453,7 +462,7 @@ fn gauss_legendre<const N: usize>() -> ([f64; N], [f64; N]) {
                 break;
             }
         }
-        let (_, d) = legendre_and_derivative(N, x);
+        let (_, d) = legendre_and_derivative(n, x);
         dp = if d != 0.0 { d } else { dp };
         nodes[i] = x;
         weights[i] = 2.0 / ((1.0 - x * x) * dp * dp);
@@ -474,6 +483,96 @@ fn legendre_and_derivative(n: usize, x: f64) -> (f64, f64) {
     (p1, nf * (x * p1 - p0) / (x * x - 1.0))
 }
 
+/// How a band radiance is evaluated: the exact series, or a quadrature of Planck's law in wavelength (cheaper
+/// for few nodes, with an error that `irsim bench report` measures).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields)]
+pub enum PlanckMethod {
+    /// [`band_radiance_in`]: exact to rounding.
+    #[default]
+    Series,
+    /// Composite Simpson with `intervals` (even, 2 to [`MAX_QUADRATURE_NODES`]) sub-intervals.
+    Simpson {
+        /// Sub-intervals of the band.
+        intervals: usize,
+    },
+    /// Gauss–Legendre with `points` (1 to [`MAX_QUADRATURE_NODES`]) nodes.
+    GaussLegendre {
+        /// Nodes over the band.
+        points: usize,
+    },
+}
+
+/// The most nodes (Gauss–Legendre) or sub-intervals (Simpson) a [`PlanckMethod`] may ask for.
+pub const MAX_QUADRATURE_NODES: usize = 4096;
+
+impl PlanckMethod {
+    /// Whether the node count is allowed: Simpson's even and in [2, 4096], Gauss–Legendre's in [1, 64].
+    pub fn check(self) -> Result<(), String> {
+        match self {
+            Self::Series => Ok(()),
+            Self::Simpson { intervals }
+                if intervals >= 2 && intervals % 2 == 0 && intervals <= MAX_QUADRATURE_NODES =>
+            {
+                Ok(())
+            }
+            Self::Simpson { intervals } => {
+                Err(format!("Simpson's intervals must be even, from 2 to {MAX_QUADRATURE_NODES}: got {intervals}"))
+            }
+            Self::GaussLegendre { points } if (1..=MAX_GAUSS_POINTS).contains(&points) => Ok(()),
+            Self::GaussLegendre { points } => {
+                Err(format!("Gauss–Legendre points must be from 1 to {MAX_GAUSS_POINTS}: got {points}"))
+            }
+        }
+    }
+
+    /// Band radiance in `measure` times `emissivity`, by this method; 0 for `temp_k ≤ 0`, `emissivity ≤ 0` or
+    /// an empty band, never NaN.
+    pub fn band_radiance(self, measure: Measure, band: Band, temp_k: f64, emissivity: f64) -> f64 {
+        if !(temp_k > 0.0) || !(emissivity > 0.0) || band.lo_um == band.hi_um {
+            return 0.0;
+        }
+        // the integrand in the measure, per µm of wavelength
+        let integrand = |lambda_um: f64| {
+            let b = spectral_radiance(lambda_um, temp_k);
+            match measure {
+                Measure::Energy => b,
+                Measure::Photon => b * lambda_um * 1e-6 / (PLANCK_H * SPEED_OF_LIGHT),
+            }
+        };
+        let sum = match self {
+            Self::Series => return band_radiance_in(measure, band, temp_k, emissivity),
+            Self::Simpson { intervals } => {
+                let n = intervals.clamp(2, MAX_QUADRATURE_NODES) & !1;
+                let h = band.width_um() / n as f64;
+                let mut sum = integrand(band.lo_um) + integrand(band.hi_um);
+                for i in 1..n {
+                    let w = if i % 2 == 1 { 4.0 } else { 2.0 };
+                    sum += w * integrand(band.lo_um + h * i as f64);
+                }
+                sum * h / 3.0
+            }
+            Self::GaussLegendre { points } => {
+                let (nodes, weights) = gauss_legendre_table(points.clamp(1, MAX_GAUSS_POINTS));
+                let (half, mid) = (0.5 * band.width_um(), 0.5 * (band.lo_um + band.hi_um));
+                nodes.iter().zip(weights).map(|(&t, &w)| w * integrand(mid + half * t)).sum::<f64>() * half
+            }
+        };
+        let value = emissivity * sum;
+        if value.is_finite() { value.max(0.0) } else { 0.0 }
+    }
+}
+
+/// The most Gauss–Legendre nodes a [`PlanckMethod`] may ask for.
+pub const MAX_GAUSS_POINTS: usize = 64;
+
+/// Gauss–Legendre nodes and weights of order `n` (1 to [`MAX_GAUSS_POINTS`]), computed once per order.
+fn gauss_legendre_table(n: usize) -> &'static (Vec<f64>, Vec<f64>) {
+    static TABLES: [OnceLock<(Vec<f64>, Vec<f64>)>; MAX_GAUSS_POINTS + 1] =
+        [const { OnceLock::new() }; MAX_GAUSS_POINTS + 1];
+    TABLES[n].get_or_init(|| gauss_legendre_nodes(n))
+}
+
 /// Band radiance by composite Simpson quadrature in wavelength with `intervals` (even) sub-intervals.
 ///
 /// The baseline the exact method is benchmarked against; not used by the simulation.
@@ -491,6 +590,29 @@ pub fn band_radiance_simpson(band: Band, temp_k: f64, emissivity: f64, intervals
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn quadrature_methods_converge_to_the_series() {
+        for band in [Band::try_new(3.0, 5.0).unwrap(), Band::LWIR_8_12] {
+            for measure in [Measure::Energy, Measure::Photon] {
+                for t in [200.0, 300.0, 800.0, 1500.0] {
+                    let exact = band_radiance_in(measure, band, t, 0.9);
+                    assert_eq!(PlanckMethod::Series.band_radiance(measure, band, t, 0.9), exact);
+                    let rel = |m: PlanckMethod| (m.band_radiance(measure, band, t, 0.9) / exact - 1.0).abs();
+                    assert!(rel(PlanckMethod::GaussLegendre { points: 8 }) < 1e-10, "{band:?} {t}");
+                    assert!(rel(PlanckMethod::GaussLegendre { points: 4 }) < 1e-4, "{band:?} {t}");
+                    assert!(rel(PlanckMethod::Simpson { intervals: 32 }) < 1e-5, "{band:?} {t}");
+                }
+            }
+        }
+        assert_eq!(
+            PlanckMethod::GaussLegendre { points: 4 }.band_radiance(Measure::Energy, Band::LWIR_8_12, 0.0, 1.0),
+            0.0
+        );
+        assert!(PlanckMethod::Simpson { intervals: 3 }.check().is_err());
+        assert!(PlanckMethod::GaussLegendre { points: 65 }.check().is_err());
+        assert!(PlanckMethod::GaussLegendre { points: 1 }.check().is_ok());
+    }
 
     #[test]
     fn gauss_legendre_integrates_polynomials_exactly() {

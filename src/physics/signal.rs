@@ -9,7 +9,7 @@ use thiserror::Error;
 use super::ParamError;
 use super::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
 use super::brdf::CookTorrance;
-use super::planck::{Band, Measure, band_radiance_in};
+use super::planck::{Band, Measure, PlanckMethod, band_radiance_in};
 use super::reflection::{ReflectionGeometry, ReflectionInput, SphereQuadrature, Sun, reflected_radiance};
 use super::sensor::{GrayMapping, Radiometer};
 use super::skin::{SkinError, StagnationModel, self_radiance, skin_temperatures};
@@ -130,7 +130,7 @@ pub fn target_signal(
     temps.skin_temp_k += heating(target)?;
     let l_self = self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let Sunlit { range_m, to_viewer, sun_tau, reflected: l_re } =
-        sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature)?;
+        sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature, 0.0)?;
     let l_sum = l_self + l_re;
     let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m);
     let projected_area_m2 = ellipsoid_projected_area(target.semi_axes_m, target.attitude, to_viewer);
@@ -164,7 +164,9 @@ struct Sunlit {
 }
 
 /// Range, direction, sun transmittance and reflected sun radiance, shared by [`target_signal`] and
-/// [`apparent_radiance`].
+/// [`apparent_radiance`]; the reflection is taken as 0, not computed, where a bound on it is below `skip_below`
+/// (energy radiance at the target; 0: never).
+#[allow(clippy::too_many_arguments)]
 fn sunlit(
     target: &TargetState,
     sensor_m: DVec3,
@@ -173,6 +175,7 @@ fn sunlit(
     atmosphere: &(dyn PathTransmittance + Sync),
     reflection: ReflectionGeometry,
     quadrature: &SphereQuadrature,
+    skip_below: f64,
 ) -> Result<Sunlit, SignalError> {
     let line = sensor_m - target.position_m;
     let range_m = line.length();
@@ -182,7 +185,12 @@ fn sunlit(
     let to_viewer = line / range_m;
     let sun_tau = atmosphere.to_space(target.position_m, sun.direction());
     let input = ReflectionInput { brdf: &target.brdf, sun, band, sun_transmittance: sun_tau, to_viewer };
-    let reflected = reflected_radiance(&input, reflection, Some((target.semi_axes_m, target.attitude, quadrature)));
+    let bound = || target.brdf.max_reflectance(to_viewer, sun.direction()) * sun.band_irradiance_w_m2(band) * sun_tau;
+    let reflected = if skip_below > 0.0 && bound() < skip_below {
+        0.0
+    } else {
+        reflected_radiance(&input, reflection, Some((target.semi_axes_m, target.attitude, quadrature)))
+    };
     Ok(Sunlit { range_m, to_viewer, sun_tau, reflected })
 }
 
@@ -215,6 +223,11 @@ pub struct ApparentContext<'a> {
     pub reflection: ReflectionGeometry,
     /// Quadrature for the ellipsoid average.
     pub quadrature: &'a SphereQuadrature,
+    /// How the target's own and the path's band radiances are integrated.
+    pub planck: PlanckMethod,
+    /// The reflection is not computed where a bound on what it adds at the aperture (in the measure, after the
+    /// path's transmittance) is below this (0: always computed).
+    pub reflection_skip_below: f64,
 }
 
 /// A target's radiance at the sensor's aperture, in the detector's measure.
@@ -257,25 +270,26 @@ pub fn apparent_radiance(
     let mut temps = skin_temperatures(&ctx.stagnation, altitude_m, target.mach, ctx.t0_k)?;
     temps.skin_temp_k += heating(target)?;
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
-    let l_self = band_radiance_in(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
-    let Sunlit { range_m, reflected: l_re_energy, .. } =
-        sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature)?;
-    let l_re = match ctx.measure {
-        Measure::Energy => l_re_energy,
-        Measure::Photon => {
-            let e = band_radiance_in(Measure::Energy, ctx.band, ctx.sun.temp_k, 1.0);
-            if e > 0.0 {
-                l_re_energy * band_radiance_in(Measure::Photon, ctx.band, ctx.sun.temp_k, 1.0) / e
-            } else {
-                0.0
-            }
-        }
-    };
+    let l_self = ctx.planck.band_radiance(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
     let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m).clamp(0.0, 1.0);
+    // the sun's band radiance in energy and in the measure: their ratio converts the grey reflection
+    let sun_energy = band_radiance_in(Measure::Energy, ctx.band, ctx.sun.temp_k, 1.0);
+    let sun_measure = band_radiance_in(ctx.measure, ctx.band, ctx.sun.temp_k, 1.0);
+    let in_measure = |energy: f64| match ctx.measure {
+        Measure::Energy => energy,
+        Measure::Photon if sun_energy > 0.0 => energy * sun_measure / sun_energy,
+        Measure::Photon => 0.0,
+    };
+    // the skip threshold at the target, in energy (infinite, so always skipped, where nothing would arrive)
+    let skip_below =
+        if ctx.reflection_skip_below > 0.0 { ctx.reflection_skip_below / (tau * in_measure(1.0)) } else { 0.0 };
+    let Sunlit { range_m, reflected: l_re_energy, .. } =
+        sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature, skip_below)?;
+    let l_re = in_measure(l_re_energy);
     let mid_z = 0.5 * (target.position_m.z + sensor_m.z);
     let t_mid = ambient_temperature_k(mid_z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), ctx.t0_k)
         .map_err(|e| SignalError::Skin(SkinError::from(e)))?;
-    let path_radiance = (1.0 - tau) * band_radiance_in(ctx.measure, ctx.band, t_mid, 1.0);
+    let path_radiance = (1.0 - tau) * ctx.planck.band_radiance(ctx.measure, ctx.band, t_mid, 1.0);
     Ok(Apparent {
         ambient_temp_k: temps.ambient_temp_k,
         skin_temp_k: temps.skin_temp_k,

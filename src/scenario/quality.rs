@@ -5,7 +5,7 @@
 //!
 //! `standard` is what a scenario without `[quality]` gets. `reference` puts every switch at its exact setting,
 //! or where a switch has none (a truncated kernel, a quadrature), at the finest the program offers; `draft` gives
-//! up accuracy for speed: in the committed report its frames are 1.98–9.1× faster than `standard`'s and differ
+//! up accuracy for speed: in the committed report its frames are 2.19–9.7× faster than `standard`'s and differ
 //! from `reference` by 0.24–9.5 DN rms (the most on paper_cloudy_sky, where reading the blurred sky nearest
 //! moves cloud edges by up to 0.375 px). What each switch costs and saves is measured in
 //! `docs/accuracy.md` and by `irsim bench report`.
@@ -28,6 +28,7 @@ use crate::imaging::psf::{ConvolutionMethod, REGION_ENERGY_CUTOFF};
 use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::target_psf::TargetMethod;
+use crate::physics::planck::PlanckMethod;
 use crate::physics::random::NormalSampler;
 use crate::physics::reflection::ReflectionGeometry;
 
@@ -116,6 +117,16 @@ pub struct Quality {
     pub reflection: ReflectionGeometry,
     /// The ellipsoid average's grid: steps in cos θ and in azimuth.
     pub reflection_grid: [usize; 2],
+    /// The sun's reflection is not computed (taken as 0) when a bound on what it adds to a pixel is below this,
+    /// DN (0: always computed). The bound is the BRDF's largest value times the sun's irradiance: what a target
+    /// filling the pixel with its brightest facet would add.
+    pub reflection_skip_below_dn: f64,
+    /// How a target's band radiances (its own, and the path's) are integrated over the band.
+    pub planck: PlanckMethod,
+    /// A target's radiometry is computed again only when its range, or the observer's or target's position
+    /// relative to the range, its heading (rad) or its speed changes by more than this fraction since the
+    /// last computation (0: at every change).
+    pub radiometry_tolerance: f64,
 }
 
 impl Quality {
@@ -142,6 +153,9 @@ impl Quality {
             fusion_guidance: Guidance::Normal,
             reflection: ReflectionGeometry::Ellipsoid,
             reflection_grid: [24, 48],
+            reflection_skip_below_dn: 0.0,
+            planck: PlanckMethod::Series,
+            radiometry_tolerance: 0.0,
         };
         // the other two say where they differ from it (the fusion solver and guidance and the reflection geometry
         // are the same in all three)
@@ -177,6 +191,9 @@ impl Quality {
                 poisson_normal_threshold_e: 10.0,
                 normal_sampler: NormalSampler::Table,
                 reflection_grid: [8, 16],
+                reflection_skip_below_dn: DRAFT_REFLECTION_SKIP_BELOW_DN,
+                planck: PlanckMethod::GaussLegendre { points: DRAFT_PLANCK_POINTS },
+                radiometry_tolerance: DRAFT_RADIOMETRY_TOLERANCE,
                 ..standard
             },
         }
@@ -193,7 +210,7 @@ impl Quality {
 }
 
 /// A JSON value as TOML writes it inline: `"auto"`, `0.02`, `[24, 48]`, `{ mode = "bilinear" }`.
-fn toml_value(v: &serde_json::Value) -> String {
+pub fn toml_value(v: &serde_json::Value) -> String {
     use serde_json::Value;
     match v {
         Value::String(s) => format!("\"{s}\""),
@@ -215,7 +232,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 20] = [
+pub const SWITCHES: [&str; 23] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -236,6 +253,9 @@ pub const SWITCHES: [&str; 20] = [
     "fusion_guidance",
     "reflection",
     "reflection_grid",
+    "reflection_skip_below_dn",
+    "planck",
+    "radiometry_tolerance",
 ];
 
 /// Smallest `psf_energy_cutoff` (the kernel's radius is also capped at 12 px).
@@ -250,6 +270,14 @@ pub const REFERENCE_PREFILTER_TOLERANCE: f64 = 0.01;
 /// The draft preset's `fusion_skip_below_sigma`: a target whose peak is under the noise σ is not detectable in
 /// one frame.
 pub const DRAFT_FUSION_SKIP_BELOW_SIGMA: f64 = 1.0;
+/// The draft preset's `reflection_skip_below_dn`: half a gray level, the rounding's own error.
+pub const DRAFT_REFLECTION_SKIP_BELOW_DN: f64 = 0.5;
+/// The draft preset's Gauss–Legendre nodes for band radiances.
+pub const DRAFT_PLANCK_POINTS: usize = 4;
+/// The draft preset's `radiometry_tolerance`.
+pub const DRAFT_RADIOMETRY_TOLERANCE: f64 = 1e-3;
+/// Largest `radiometry_tolerance`.
+pub const MAX_RADIOMETRY_TOLERANCE: f64 = 0.1;
 /// Smallest `blob_roi_fraction`.
 pub const MIN_ROI_FRACTION: f64 = 1e-9;
 /// Largest `poisson_normal_threshold_e`: every count exact.
@@ -318,6 +346,15 @@ pub struct QualitySpec {
     /// See [`Quality::reflection_grid`].
     #[serde(skip_serializing_if = "Option::is_none", with = "crate::physics::exact::opt_counts2")]
     pub reflection_grid: Option<[usize; 2]>,
+    /// See [`Quality::reflection_skip_below_dn`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reflection_skip_below_dn: Option<f64>,
+    /// See [`Quality::planck`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub planck: Option<PlanckMethod>,
+    /// See [`Quality::radiometry_tolerance`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radiometry_tolerance: Option<f64>,
 }
 
 impl QualitySpec {
@@ -364,7 +401,10 @@ impl QualitySpec {
             fusion_skip_below_sigma,
             fusion_guidance,
             reflection,
-            reflection_grid
+            reflection_grid,
+            reflection_skip_below_dn,
+            planck,
+            radiometry_tolerance
         );
         let range = |name: &str, v: f64, lo: f64, hi: f64, unit: &str| {
             if v.is_finite() && (lo..=hi).contains(&v) {
@@ -415,6 +455,15 @@ impl QualitySpec {
                     ));
                 }
             }
+        }
+        range("reflection_skip_below_dn", q.reflection_skip_below_dn, 0.0, 1e6, " DN")?;
+        range("radiometry_tolerance", q.radiometry_tolerance, 0.0, MAX_RADIOMETRY_TOLERANCE, "")?;
+        if let Err(e) = q.planck.check() {
+            let field = match q.planck {
+                PlanckMethod::Simpson { .. } => "quality.planck.intervals",
+                _ => "quality.planck.points",
+            };
+            return Err(fe(field, e));
         }
         let [n_z, n_phi] = q.reflection_grid;
         if !((2..=2000).contains(&n_z) && (4..=4000).contains(&n_phi)) {
@@ -469,6 +518,10 @@ mod tests {
             ("sky_sampling = { mode = \"supersample\", n = 40 }", "quality.sky_sampling.n"),
             ("reflection_grid = [1, 48]", "quality.reflection_grid"),
             ("radiance_table_step_k = 1e-9", "quality.radiance_table_step_k"),
+            ("planck = { method = \"simpson\", intervals = 3 }", "quality.planck.intervals"),
+            ("planck = { method = \"gauss_legendre\", points = 0 }", "quality.planck.points"),
+            ("radiometry_tolerance = 0.5", "quality.radiometry_tolerance"),
+            ("reflection_skip_below_dn = -1", "quality.reflection_skip_below_dn"),
             (
                 "fusion_solver = { method = \"jacobi\", tolerance = 0, max_iterations = 10 }",
                 "quality.fusion_solver.tolerance",

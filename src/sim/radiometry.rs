@@ -5,7 +5,9 @@ use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
-use super::{Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, Skin};
+use super::{
+    Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, SimSettings, Skin,
+};
 use crate::physics::signal::{ApparentContext, TargetState, apparent_radiance};
 use crate::physics::skin::mach_number;
 
@@ -18,9 +20,11 @@ impl Plugin for RadiometryPlugin {
     }
 }
 
-/// Runs the radiometric chain for every target whose inputs changed since its last computation.
+/// Runs the radiometric chain for every target whose inputs changed since its last computation (by more than
+/// `[quality] radiometry_tolerance`, see `unchanged` in this module).
 pub fn update_signatures(
     scene: Res<SceneParams>,
+    settings: Res<SimSettings>,
     sensor: Query<&Sensor>,
     observer: Query<&CameraPose, With<Observer>>,
     mut targets: Query<(&Kinematics, &Body, &Skin, &mut Signature), Without<Observer>>,
@@ -36,12 +40,19 @@ pub fn update_signatures(
         atmosphere: &scene.atmosphere,
         reflection: Default::default(),
         quadrature: &scene.quadrature,
+        planck: settings.quality.planck,
+        // in radiance at the aperture (infinite, so always skipped, where no radiance gives a DN)
+        reflection_skip_below: match settings.quality.reflection_skip_below_dn {
+            dn if dn > 0.0 => dn / sensor.dn_per_radiance,
+            _ => 0.0,
+        },
     };
+    let tolerance = settings.quality.radiometry_tolerance;
     for (kin, body, skin, mut sig) in &mut targets {
         let p = kin.position_m;
         let dir = kin.velocity_m_s.normalize_or_zero();
         let key = [p.x, p.y, p.z, dir.x, dir.y, dir.z, kin.velocity_m_s.length(), eye.x, eye.y, eye.z];
-        if sig.key == Some(key) {
+        if sig.key.is_some_and(|old| unchanged(&old, &key, tolerance)) {
             continue;
         }
         let mach = match skin.mach {
@@ -70,5 +81,51 @@ pub fn update_signatures(
         }
         sig.mach = mach;
         sig.key = Some(key);
+    }
+}
+
+/// Whether a target's radiometry inputs `new` (position, unit heading, speed, observer position) are within
+/// `tolerance` of `old`, those of its last computation: each position within `tolerance` of the old range, the
+/// heading within `tolerance` rad, the speed within `tolerance` of the old speed. With 0, only equal inputs are.
+pub fn unchanged(old: &[f64; 10], new: &[f64; 10], tolerance: f64) -> bool {
+    if tolerance <= 0.0 {
+        return old == new;
+    }
+    let v = |k: &[f64; 10], i: usize| glam::DVec3::new(k[i], k[i + 1], k[i + 2]);
+    let range = v(old, 0).distance(v(old, 7));
+    v(old, 0).distance(v(new, 0)) <= tolerance * range
+        && v(old, 7).distance(v(new, 7)) <= tolerance * range
+        && v(old, 3).distance(v(new, 3)) <= tolerance
+        && (old[6] - new[6]).abs() <= tolerance * old[6]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::unchanged;
+
+    #[test]
+    fn tolerance_bounds_each_input() {
+        // target 1000 m east of the observer, heading north at 100 m/s
+        let old = [1000.0, 0.0, 0.0, 0.0, 1.0, 0.0, 100.0, 0.0, 0.0, 0.0];
+        assert!(unchanged(&old, &old, 0.0));
+        let mut moved = old;
+        moved[1] = 0.9; // 0.9 m: within 1e-3 of the range
+        assert!(!unchanged(&old, &moved, 0.0));
+        assert!(unchanged(&old, &moved, 1e-3));
+        moved[1] = 1.1;
+        assert!(!unchanged(&old, &moved, 1e-3));
+        let mut eye = old;
+        eye[9] = 1.1; // the observer climbed 1.1 m
+        assert!(!unchanged(&old, &eye, 1e-3));
+        let mut faster = old;
+        faster[6] = 100.2;
+        assert!(!unchanged(&old, &faster, 1e-3));
+        faster[6] = 100.05;
+        assert!(unchanged(&old, &faster, 1e-3));
+        let mut turned = old;
+        let a: f64 = 2e-3; // 2 mrad
+        (turned[3], turned[4]) = (a.sin(), a.cos());
+        assert!(!unchanged(&old, &turned, 1e-3));
+        assert!(unchanged(&old, &turned, 3e-3));
     }
 }
