@@ -158,6 +158,11 @@ fn bench_report_writes_finite_tables_and_plots() {
     assert!(numbers > 40, "{numbers} numbers in\n{md}");
     assert!(md.contains("| small |") && md.contains("`psf_energy_cutoff`"), "{md}");
     assert!(md.contains("| `ziggurat` |") && md.contains("| `table` |"), "the normal samplers' rows: {md}");
+    assert!(md.contains("## OpenCV's seamlessClone"), "{md}");
+    let opencv = std::process::Command::new("python3").args(["-c", "import cv2, numpy"]).status();
+    if std::env::var_os("IRSIM_REQUIRE_OPENCV").is_some() || opencv.is_ok_and(|s| s.success()) {
+        assert!(md.contains("| 17×17 | 225 |"), "OpenCV's row: {md}");
+    }
     let (code, _, err) = irsim(&args);
     assert_eq!(code, 2, "a second report needs --force: {err}");
     assert!(err.contains("--force"), "{err}");

@@ -62,6 +62,8 @@ struct Plan {
     sizes: Vec<u32>,
     /// Switch values tried: the standard preset's, and with `all_values` the draft preset's too.
     all_values: bool,
+    /// Region sides of the OpenCV comparison.
+    opencv_sides: Vec<usize>,
 }
 
 impl Plan {
@@ -76,6 +78,7 @@ impl Plan {
                 target_size: (64, 64),
                 sizes: vec![48, 64],
                 all_values: false,
+                opencv_sides: vec![17],
             }
         } else if a.quick {
             Plan {
@@ -87,6 +90,7 @@ impl Plan {
                 target_size: (640, 512),
                 sizes: vec![128, 256, 512],
                 all_values: false,
+                opencv_sides: vec![17, 33, 65],
             }
         } else {
             Plan {
@@ -99,6 +103,7 @@ impl Plan {
                 target_size: (640, 512),
                 sizes: vec![128, 256, 512, 1024, 2048],
                 all_values: true,
+                opencv_sides: vec![17, 33, 65, 129],
             }
         }
     }
@@ -803,11 +808,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     }
     let _ = writeln!(md);
 
-    let _ = writeln!(
-        md,
-        "Not in this report: OpenCV's `seamlessClone` on the same patches (`tools/opencv_seamless_clone_timing.py` \
-         times it alone).\n"
-    );
+    progress("OpenCV");
+    super::opencv::section(&mut md, &plan.opencv_sides);
     let _ = writeln!(md, "The report took {:.0} s.", started.elapsed().as_secs_f64());
     write_atomic(&md_path, md.as_bytes()).map_err(failed)?;
     super::say(&format!("wrote {}", md_path.display()))?;
