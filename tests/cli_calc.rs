@@ -111,3 +111,78 @@ fn bad_flags_exit_2_with_a_message() {
         assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
     }
 }
+
+#[test]
+fn transmittance_prints_both_taus_path_radiance_and_the_cell() {
+    let base = [
+        "calc",
+        "transmittance",
+        "--model",
+        "midlatitude-summer",
+        "--aerosol",
+        "rural",
+        "--visibility-km",
+        "23",
+        "--observer-alt-km",
+        "8",
+        "--target-alt-km",
+        "8",
+        "--range-km",
+        "4",
+        "--band-um",
+        "8",
+        "12",
+    ];
+    let (code, v, err) = irsim(&base);
+    assert_eq!(code, 0, "{err}");
+    let avg = v["transmittance_band_average"].as_f64().unwrap();
+    let weighted = v["transmittance_spectrum_weighted"].as_f64().unwrap();
+    assert!(avg > 0.8 && avg < 1.0 && weighted > 0.8 && weighted < 1.0, "{v}");
+    assert!(v["path_radiance_w_m2_sr"].as_f64().unwrap() > 0.0);
+    assert_eq!(v["grid_cell"]["lower_alt_km"], serde_json::json!([8.0, 9.0]));
+    // a hotter target weights the band differently
+    let mut hot = base.to_vec();
+    hot.extend(["--temp-k", "900"]);
+    let (_, v2, _) = irsim(&hot);
+    assert_ne!(v2["transmittance_spectrum_weighted"], v["transmittance_spectrum_weighted"]);
+    assert_eq!(v2["transmittance_band_average"], v["transmittance_band_average"]);
+}
+
+#[test]
+fn transmittance_refuses_paths_off_the_table() {
+    for (flag, value, says) in [
+        ("--observer-alt-km", "30", "--observer-alt-km: 30 is outside"),
+        ("--range-km", "1", "--range-km"),
+        ("--range-km", "500", "--range-km"),
+        ("--visibility-km", "0.1", "--visibility-km"),
+        ("--range-km", "nan", "--range-km"),
+    ] {
+        let mut args =
+            vec!["calc", "transmittance", "--observer-alt-km", "1", "--target-alt-km", "3", "--range-km", "10"];
+        let i = args.iter().position(|a| *a == flag);
+        match i {
+            Some(i) => args[i + 1] = value,
+            None => args.extend([flag, value]),
+        }
+        let (code, _, err) = irsim(&args);
+        assert_eq!(code, 2, "{flag} {value}: {err}");
+        assert!(err.contains(says), "{flag} {value}: {err}");
+    }
+    let (code, _, err) =
+        irsim(&["calc", "transmittance", "--observer-alt-km", "0.05", "--target-alt-km", "0.05", "--range-km", "80"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("below the ground"), "{err}");
+    let (code, _, err) = irsim(&[
+        "calc",
+        "transmittance",
+        "--model",
+        "martian",
+        "--observer-alt-km",
+        "1",
+        "--target-alt-km",
+        "1",
+        "--range-km",
+        "1",
+    ]);
+    assert_eq!(code, 2, "{err}");
+}

@@ -163,6 +163,8 @@ fn bench_report_writes_finite_tables_and_plots() {
     if std::env::var_os("IRSIM_REQUIRE_OPENCV").is_some() || opencv.is_ok_and(|s| s.success()) {
         assert!(md.contains("| 17×17 | 225 |"), "OpenCV's row: {md}");
     }
+    assert!(md.contains("## Atmosphere: the LOWTRAN7 table"), "{md}");
+    assert!(md.contains("| 8–12 µm | ") && !md.contains("Not measured: the off-grid"), "the LOWTRAN rows: {md}");
     let (code, _, err) = irsim(&args);
     assert_eq!(code, 2, "a second report needs --force: {err}");
     assert!(err.contains("--force"), "{err}");

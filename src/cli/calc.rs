@@ -5,6 +5,7 @@ use glam::{DMat3, DVec3};
 use serde_json::{Value, json};
 
 use crate::physics::brdf::CookTorrance;
+use crate::physics::lowtran::{Aerosol, AtmosphereError, AtmosphereTable, ModelAtmosphere, Weather};
 use crate::physics::planck::{Band, band_radiance};
 use crate::physics::reflection::{ReflectionGeometry, SphereQuadrature, Sun, direction_from_az_el};
 use crate::physics::sensor::{GrayMapping, Radiometer};
@@ -28,6 +29,38 @@ pub enum CalcCommand {
     /// A camera's figures of merit at a scene temperature: NETD, noise-equivalent radiance, electrons per DN,
     /// well fill, saturation temperature.
     Sensor(SensorArgs),
+    /// Atmospheric transmittance and thermal path radiance of a slant path from the LOWTRAN7 table: band-average
+    /// and spectrum-weighted τ, path radiance and the grid cell used.
+    Transmittance(TransmittanceArgs),
+}
+
+/// Flags of `calc transmittance`.
+#[derive(Debug, Args)]
+pub struct TransmittanceArgs {
+    /// LOWTRAN model atmosphere.
+    #[arg(long, value_enum, default_value = "midlatitude-summer")]
+    pub model: ModelAtmosphere,
+    /// Aerosol model.
+    #[arg(long, value_enum, default_value = "rural")]
+    pub aerosol: Aerosol,
+    /// Visibility (meteorological range at sea level), km; ignored with `--aerosol none`.
+    #[arg(long, default_value_t = 23.0, allow_negative_numbers = true)]
+    pub visibility_km: f64,
+    /// Observer's altitude, km.
+    #[arg(long, allow_negative_numbers = true)]
+    pub observer_alt_km: f64,
+    /// Target's altitude, km.
+    #[arg(long, allow_negative_numbers = true)]
+    pub target_alt_km: f64,
+    /// Range between them (length of the line of sight), km.
+    #[arg(long, allow_negative_numbers = true)]
+    pub range_km: f64,
+    /// Band bounds, µm: LO HI.
+    #[arg(long, num_args = 2, value_names = ["LO", "HI"], default_values_t = [8.0, 12.0], allow_negative_numbers = true)]
+    pub band_um: Vec<f64>,
+    /// Target temperature for the spectrum-weighted τ, K.
+    #[arg(long, default_value_t = 300.0, allow_negative_numbers = true)]
+    pub temp_k: f64,
 }
 
 /// Flags of `calc sensor`.
@@ -264,7 +297,55 @@ pub fn run(cmd: &CalcCommand) -> Result<Value, CliError> {
             Ok(serde_json::to_value(value).expect("plain struct serializes"))
         }
         CalcCommand::Signal(a) => signal(a),
+        CalcCommand::Transmittance(a) => transmittance(a),
     }
+}
+
+/// `calc transmittance`: one path through the LOWTRAN7 table.
+fn transmittance(a: &TransmittanceArgs) -> Result<Value, CliError> {
+    let band = band_from(&a.band_um)?;
+    finite("temp_k", a.temp_k, a.temp_k > 0.0 && a.temp_k <= 1e4, "(0, 1e4]")?;
+    for (name, v) in [
+        ("observer_alt_km", a.observer_alt_km),
+        ("target_alt_km", a.target_alt_km),
+        ("range_km", a.range_km),
+        ("visibility_km", a.visibility_km),
+    ] {
+        finite(name, v, true, "finite")?;
+    }
+    let table = AtmosphereTable::shipped().map_err(|e| CliError::Failed(e.to_string()))?;
+    let weather = Weather { model: a.model, aerosol: a.aerosol, visibility_km: a.visibility_km };
+    let p = table.path(&weather, a.observer_alt_km, a.target_alt_km, a.range_km).map_err(|e| match e {
+        AtmosphereError::OutsideGrid { name, value, range } => CliError::Invalid(format!(
+            "--{}: {} is outside the LOWTRAN table's range {range}",
+            name.replace('_', "-"),
+            crate::physics::Num(value)
+        )),
+        other => CliError::Invalid(other.to_string()),
+    })?;
+    if !p.covers(band) {
+        return Err(CliError::Invalid(format!(
+            "--band-um: {}–{} µm is outside the table's 1–14 µm",
+            crate::physics::Num(band.lo_um()),
+            crate::physics::Num(band.hi_um())
+        )));
+    }
+    Ok(json!({
+        "model": a.model.name(),
+        "aerosol": a.aerosol.name(),
+        "visibility_km": if a.aerosol == Aerosol::None { Value::Null } else { json!(a.visibility_km) },
+        "observer_alt_km": a.observer_alt_km,
+        "target_alt_km": a.target_alt_km,
+        "range_km": a.range_km,
+        "band_um": [band.lo_um(), band.hi_um()],
+        "temp_k": a.temp_k,
+        "transmittance_spectrum_weighted": p.spectrum_weighted(band, a.temp_k),
+        "transmittance_band_average": p.band_average(band),
+        "path_radiance_w_m2_sr": p.band_path_radiance_w_m2_sr(band),
+        "path_radiance_band_mean_w_m2_sr_um": p.band_mean_path_radiance_w_m2_sr_um(band),
+        "grid_cell": p.cell,
+        "source": "LOWTRAN7 table assets/atmosphere/lowtran7.irat (built in)",
+    }))
 }
 
 fn signal(a: &SignalArgs) -> Result<Value, CliError> {

@@ -2,6 +2,7 @@
 //!
 //! Exit codes: 0 success, 1 a failure while running (I/O), 2 bad input (flags, values, files).
 
+pub mod atmosphere;
 pub mod calc;
 pub mod opencv;
 pub mod report;

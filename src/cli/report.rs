@@ -810,6 +810,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
 
     progress("OpenCV");
     super::opencv::section(&mut md, &plan.opencv_sides);
+    progress("atmosphere");
+    super::atmosphere::section(&mut md);
     let _ = writeln!(md, "The report took {:.0} s.", started.elapsed().as_secs_f64());
     write_atomic(&md_path, md.as_bytes()).map_err(failed)?;
     super::say(&format!("wrote {}", md_path.display()))?;

@@ -7,6 +7,7 @@ pub mod atmosphere;
 pub mod brdf;
 pub mod detector;
 pub mod exact;
+pub mod lowtran;
 pub mod noise;
 pub mod nonideal;
 pub mod planck;

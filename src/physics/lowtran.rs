@@ -1,0 +1,1035 @@
+//! Atmospheric transmittance and thermal path radiance from LOWTRAN7 tables, for a band, a geometry and a
+//! weather: the model atmosphere, the aerosol model and the visibility.
+//!
+//! The table (`assets/atmosphere/lowtran7.irat`, built into the program; made by
+//! `tools/atmosphere/lowtran_tables.py`) holds two things, both on 108 spectral bins over 1–14 µm (0.05 µm wide in
+//! 3–5 µm, 0.1 µm in 8–12 µm, 0.25 µm elsewhere):
+//! - per model atmosphere, the **molecular** optical depth `−ln τ` (aerosol off) of LOWTRAN's refracted slant path
+//!   between a lower and an upper altitude (23 altitudes, 0–20 km) for 15 ranges up to 100 km, plus the vertical
+//!   path;
+//! - per model atmosphere, aerosol model and visibility, the **aerosol extinction** per km at those altitudes.
+//!
+//! A path's spectral transmittance is the molecular part interpolated on the grid, times `exp(−∫β ds)`, the
+//! aerosol extinction integrated along the straight line between the ends (spherical Earth). LOWTRAN's own total
+//! is the same product, so the split costs only the aerosol's path geometry: within 0.0025 in band τ against
+//! direct runs (see the generator's notes).
+//!
+//! Interpolation, chosen by measured error against direct LOWTRAN runs between the nodes (the generator's
+//! `lowtran7_offgrid.json`): the optical depth is interpolated linearly in the range along each altitude pair's
+//! own range axis (which starts at the vertical path, the shortest path between the two altitudes), and bilinearly
+//! in the two altitudes in the coordinate `−exp(−h / 3 km)`, which follows water vapour's fall with height. On
+//! 44 paths up to 50 km (midlatitude summer, no aerosol) that gives at most 0.0020 in band τ (8–12 and 3–5 µm);
+//! linear in altitude gives 0.0047. A corner pair whose vertical path is longer than the path asked holds its
+//! vertical path scaled as the horizontal paths at its altitudes grow, and the range axis is linear in √range
+//! (short paths saturate strong lines within metres). The aerosol extinction is interpolated in altitude as
+//! LOWTRAN does between its levels (exponentially, linearly where one regime hands over to the next), and
+//! linearly in 1/visibility between the tabulated visibilities.
+//!
+//! The path radiance is the path's own thermal emission, `Σ B̄(T(h)) (τ(s_k) − τ(s_{k+1}))` over
+//! [`PATH_RADIANCE_SEGMENTS`] segments of the line of sight, with the model atmosphere's temperature profile and
+//! the transmittance from the observer, as LOWTRAN sums it over its layers.
+//!
+//! A path outside the grid (an altitude above 20 km or below 0, a range above 100 km or shorter than the
+//! altitude difference, a line of sight through the ground, a visibility outside the tabulated ones) is an error,
+//! never an extrapolation.
+
+use std::io::Read as _;
+use std::sync::OnceLock;
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use super::planck::{Band, band_radiance};
+
+/// The shipped table.
+const SHIPPED: &[u8] = include_bytes!("../../assets/atmosphere/lowtran7.irat");
+/// The table format this program reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Earth's radius of the paths' geometry, km (LOWTRAN's).
+pub const EARTH_RADIUS_KM: f64 = 6371.23;
+/// Scale height of the altitude coordinate `−exp(−h/H)` of the interpolation, km.
+pub const ALTITUDE_SCALE_KM: f64 = 3.0;
+/// Segments of the line of sight in the path-radiance sum.
+pub const PATH_RADIANCE_SEGMENTS: usize = 32;
+/// Steps of the aerosol optical depth's integral along the line of sight (trapezoids).
+pub const AEROSOL_STEPS: usize = 128;
+/// LOWTRAN's layers (km) where one aerosol regime hands over to the next.
+const REGIME_HANDOVER_KM: [(f64, f64); 2] = [(2.0, 3.0), (10.0, 11.0)];
+/// Lowest point of a line of sight above the ground, km, below which it is refused (1 m), except for the
+/// horizontal path at 0 km.
+const GROUND_CLEARANCE_KM: f64 = -0.001;
+
+/// LOWTRAN's model atmospheres.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[derive(clap::ValueEnum)]
+pub enum ModelAtmosphere {
+    /// Tropical (15° N).
+    Tropical,
+    /// Mid-latitude summer (45° N, July).
+    #[value(alias = "midlatitude_summer")]
+    MidlatitudeSummer,
+    /// Mid-latitude winter (45° N, January).
+    #[value(alias = "midlatitude_winter")]
+    MidlatitudeWinter,
+    /// Sub-arctic summer (60° N, July).
+    #[value(alias = "subarctic_summer")]
+    SubarcticSummer,
+    /// Sub-arctic winter (60° N, January).
+    #[value(alias = "subarctic_winter")]
+    SubarcticWinter,
+    /// US Standard Atmosphere 1976.
+    #[value(name = "us-standard-1976", alias = "us_standard_1976")]
+    #[serde(rename = "us_standard_1976")]
+    UsStandard1976,
+}
+
+impl ModelAtmosphere {
+    /// Every model, in the table's order.
+    pub const ALL: [ModelAtmosphere; 6] = [
+        ModelAtmosphere::Tropical,
+        ModelAtmosphere::MidlatitudeSummer,
+        ModelAtmosphere::MidlatitudeWinter,
+        ModelAtmosphere::SubarcticSummer,
+        ModelAtmosphere::SubarcticWinter,
+        ModelAtmosphere::UsStandard1976,
+    ];
+
+    /// The name in scenario files and the table.
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelAtmosphere::Tropical => "tropical",
+            ModelAtmosphere::MidlatitudeSummer => "midlatitude_summer",
+            ModelAtmosphere::MidlatitudeWinter => "midlatitude_winter",
+            ModelAtmosphere::SubarcticSummer => "subarctic_summer",
+            ModelAtmosphere::SubarcticWinter => "subarctic_winter",
+            ModelAtmosphere::UsStandard1976 => "us_standard_1976",
+        }
+    }
+}
+
+/// LOWTRAN's boundary-layer aerosol models (above 2 km LOWTRAN's tropospheric and stratospheric background, by
+/// season).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[derive(clap::ValueEnum)]
+pub enum Aerosol {
+    /// No aerosol at all: molecular absorption and continua only.
+    None,
+    /// Rural (continental, no urban sources).
+    Rural,
+    /// Maritime (sea salt over the ocean).
+    Maritime,
+    /// Urban (rural mixed with combustion products).
+    Urban,
+}
+
+impl Aerosol {
+    /// The name in scenario files and the table.
+    pub fn name(self) -> &'static str {
+        match self {
+            Aerosol::None => "none",
+            Aerosol::Rural => "rural",
+            Aerosol::Maritime => "maritime",
+            Aerosol::Urban => "urban",
+        }
+    }
+}
+
+/// The weather of a path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Weather {
+    /// Model atmosphere (temperature, pressure, water vapour, ozone profiles).
+    pub model: ModelAtmosphere,
+    /// Aerosol model.
+    pub aerosol: Aerosol,
+    /// Meteorological range at sea level, km (unused without aerosol).
+    pub visibility_km: f64,
+}
+
+/// What can go wrong with a table or a path.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum AtmosphereError {
+    /// The table's bytes are not a valid table.
+    #[error("atmosphere table: {0}")]
+    Table(String),
+    /// A quantity of the path outside the table's grid.
+    #[error("{name} = {value} is outside the LOWTRAN table's range {range}")]
+    OutsideGrid {
+        /// The quantity.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+        /// The range the table covers.
+        range: String,
+    },
+    /// The line of sight passes through the ground.
+    #[error(
+        "the line of sight from {observer_alt_km} km to {target_alt_km} km over {range_km} km passes {below_m:.0} m \
+         below the ground (Earth radius {EARTH_RADIUS_KM} km)"
+    )]
+    BelowGround {
+        /// Observer's altitude, km.
+        observer_alt_km: f64,
+        /// Target's altitude, km.
+        target_alt_km: f64,
+        /// Range, km.
+        range_km: f64,
+        /// How far below, m.
+        below_m: f64,
+    },
+}
+
+#[derive(Debug, Deserialize)]
+struct Header {
+    models: Vec<String>,
+    aerosols: Vec<AerosolSetting>,
+    altitudes_km: Vec<f64>,
+    ranges_km: Vec<f64>,
+    bin_edges_um: Vec<f64>,
+    bin_samples: Vec<u32>,
+    optical_depth_scale: f64,
+    profiles: std::collections::BTreeMap<String, Profile>,
+}
+
+#[derive(Debug, Deserialize)]
+struct AerosolSetting {
+    aerosol: String,
+    visibility_km: f64,
+}
+
+/// A model atmosphere's levels.
+#[derive(Debug, Clone, Deserialize)]
+pub struct Profile {
+    /// Altitudes of the levels, km, increasing.
+    pub altitude_km: Vec<f64>,
+    /// Pressure, hPa.
+    pub pressure_hpa: Vec<f64>,
+    /// Temperature, K.
+    pub temperature_k: Vec<f64>,
+}
+
+impl Profile {
+    /// Temperature at altitude `h_km` (linear between levels).
+    pub fn temperature_at(&self, h_km: f64) -> f64 {
+        interp_linear(&self.altitude_km, &self.temperature_k, h_km)
+    }
+}
+
+/// A LOWTRAN7 table, loaded and checked.
+#[derive(Debug)]
+pub struct AtmosphereTable {
+    alt_km: Vec<f64>,
+    alt_coord: Vec<f64>,
+    ranges_km: Vec<f64>,
+    edges_um: Vec<f64>,
+    samples: Vec<u32>,
+    od_scale: f64,
+    /// Molecular optical depth, quantized, [model][pair][range node][bin].
+    od: Vec<u16>,
+    /// 1 where LOWTRAN could not trace the node's path (it holds a neighbour's values).
+    flags: Vec<u8>,
+    /// Length LOWTRAN traced on its first try, km.
+    traced_km: Vec<f32>,
+    /// Aerosol extinction per km, [model][aerosol setting][altitude][bin].
+    ext: Vec<f32>,
+    settings: Vec<(Aerosol, f64)>,
+    profiles: Vec<Profile>,
+}
+
+/// The spectral result for one path.
+#[derive(Debug, Clone)]
+pub struct PathSpectrum {
+    /// Spectral bins' edges, µm (one more than the bins).
+    pub edges_um: Vec<f64>,
+    /// LOWTRAN's samples (5 cm⁻¹ apart) in each bin: the weights of a band average uniform in wavenumber.
+    pub samples: Vec<u32>,
+    /// Transmittance per bin (molecular times aerosol), [0, 1].
+    pub transmittance: Vec<f64>,
+    /// Thermal path radiance per bin, W m⁻² sr⁻¹ µm⁻¹ (mean over the bin).
+    pub path_radiance_w_m2_sr_um: Vec<f64>,
+    /// The grid cell the path fell in.
+    pub cell: GridCell,
+}
+
+/// Where a path falls in the table's grid.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GridCell {
+    /// Model atmosphere.
+    pub model: &'static str,
+    /// Lower end's altitude bracket, km.
+    pub lower_alt_km: [f64; 2],
+    /// Upper end's altitude bracket, km.
+    pub upper_alt_km: [f64; 2],
+    /// Range bracket of the first corner's pair, km.
+    pub range_km: [f64; 2],
+    /// Aerosol visibility bracket, km (empty without aerosol).
+    pub visibility_km: Vec<f64>,
+    /// Whether a corner is a path LOWTRAN could not trace (the result is less accurate there).
+    pub untraceable_corner: bool,
+    /// Length LOWTRAN traced on its first try at the corners' nodes, km (the table holds the ranges asked for).
+    pub lowtran_first_traced_km: Vec<f64>,
+}
+
+fn interp_linear(x: &[f64], y: &[f64], at: f64) -> f64 {
+    let i = bracket(x, at);
+    let f = ((at - x[i]) / (x[i + 1] - x[i])).clamp(0.0, 1.0);
+    y[i] + f * (y[i + 1] - y[i])
+}
+
+/// The index `i` with `x[i] ≤ at ≤ x[i + 1]` (clamped to the ends).
+fn bracket(x: &[f64], at: f64) -> usize {
+    let n = x.len();
+    let i = x.partition_point(|&v| v <= at);
+    i.saturating_sub(1).min(n - 2)
+}
+
+fn altitude_coord(h_km: f64) -> f64 {
+    -(-h_km / ALTITUDE_SCALE_KM).exp()
+}
+
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], AtmosphereError> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let end = end.ok_or_else(|| AtmosphereError::Table(format!("truncated in the {what}")))?;
+        let s = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(s)
+    }
+    fn u32(&mut self, what: &str) -> Result<u32, AtmosphereError> {
+        Ok(u32::from_le_bytes(self.take(4, what)?.try_into().unwrap_or([0; 4])))
+    }
+    fn u64(&mut self, what: &str) -> Result<u64, AtmosphereError> {
+        Ok(u64::from_le_bytes(self.take(8, what)?.try_into().unwrap_or([0; 8])))
+    }
+}
+
+fn bad(msg: impl Into<String>) -> AtmosphereError {
+    AtmosphereError::Table(msg.into())
+}
+
+fn increasing(name: &str, v: &[f64], min_len: usize) -> Result<(), AtmosphereError> {
+    if v.len() < min_len || v.iter().any(|x| !x.is_finite()) || v.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(bad(format!("{name} must be at least {min_len} finite increasing numbers")));
+    }
+    Ok(())
+}
+
+impl AtmosphereTable {
+    /// The table built into the program, loaded and checked once.
+    ///
+    /// # Errors
+    /// [`AtmosphereError::Table`] if the built-in table is damaged (a build problem).
+    pub fn shipped() -> Result<&'static AtmosphereTable, AtmosphereError> {
+        static TABLE: OnceLock<Result<AtmosphereTable, AtmosphereError>> = OnceLock::new();
+        TABLE.get_or_init(|| AtmosphereTable::parse(SHIPPED)).as_ref().map_err(Clone::clone)
+    }
+
+    /// Reads and checks a table: magic, version, header, lengths, CRC-32 and grids.
+    ///
+    /// # Errors
+    /// [`AtmosphereError::Table`] saying what is wrong.
+    pub fn parse(bytes: &[u8]) -> Result<Self, AtmosphereError> {
+        let mut r = Reader { bytes, at: 0 };
+        if r.take(8, "magic")? != b"IRSIMATM" {
+            return Err(bad("not an irsim atmosphere table (no IRSIMATM magic)"));
+        }
+        let version = r.u32("version")?;
+        if version != FORMAT_VERSION {
+            return Err(bad(format!("format version {version}, this program reads {FORMAT_VERSION}")));
+        }
+        let hlen = r.u32("header length")? as usize;
+        let head: Header = serde_json::from_slice(r.take(hlen, "header")?).map_err(|e| bad(format!("header: {e}")))?;
+        let plen = r.u64("payload length")?;
+        let crc = r.u32("checksum")?;
+        let rawlen = r.u64("payload length")?;
+        let packed = r.take(usize::try_from(plen).map_err(|_| bad("payload too long"))?, "payload")?;
+        if r.at != bytes.len() {
+            return Err(bad(format!("{} bytes after the payload", bytes.len() - r.at)));
+        }
+        let mut payload = Vec::with_capacity(usize::try_from(rawlen.min(1 << 30)).unwrap_or(0));
+        flate2::read::ZlibDecoder::new(packed)
+            .take(rawlen.saturating_add(1))
+            .read_to_end(&mut payload)
+            .map_err(|e| bad(format!("payload: {e}")))?;
+        if payload.len() as u64 != rawlen {
+            return Err(bad(format!("payload is {} bytes, the header says {rawlen}", payload.len())));
+        }
+        if crc32fast::hash(&payload) != crc {
+            return Err(bad("payload checksum (CRC-32) does not match"));
+        }
+        Self::from_parts(head, &payload)
+    }
+
+    fn from_parts(head: Header, payload: &[u8]) -> Result<Self, AtmosphereError> {
+        increasing("altitudes_km", &head.altitudes_km, 2)?;
+        increasing("ranges_km", &head.ranges_km, 2)?;
+        increasing("bin_edges_um", &head.bin_edges_um, 2)?;
+        if head.altitudes_km[0] != 0.0 || head.ranges_km[0] <= 0.0 {
+            return Err(bad("altitudes must start at 0 km and ranges above 0"));
+        }
+        let nbins = head.bin_edges_um.len() - 1;
+        if head.bin_samples.len() != nbins || head.bin_samples.contains(&0) {
+            return Err(bad("bin_samples must give a positive count per bin"));
+        }
+        if !(head.optical_depth_scale > 0.0 && head.optical_depth_scale.is_finite()) {
+            return Err(bad("optical_depth_scale must be positive"));
+        }
+        let model_names: Vec<&str> = ModelAtmosphere::ALL.iter().map(|m| m.name()).collect();
+        if head.models != model_names {
+            return Err(bad(format!("models must be {model_names:?}")));
+        }
+        let mut profiles = Vec::new();
+        for m in ModelAtmosphere::ALL {
+            let p = head.profiles.get(m.name()).ok_or_else(|| bad(format!("no profile for {}", m.name())))?;
+            increasing("profile altitudes", &p.altitude_km, 2)?;
+            if p.temperature_k.len() != p.altitude_km.len() || p.temperature_k.iter().any(|t| !(*t > 0.0)) {
+                return Err(bad(format!("{}: temperatures must be positive, one per level", m.name())));
+            }
+            profiles.push(p.clone());
+        }
+        let mut settings = Vec::new();
+        for s in &head.aerosols {
+            let a = match s.aerosol.as_str() {
+                "rural" => Aerosol::Rural,
+                "maritime" => Aerosol::Maritime,
+                "urban" => Aerosol::Urban,
+                other => return Err(bad(format!("unknown aerosol {other:?}"))),
+            };
+            if !(s.visibility_km > 0.0 && s.visibility_km.is_finite()) {
+                return Err(bad("aerosol visibilities must be positive"));
+            }
+            settings.push((a, s.visibility_km));
+        }
+        let nalt = head.altitudes_km.len();
+        let npairs = nalt * (nalt + 1) / 2;
+        let nodes = 6 * npairs * (1 + head.ranges_km.len());
+        let nod = nodes * nbins;
+        let next = 6 * settings.len() * nalt * nbins;
+        let want = 2 * nod + nodes + 4 * nodes + 4 * next;
+        if payload.len() != want {
+            return Err(bad(format!("payload is {} bytes, the grid needs {want}", payload.len())));
+        }
+        let (hi, rest) = payload.split_at(nod);
+        let (lo, rest) = rest.split_at(nod);
+        let od = hi.iter().zip(lo).map(|(&h, &l)| u16::from(h) << 8 | u16::from(l)).collect();
+        let (flags, rest) = rest.split_at(nodes);
+        let (traced, rest) = rest.split_at(4 * nodes);
+        let f32s = |b: &[u8]| -> Vec<f32> {
+            b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+        };
+        let ext = f32s(rest);
+        if ext.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
+            return Err(bad("aerosol extinction must be finite and not negative"));
+        }
+        let alt_coord = head.altitudes_km.iter().map(|&h| altitude_coord(h)).collect();
+        Ok(AtmosphereTable {
+            alt_coord,
+            alt_km: head.altitudes_km,
+            ranges_km: head.ranges_km,
+            edges_um: head.bin_edges_um,
+            samples: head.bin_samples,
+            od_scale: head.optical_depth_scale,
+            od,
+            flags: flags.to_vec(),
+            traced_km: f32s(traced),
+            ext,
+            settings,
+            profiles,
+        })
+    }
+
+    fn nbins(&self) -> usize {
+        self.edges_um.len() - 1
+    }
+
+    fn nodes_per_pair(&self) -> usize {
+        1 + self.ranges_km.len()
+    }
+
+    /// The index of altitude pair `(i, j ≥ i)`, pairs numbered with `i` slowest.
+    fn pair_index(&self, i: usize, j: usize) -> usize {
+        let n = self.alt_km.len();
+        i * n - i * i.saturating_sub(1) / 2 + (j - i)
+    }
+
+    /// Highest altitude of the grid, km.
+    pub fn max_altitude_km(&self) -> f64 {
+        self.alt_km[self.alt_km.len() - 1]
+    }
+
+    /// Longest range of the grid, km.
+    pub fn max_range_km(&self) -> f64 {
+        self.ranges_km[self.ranges_km.len() - 1]
+    }
+
+    /// The model atmosphere's profile.
+    pub fn profile(&self, model: ModelAtmosphere) -> &Profile {
+        &self.profiles[model_index(model)]
+    }
+
+    /// Visibilities tabulated for an aerosol model, km, increasing.
+    pub fn visibilities_km(&self, aerosol: Aerosol) -> Vec<f64> {
+        let mut v: Vec<f64> = self.settings.iter().filter(|s| s.0 == aerosol).map(|s| s.1).collect();
+        v.sort_by(f64::total_cmp);
+        v
+    }
+
+    /// Molecular optical depth per bin of the path between altitudes `lo ≤ hi` (km) over `range_km`, into `out`;
+    /// the flags and first traced lengths of the nodes used are collected in `info`.
+    fn molecular_into(&self, m: usize, lo: f64, hi: f64, range_km: f64, out: &mut [f64], info: &mut CornerInfo) {
+        let ia = bracket(&self.alt_km, lo);
+        let ib = bracket(&self.alt_km, hi);
+        let c = altitude_coord;
+        let fa = ((c(lo) - self.alt_coord[ia]) / (self.alt_coord[ia + 1] - self.alt_coord[ia])).clamp(0.0, 1.0);
+        let fb = ((c(hi) - self.alt_coord[ib]) / (self.alt_coord[ib + 1] - self.alt_coord[ib])).clamp(0.0, 1.0);
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for (da, wa) in [(0, 1.0 - fa), (1, fa)] {
+            for (db, wb) in [(0, 1.0 - fb), (1, fb)] {
+                let w = wa * wb;
+                if w == 0.0 {
+                    continue;
+                }
+                let (p, q) = {
+                    let (x, y) = (ia + da, ib + db);
+                    if x <= y { (x, y) } else { (y, x) }
+                };
+                let dhc = self.alt_km[q] - self.alt_km[p];
+                if range_km >= dhc {
+                    self.pair_into(m, p, q, range_km, w, out, info);
+                    continue;
+                }
+                // a corner whose shortest path (vertical, dhc) is longer than the path asked: its vertical path
+                // scaled by how the horizontal paths at its two altitudes grow from range_km to dhc (strong lines
+                // saturate within metres, so optical depth is far from proportional to length there)
+                let nb = self.nbins();
+                let mut buf = vec![0.0; 5 * nb];
+                let (v, rest) = buf.split_at_mut(nb);
+                let (ar, rest) = rest.split_at_mut(nb);
+                let (ad, rest) = rest.split_at_mut(nb);
+                let (br, bd) = rest.split_at_mut(nb);
+                self.pair_into(m, p, q, dhc, 1.0, v, info);
+                self.pair_into(m, p, p, range_km, 1.0, ar, info);
+                self.pair_into(m, p, p, dhc, 1.0, ad, info);
+                self.pair_into(m, q, q, range_km, 1.0, br, info);
+                self.pair_into(m, q, q, dhc, 1.0, bd, info);
+                let ratio = |x: f64, y: f64| if y > 0.0 { x / y } else { range_km / dhc };
+                for b in 0..nb {
+                    out[b] += w * v[b] * 0.5 * (ratio(ar[b], ad[b]) + ratio(br[b], bd[b]));
+                }
+            }
+        }
+    }
+
+    /// Adds `weight` × the optical depth of altitude pair `(p, q)` at `range_km` along that pair's range axis.
+    #[allow(clippy::too_many_arguments)]
+    fn pair_into(
+        &self,
+        m: usize,
+        p: usize,
+        q: usize,
+        range_km: f64,
+        weight: f64,
+        out: &mut [f64],
+        info: &mut CornerInfo,
+    ) {
+        let nb = self.nbins();
+        let dh = self.alt_km[q] - self.alt_km[p];
+        // the pair's axis: node 0 at the vertical range dh, then the grid's ranges beyond it (range k is node k + 1)
+        let first = self.ranges_km.partition_point(|&r| r <= dh + 1e-9);
+        let r = range_km.max(dh);
+        let n = self.ranges_km.len();
+        let (n0, r0, n1, r1) = if first >= n {
+            (0, dh, 0, dh)
+        } else if r <= self.ranges_km[first] || n - first < 2 {
+            (0, dh, first + 1, self.ranges_km[first])
+        } else {
+            let k = first + bracket(&self.ranges_km[first..], r);
+            (k + 1, self.ranges_km[k], k + 2, self.ranges_km[k + 1])
+        };
+        // linear in √range: short paths' optical depth grows like √range (saturated lines), long ones' nearly
+        // linearly, and √ follows both between the nodes better than linear does (measured)
+        let f = if r1 > r0 { ((r.sqrt() - r0.sqrt()) / (r1.sqrt() - r0.sqrt())).clamp(0.0, 1.0) } else { 0.0 };
+        let base = (model_offset(m, self.npairs()) + self.pair_index(p, q)) * self.nodes_per_pair();
+        for (node, w) in [(n0, 1.0 - f), (n1, f)] {
+            if w == 0.0 {
+                continue;
+            }
+            let idx = base + node;
+            info.untraceable |= self.flags[idx] != 0;
+            if self.traced_km[idx] > 0.0 {
+                // stored as f32: to the metre LOWTRAN prints
+                info.traced.push((f64::from(self.traced_km[idx]) * 1000.0).round() / 1000.0);
+            }
+            let row = &self.od[idx * nb..(idx + 1) * nb];
+            for (o, &v) in out.iter_mut().zip(row) {
+                *o += weight * w * f64::from(v) * self.od_scale;
+            }
+        }
+        if info.range.is_none() {
+            info.range = Some([r0, r1]);
+        }
+    }
+
+    fn npairs(&self) -> usize {
+        let n = self.alt_km.len();
+        n * (n + 1) / 2
+    }
+
+    /// Aerosol extinction per km at altitude `h_km` for the weather, per bin, into `out`.
+    fn extinction_at(&self, m: usize, vis: &[(usize, f64)], h_km: f64, out: &mut [f64]) {
+        let nb = self.nbins();
+        let nalt = self.alt_km.len();
+        let i = bracket(&self.alt_km, h_km);
+        let f = ((h_km - self.alt_km[i]) / (self.alt_km[i + 1] - self.alt_km[i])).clamp(0.0, 1.0);
+        out.iter_mut().for_each(|v| *v = 0.0);
+        // LOWTRAN varies each aerosol regime's extinction exponentially between its levels, and linearly where
+        // one end is zero: in the layers where one regime hands over to the next (boundary layer to troposphere
+        // at 2–3 km, troposphere to stratosphere at 10–11 km) the total is linear. Either way wrong costs up to
+        // 0.02 in band τ (measured on paths through those layers).
+        let (a0, a1) = (self.alt_km[i], self.alt_km[i + 1]);
+        let linear = REGIME_HANDOVER_KM.iter().any(|&(lo, hi)| a0 >= lo && a1 <= hi);
+        for &(s, w) in vis {
+            let base = (m * self.settings.len() + s) * nalt;
+            let a = &self.ext[(base + i) * nb..(base + i + 1) * nb];
+            let b = &self.ext[(base + i + 1) * nb..(base + i + 2) * nb];
+            for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
+                let (x, y) = (f64::from(x), f64::from(y));
+                let v = if linear || x <= 0.0 || y <= 0.0 { x + f * (y - x) } else { x * (y / x).powf(f) };
+                *o += w * v;
+            }
+        }
+    }
+
+    /// The aerosol settings and weights for a weather (linear in 1/visibility between the tabulated ones).
+    fn visibility_weights(&self, w: &Weather) -> Result<VisibilityWeights, AtmosphereError> {
+        if w.aerosol == Aerosol::None {
+            return Ok((Vec::new(), Vec::new()));
+        }
+        let mut idx: Vec<(usize, f64)> =
+            self.settings.iter().enumerate().filter(|(_, s)| s.0 == w.aerosol).map(|(i, s)| (i, s.1)).collect();
+        idx.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let (lo, hi) = (idx[0].1, idx[idx.len() - 1].1);
+        let v = w.visibility_km;
+        if !(v >= lo && v <= hi) {
+            return Err(AtmosphereError::OutsideGrid {
+                name: "visibility_km",
+                value: v,
+                range: format!("[{lo}, {hi}] km for {} aerosol", w.aerosol.name()),
+            });
+        }
+        if let Some(&(i, at)) = idx.iter().find(|s| s.1 == v) {
+            return Ok((vec![(i, 1.0)], vec![at]));
+        }
+        let k = idx.windows(2).position(|p| v >= p[0].1 && v <= p[1].1).unwrap_or(0);
+        let (a, b) = (idx[k], idx[k + 1]);
+        let f = (1.0 / v - 1.0 / a.1) / (1.0 / b.1 - 1.0 / a.1);
+        Ok((vec![(a.0, 1.0 - f), (b.0, f)], vec![a.1, b.1]))
+    }
+
+    /// Checks a path's geometry against the grid.
+    fn check_path(&self, observer_alt_km: f64, target_alt_km: f64, range_km: f64) -> Result<(), AtmosphereError> {
+        let top = self.max_altitude_km();
+        for (name, v) in [("observer_alt_km", observer_alt_km), ("target_alt_km", target_alt_km)] {
+            if !(v >= 0.0 && v <= top) {
+                return Err(AtmosphereError::OutsideGrid { name, value: v, range: format!("[0, {top}] km") });
+            }
+        }
+        let dh = (target_alt_km - observer_alt_km).abs();
+        let far = self.max_range_km();
+        if !(range_km >= dh * (1.0 - 1e-9) && range_km <= far) {
+            return Err(AtmosphereError::OutsideGrid {
+                name: "range_km",
+                value: range_km,
+                range: format!("[{dh}, {far}] km (at least the altitude difference)"),
+            });
+        }
+        if !(observer_alt_km == 0.0 && target_alt_km == 0.0) {
+            let low = lowest_point_km(observer_alt_km, target_alt_km, range_km);
+            if low < GROUND_CLEARANCE_KM {
+                return Err(AtmosphereError::BelowGround {
+                    observer_alt_km,
+                    target_alt_km,
+                    range_km,
+                    below_m: -low * 1000.0,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Spectral transmittance and path radiance of the path from the observer to the target.
+    ///
+    /// # Errors
+    /// [`AtmosphereError::OutsideGrid`] or [`AtmosphereError::BelowGround`] for a path the table does not cover.
+    pub fn path(
+        &self,
+        weather: &Weather,
+        observer_alt_km: f64,
+        target_alt_km: f64,
+        range_km: f64,
+    ) -> Result<PathSpectrum, AtmosphereError> {
+        self.check_path(observer_alt_km, target_alt_km, range_km)?;
+        let (vis, vis_bracket) = self.visibility_weights(weather)?;
+        let m = model_index(weather.model);
+        let nb = self.nbins();
+        let (h1, h2) = (observer_alt_km, target_alt_km);
+        let (lo, hi) = if h1 <= h2 { (h1, h2) } else { (h2, h1) };
+        let ia = bracket(&self.alt_km, lo);
+        let ib = bracket(&self.alt_km, hi);
+        if range_km == 0.0 {
+            return Ok(PathSpectrum {
+                edges_um: self.edges_um.clone(),
+                samples: self.samples.clone(),
+                transmittance: vec![1.0; nb],
+                path_radiance_w_m2_sr_um: vec![0.0; nb],
+                cell: GridCell {
+                    model: weather.model.name(),
+                    lower_alt_km: [self.alt_km[ia], self.alt_km[ia + 1]],
+                    upper_alt_km: [self.alt_km[ib], self.alt_km[ib + 1]],
+                    range_km: [0.0, 0.0],
+                    visibility_km: vis_bracket,
+                    untraceable_corner: false,
+                    lowtran_first_traced_km: Vec::new(),
+                },
+            });
+        }
+        let chord = Chord::new(h1, h2, range_km);
+        // cumulative aerosol optical depth along the line of sight, at AEROSOL_STEPS + 1 points
+        let mut aer = vec![vec![0.0; nb]; AEROSOL_STEPS + 1];
+        if !vis.is_empty() {
+            let mut prev = vec![0.0; nb];
+            let mut cur = vec![0.0; nb];
+            self.extinction_at(m, &vis, chord.altitude_km(0.0), &mut prev);
+            let ds = range_km / AEROSOL_STEPS as f64;
+            for k in 1..=AEROSOL_STEPS {
+                self.extinction_at(m, &vis, chord.altitude_km(k as f64 / AEROSOL_STEPS as f64), &mut cur);
+                let (done, rest) = aer.split_at_mut(k);
+                for ((o, &a), (&p, &c)) in rest[0].iter_mut().zip(&done[k - 1]).zip(prev.iter().zip(&cur)) {
+                    *o = a + 0.5 * ds * (p + c);
+                }
+                std::mem::swap(&mut prev, &mut cur);
+            }
+        }
+        let aerosol_depth = |t: f64, b: usize| -> f64 {
+            let x = t * AEROSOL_STEPS as f64;
+            let k = (x.floor() as usize).min(AEROSOL_STEPS - 1);
+            let f = x - k as f64;
+            aer[k][b] + f * (aer[k + 1][b] - aer[k][b])
+        };
+        let mut info = CornerInfo::default();
+        let mut od = vec![0.0; nb];
+        self.molecular_into(m, lo, hi, range_km, &mut od, &mut info);
+        let transmittance: Vec<f64> =
+            (0..nb).map(|b| (-(od[b] + aerosol_depth(1.0, b))).exp().clamp(0.0, 1.0)).collect();
+        let cell_info = info;
+
+        // path radiance: the emission of each segment, seen through the path before it
+        let profile = &self.profiles[m];
+        let mut radiance = vec![0.0; nb];
+        let mut tau_prev = vec![1.0; nb];
+        let mut tau_cur = vec![0.0; nb];
+        let mut scratch = CornerInfo::default();
+        for k in 1..=PATH_RADIANCE_SEGMENTS {
+            let t = k as f64 / PATH_RADIANCE_SEGMENTS as f64;
+            if k == PATH_RADIANCE_SEGMENTS {
+                tau_cur.copy_from_slice(&transmittance);
+            } else {
+                let h = chord.altitude_km(t).clamp(0.0, self.max_altitude_km());
+                let s = (t * range_km).max((h - h1).abs());
+                let (l, u) = if h1 <= h { (h1, h) } else { (h, h1) };
+                self.molecular_into(m, l, u, s, &mut od, &mut scratch);
+                for b in 0..nb {
+                    tau_cur[b] = (-(od[b] + aerosol_depth(t, b))).exp().clamp(0.0, tau_prev[b]);
+                }
+            }
+            let temp = profile.temperature_at(chord.altitude_km(t - 0.5 / PATH_RADIANCE_SEGMENTS as f64));
+            for b in 0..nb {
+                let d = tau_prev[b] - tau_cur[b];
+                if d > 0.0 {
+                    radiance[b] += d * self.bin_mean_planck(b, temp);
+                }
+            }
+            std::mem::swap(&mut tau_prev, &mut tau_cur);
+        }
+        let cell = GridCell {
+            model: weather.model.name(),
+            lower_alt_km: [self.alt_km[ia], self.alt_km[ia + 1]],
+            upper_alt_km: [self.alt_km[ib], self.alt_km[ib + 1]],
+            range_km: cell_info.range.unwrap_or([0.0, 0.0]),
+            visibility_km: vis_bracket,
+            untraceable_corner: cell_info.untraceable,
+            lowtran_first_traced_km: cell_info.traced,
+        };
+        Ok(PathSpectrum {
+            edges_um: self.edges_um.clone(),
+            samples: self.samples.clone(),
+            transmittance,
+            path_radiance_w_m2_sr_um: radiance,
+            cell,
+        })
+    }
+
+    fn bin_mean_planck(&self, b: usize, temp_k: f64) -> f64 {
+        let (lo, hi) = (self.edges_um[b], self.edges_um[b + 1]);
+        Band::try_new(lo, hi).map_or(0.0, |band| band_radiance(band, temp_k, 1.0) / (hi - lo))
+    }
+}
+
+fn model_index(m: ModelAtmosphere) -> usize {
+    ModelAtmosphere::ALL.iter().position(|&x| x == m).unwrap_or(0)
+}
+
+fn model_offset(m: usize, npairs: usize) -> usize {
+    m * npairs
+}
+
+/// Aerosol settings with their weights, and the visibilities bracketing the weather's.
+type VisibilityWeights = (Vec<(usize, f64)>, Vec<f64>);
+
+#[derive(Debug, Clone, Default)]
+struct CornerInfo {
+    untraceable: bool,
+    traced: Vec<f64>,
+    range: Option<[f64; 2]>,
+}
+
+/// The straight line between two points at altitudes `h1`, `h2` (km) `range_km` apart, above a spherical Earth.
+struct Chord {
+    a: f64,
+    b: f64,
+    ab_cos: f64,
+}
+
+impl Chord {
+    fn new(h1: f64, h2: f64, range_km: f64) -> Self {
+        let (a, b) = (EARTH_RADIUS_KM + h1, EARTH_RADIUS_KM + h2);
+        // a·b·cos γ from the law of cosines
+        Chord { a, b, ab_cos: 0.5 * (a * a + b * b - range_km * range_km) }
+    }
+
+    /// Altitude (km) at fraction `t` of the way from the first point.
+    fn altitude_km(&self, t: f64) -> f64 {
+        let u = 1.0 - t;
+        let r2 = u * u * self.a * self.a + t * t * self.b * self.b + 2.0 * t * u * self.ab_cos;
+        r2.max(0.0).sqrt() - EARTH_RADIUS_KM
+    }
+}
+
+/// The lowest altitude (km) of the straight line between the two points.
+pub fn lowest_point_km(h1: f64, h2: f64, range_km: f64) -> f64 {
+    let c = Chord::new(h1, h2, range_km);
+    // |P(t)|² is a quadratic in t; its minimum over [0, 1]
+    let (a2, b2, ab) = (c.a * c.a, c.b * c.b, c.ab_cos);
+    let denom = a2 + b2 - 2.0 * ab;
+    let t = if denom > 0.0 { ((a2 - ab) / denom).clamp(0.0, 1.0) } else { 0.0 };
+    c.altitude_km(t).min(h1).min(h2)
+}
+
+impl PathSpectrum {
+    fn overlaps(&self, band: Band) -> impl Iterator<Item = (usize, f64, f64)> + '_ {
+        // (bin, fraction of the bin's wavenumber extent inside the band, µm inside)
+        (0..self.transmittance.len()).filter_map(move |b| {
+            let (lo, hi) = (self.edges_um[b], self.edges_um[b + 1]);
+            let (l, h) = (lo.max(band.lo_um()), hi.min(band.hi_um()));
+            if h <= l {
+                return None;
+            }
+            let frac = (1.0 / l - 1.0 / h) / (1.0 / lo - 1.0 / hi);
+            Some((b, frac, h - l))
+        })
+    }
+
+    /// Whether the table's bins cover the band.
+    pub fn covers(&self, band: Band) -> bool {
+        band.lo_um() >= self.edges_um[0] && band.hi_um() <= self.edges_um[self.edges_um.len() - 1]
+    }
+
+    /// Band-average transmittance, uniform in wavenumber (the mean of LOWTRAN's samples in the band).
+    pub fn band_average(&self, band: Band) -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (b, frac, _) in self.overlaps(band) {
+            let w = f64::from(self.samples[b]) * frac;
+            num += w * self.transmittance[b];
+            den += w;
+        }
+        if den > 0.0 { num / den } else { 1.0 }
+    }
+
+    /// Transmittance weighted by a blackbody's spectrum at `temp_k` over the band: `∫τ B_λ dλ / ∫B_λ dλ`, the τ
+    /// that multiplies a gray target's band radiance exactly (to the bins' resolution).
+    pub fn spectrum_weighted(&self, band: Band, temp_k: f64) -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (b, _, _) in self.overlaps(band) {
+            let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
+            let w = Band::try_new(l, h).map_or(0.0, |part| band_radiance(part, temp_k, 1.0));
+            num += w * self.transmittance[b];
+            den += w;
+        }
+        if den > 0.0 { num / den } else { self.band_average(band) }
+    }
+
+    /// Path radiance integrated over the band, W m⁻² sr⁻¹.
+    pub fn band_path_radiance_w_m2_sr(&self, band: Band) -> f64 {
+        self.overlaps(band).map(|(b, _, width)| self.path_radiance_w_m2_sr_um[b] * width).sum()
+    }
+
+    /// Path radiance per µm averaged uniformly in wavenumber over the band (the mean of LOWTRAN's samples),
+    /// W m⁻² sr⁻¹ µm⁻¹.
+    pub fn band_mean_path_radiance_w_m2_sr_um(&self, band: Band) -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (b, frac, _) in self.overlaps(band) {
+            let w = f64::from(self.samples[b]) * frac;
+            num += w * self.path_radiance_w_m2_sr_um[b];
+            den += w;
+        }
+        if den > 0.0 { num / den } else { 0.0 }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table() -> &'static AtmosphereTable {
+        AtmosphereTable::shipped().expect("the shipped table loads")
+    }
+
+    const MLS_RURAL_23: Weather =
+        Weather { model: ModelAtmosphere::MidlatitudeSummer, aerosol: Aerosol::Rural, visibility_km: 23.0 };
+
+    #[test]
+    fn shipped_table_covers_what_it_says() {
+        let t = table();
+        assert_eq!(t.max_altitude_km(), 20.0);
+        assert_eq!(t.max_range_km(), 100.0);
+        assert_eq!(t.nbins(), 108);
+        assert_eq!(t.visibilities_km(Aerosol::Rural), vec![2.0, 5.0, 10.0, 23.0, 50.0]);
+        assert!((t.profile(ModelAtmosphere::MidlatitudeSummer).temperature_at(0.0) - 294.2).abs() < 0.05);
+    }
+
+    #[test]
+    fn unity_at_zero_range() {
+        for h in [0.0, 0.3, 8.0, 20.0] {
+            let p = table().path(&MLS_RURAL_23, h, h, 0.0).unwrap();
+            assert!(p.transmittance.iter().all(|&t| t == 1.0), "{h}");
+            assert_eq!(p.band_path_radiance_w_m2_sr(Band::LWIR_8_12), 0.0);
+        }
+    }
+
+    #[test]
+    fn falls_with_range_on_a_horizontal_path() {
+        for h in [0.0, 1.0, 5.5, 12.0] {
+            let mut last = 1.0;
+            for r in [0.1, 0.5, 1.0, 2.0, 4.0, 7.0, 12.0, 20.0, 35.0, 50.0] {
+                let Ok(p) = table().path(&MLS_RURAL_23, h, h, r) else { continue };
+                for band in [Band::LWIR_8_12, Band::MWIR_3_5] {
+                    let tau = p.band_average(band);
+                    assert!(tau > 0.0 && tau <= 1.0);
+                    if band == Band::LWIR_8_12 {
+                        assert!(tau < last, "h {h} r {r}: {tau} after {last}");
+                        last = tau;
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn paths_outside_the_grid_are_errors() {
+        let t = table();
+        let w = MLS_RURAL_23;
+        assert!(matches!(
+            t.path(&w, 25.0, 1.0, 30.0),
+            Err(AtmosphereError::OutsideGrid { name: "observer_alt_km", .. })
+        ));
+        assert!(matches!(t.path(&w, 1.0, -0.1, 3.0), Err(AtmosphereError::OutsideGrid { name: "target_alt_km", .. })));
+        assert!(matches!(t.path(&w, 1.0, 5.0, 3.0), Err(AtmosphereError::OutsideGrid { name: "range_km", .. })));
+        assert!(matches!(t.path(&w, 1.0, 1.0, 150.0), Err(AtmosphereError::OutsideGrid { name: "range_km", .. })));
+        assert!(matches!(t.path(&w, 0.05, 0.05, 80.0), Err(AtmosphereError::BelowGround { .. })));
+        let foggy = Weather { visibility_km: 0.5, ..w };
+        assert!(matches!(
+            t.path(&foggy, 1.0, 1.0, 3.0),
+            Err(AtmosphereError::OutsideGrid { name: "visibility_km", .. })
+        ));
+        assert!(t.path(&w, f64::NAN, 1.0, 3.0).is_err());
+    }
+
+    #[test]
+    fn damaged_tables_are_refused() {
+        let mut bytes = SHIPPED.to_vec();
+        let n = bytes.len();
+        bytes[n - 100] ^= 0x40;
+        assert!(AtmosphereTable::parse(&bytes).is_err());
+        assert!(AtmosphereTable::parse(&SHIPPED[..n - 1]).is_err());
+        assert!(AtmosphereTable::parse(b"IRSIMATX").is_err());
+        let mut v = SHIPPED.to_vec();
+        v[8] = 9;
+        assert!(matches!(AtmosphereTable::parse(&v), Err(AtmosphereError::Table(m)) if m.contains("version")));
+    }
+
+    #[test]
+    fn aerosol_lowers_the_transmittance() {
+        let t = table();
+        let clear = Weather { aerosol: Aerosol::None, ..MLS_RURAL_23 };
+        let hazy = Weather { visibility_km: 5.0, ..MLS_RURAL_23 };
+        let a = t.path(&clear, 1.0, 1.0, 10.0).unwrap().band_average(Band::LWIR_8_12);
+        let b = t.path(&hazy, 1.0, 1.0, 10.0).unwrap().band_average(Band::LWIR_8_12);
+        // the issue's check: no aerosol against rural 5 km differ by about a factor of two
+        assert!(a / b > 1.6 && a / b < 2.6, "{a} {b}");
+    }
+
+    #[test]
+    fn spectrum_weighting_follows_the_target() {
+        let p = table().path(&MLS_RURAL_23, 2.0, 4.0, 20.0).unwrap();
+        let band = Band::try_new(3.0, 5.0).unwrap();
+        let (cool, hot) = (p.spectrum_weighted(band, 250.0), p.spectrum_weighted(band, 1000.0));
+        assert!(cool > 0.0 && cool < 1.0 && hot > 0.0 && hot < 1.0);
+        assert!((cool - hot).abs() > 1e-3, "{cool} {hot}");
+        let flat = p.band_average(band);
+        assert!((flat - cool).abs() < 0.2);
+    }
+
+    /// Direct LOWTRAN runs off the grid (the generator's `lowtran7_offgrid.json`): band τ within 0.01.
+    #[test]
+    fn matches_direct_lowtran_runs_off_the_grid() {
+        let text =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/atmosphere/lowtran7_offgrid.json"))
+                .expect("the off-grid runs are committed");
+        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let runs = doc["runs"].as_array().unwrap();
+        assert!(runs.len() > 100);
+        let (mut worst, mut worst_at, mut rad_worst) = (0.0f64, String::new(), 0.0f64);
+        for r in runs {
+            let model = serde_json::from_value(r["model"].clone()).unwrap();
+            let aerosol = serde_json::from_value(r["aerosol"].clone()).unwrap();
+            let w = Weather { model, aerosol, visibility_km: r["visibility_km"].as_f64().unwrap() };
+            let (h1, h2, s) = (
+                r["observer_alt_km"].as_f64().unwrap(),
+                r["target_alt_km"].as_f64().unwrap(),
+                r["range_km"].as_f64().unwrap(),
+            );
+            let p = table().path(&w, h1, h2, s).unwrap();
+            for (key, band) in [("3-5", Band::MWIR_3_5), ("8-12", Band::LWIR_8_12)] {
+                let want = r["bands_um"][key]["transmittance"].as_f64().unwrap();
+                let got = p.band_average(band);
+                if (got - want).abs() > worst {
+                    worst = (got - want).abs();
+                    worst_at = format!("{r}: {key} µm {got} against {want}");
+                }
+                let lr = r["bands_um"][key]["path_radiance"].as_f64().unwrap();
+                let gr = p.band_mean_path_radiance_w_m2_sr_um(band);
+                if lr > 0.05 {
+                    rad_worst = rad_worst.max((gr / lr - 1.0).abs());
+                }
+            }
+        }
+        eprintln!("largest |Δτ| {worst:.4} at {worst_at}; largest relative path-radiance error {rad_worst:.3}");
+        assert!(worst <= 0.01, "{worst_at}");
+    }
+}
