@@ -53,6 +53,8 @@ pub const ALTITUDE_SCALE_KM: f64 = 3.0;
 pub const PATH_RADIANCE_SEGMENTS: usize = 32;
 /// Steps of the aerosol optical depth's integral along the line of sight (trapezoids).
 pub const AEROSOL_STEPS: usize = 128;
+/// Temperatures (K, whole kelvins) of the path radiance's Planck table; the model atmospheres to 20 km lie inside.
+const PLANCK_TABLE_K: (f64, f64) = (150.0, 350.0);
 /// LOWTRAN's layers (km) where one aerosol regime hands over to the next.
 const REGIME_HANDOVER_KM: [(f64, f64); 2] = [(2.0, 3.0), (10.0, 11.0)];
 /// Lowest point of a line of sight above the ground, km, below which it is refused (1 m), except for the
@@ -235,6 +237,8 @@ pub struct AtmosphereTable {
     ext: Vec<f32>,
     settings: Vec<(Aerosol, f64)>,
     profiles: Vec<Profile>,
+    /// Mean blackbody radiance per bin at whole kelvins over [`PLANCK_TABLE_K`], `[kelvin][bin]`.
+    planck: Vec<f64>,
 }
 
 /// The spectral result for one path.
@@ -428,6 +432,13 @@ impl AtmosphereTable {
             return Err(bad("aerosol extinction must be finite and not negative"));
         }
         let alt_coord = head.altitudes_km.iter().map(|&h| altitude_coord(h)).collect();
+        let (t0, t1) = PLANCK_TABLE_K;
+        let planck = (0..=(t1 - t0) as usize)
+            .flat_map(|k| {
+                let edges = &head.bin_edges_um;
+                (0..nbins).map(move |b| exact_bin_mean_planck(edges[b], edges[b + 1], t0 + k as f64))
+            })
+            .collect();
         Ok(AtmosphereTable {
             alt_coord,
             alt_km: head.altitudes_km,
@@ -441,6 +452,7 @@ impl AtmosphereTable {
             ext,
             settings,
             profiles,
+            planck,
         })
     }
 
@@ -581,28 +593,39 @@ impl AtmosphereTable {
         n * (n + 1) / 2
     }
 
-    /// Aerosol extinction per km at altitude `h_km` for the weather, per bin, into `out`.
-    fn extinction_at(&self, m: usize, vis: &[(usize, f64)], h_km: f64, out: &mut [f64]) {
+    /// The weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`, weighted over the
+    /// bracketing visibilities), and its logarithm.
+    fn aerosol_profile(&self, m: usize, vis: &[(usize, f64)]) -> (Vec<f64>, Vec<f64>) {
         let nb = self.nbins();
         let nalt = self.alt_km.len();
+        let mut rows = vec![0.0; nalt * nb];
+        for &(s, w) in vis {
+            let base = (m * self.settings.len() + s) * nalt * nb;
+            for (o, &e) in rows.iter_mut().zip(&self.ext[base..base + nalt * nb]) {
+                *o += w * f64::from(e);
+            }
+        }
+        let logs = rows.iter().map(|&x| if x > 0.0 { x.ln() } else { f64::NEG_INFINITY }).collect();
+        (rows, logs)
+    }
+
+    /// Aerosol extinction per km at altitude `h_km`, per bin, into `out`, from [`Self::aerosol_profile`].
+    fn extinction_at(&self, profile: &(Vec<f64>, Vec<f64>), h_km: f64, out: &mut [f64]) {
+        let nb = self.nbins();
         let i = bracket(&self.alt_km, h_km);
         let f = ((h_km - self.alt_km[i]) / (self.alt_km[i + 1] - self.alt_km[i])).clamp(0.0, 1.0);
-        out.iter_mut().for_each(|v| *v = 0.0);
         // LOWTRAN varies each aerosol regime's extinction exponentially between its levels, and linearly where
         // one end is zero: in the layers where one regime hands over to the next (boundary layer to troposphere
         // at 2–3 km, troposphere to stratosphere at 10–11 km) the total is linear. Either way wrong costs up to
         // 0.02 in band τ (measured on paths through those layers).
         let (a0, a1) = (self.alt_km[i], self.alt_km[i + 1]);
         let linear = REGIME_HANDOVER_KM.iter().any(|&(lo, hi)| a0 >= lo && a1 <= hi);
-        for &(s, w) in vis {
-            let base = (m * self.settings.len() + s) * nalt;
-            let a = &self.ext[(base + i) * nb..(base + i + 1) * nb];
-            let b = &self.ext[(base + i + 1) * nb..(base + i + 2) * nb];
-            for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
-                let (x, y) = (f64::from(x), f64::from(y));
-                let v = if linear || x <= 0.0 || y <= 0.0 { x + f * (y - x) } else { x * (y / x).powf(f) };
-                *o += w * v;
-            }
+        let (rows, logs) = profile;
+        let (a, b) = (&rows[i * nb..(i + 1) * nb], &rows[(i + 1) * nb..(i + 2) * nb]);
+        let (la, lb) = (&logs[i * nb..(i + 1) * nb], &logs[(i + 1) * nb..(i + 2) * nb]);
+        for k in 0..nb {
+            let (x, y) = (a[k], b[k]);
+            out[k] = if linear || x <= 0.0 || y <= 0.0 { x + f * (y - x) } else { (la[k] + f * (lb[k] - la[k])).exp() };
         }
     }
 
@@ -703,12 +726,14 @@ impl AtmosphereTable {
         // cumulative aerosol optical depth along the line of sight, at AEROSOL_STEPS + 1 points
         let mut aer = vec![vec![0.0; nb]; AEROSOL_STEPS + 1];
         if !vis.is_empty() {
+            // the visibilities are weighted at LOWTRAN's levels, then interpolated in altitude, as LOWTRAN does
+            let profile = self.aerosol_profile(m, &vis);
             let mut prev = vec![0.0; nb];
             let mut cur = vec![0.0; nb];
-            self.extinction_at(m, &vis, chord.altitude_km(0.0), &mut prev);
+            self.extinction_at(&profile, chord.altitude_km(0.0), &mut prev);
             let ds = range_km / AEROSOL_STEPS as f64;
             for k in 1..=AEROSOL_STEPS {
-                self.extinction_at(m, &vis, chord.altitude_km(k as f64 / AEROSOL_STEPS as f64), &mut cur);
+                self.extinction_at(&profile, chord.altitude_km(k as f64 / AEROSOL_STEPS as f64), &mut cur);
                 let (done, rest) = aer.split_at_mut(k);
                 for ((o, &a), (&p, &c)) in rest[0].iter_mut().zip(&done[k - 1]).zip(prev.iter().zip(&cur)) {
                     *o = a + 0.5 * ds * (p + c);
@@ -775,10 +800,27 @@ impl AtmosphereTable {
         })
     }
 
+    /// The blackbody's mean spectral radiance over bin `b`, W m⁻² sr⁻¹ µm⁻¹: inside [`PLANCK_TABLE_K`] from a
+    /// table at whole kelvins, its logarithm interpolated linearly in 1/T (exact in Wien's limit; the test
+    /// `planck_table_is_close_to_exact` bounds the error), the exact integral outside.
     fn bin_mean_planck(&self, b: usize, temp_k: f64) -> f64 {
-        let (lo, hi) = (self.edges_um[b], self.edges_um[b + 1]);
-        Band::try_new(lo, hi).map_or(0.0, |band| band_radiance(band, temp_k, 1.0) / (hi - lo))
+        let (t0, t1) = PLANCK_TABLE_K;
+        if temp_k >= t0 && temp_k < t1 {
+            let i = (temp_k - t0) as usize;
+            let (ta, tc) = (t0 + i as f64, t0 + i as f64 + 1.0);
+            let nb = self.nbins();
+            let (a, c) = (self.planck[i * nb + b], self.planck[(i + 1) * nb + b]);
+            if a > 0.0 && c > 0.0 {
+                let u = (1.0 / temp_k - 1.0 / ta) / (1.0 / tc - 1.0 / ta);
+                return (a.ln() + u * (c.ln() - a.ln())).exp();
+            }
+        }
+        exact_bin_mean_planck(self.edges_um[b], self.edges_um[b + 1], temp_k)
     }
+}
+
+fn exact_bin_mean_planck(lo_um: f64, hi_um: f64, temp_k: f64) -> f64 {
+    Band::try_new(lo_um, hi_um).map_or(0.0, |band| band_radiance(band, temp_k, 1.0) / (hi_um - lo_um))
 }
 
 fn model_index(m: ModelAtmosphere) -> usize {
@@ -911,6 +953,22 @@ mod tests {
         assert_eq!(t.nbins(), 108);
         assert_eq!(t.visibilities_km(Aerosol::Rural), vec![2.0, 5.0, 10.0, 23.0, 50.0]);
         assert!((t.profile(ModelAtmosphere::MidlatitudeSummer).temperature_at(0.0) - 294.2).abs() < 0.05);
+    }
+
+    #[test]
+    fn planck_table_is_close_to_exact() {
+        let t = table();
+        let mut worst = 0.0f64;
+        for temp in [150.3, 183.7, 215.2, 250.5, 288.9, 299.5, 349.9] {
+            for b in 0..t.nbins() {
+                let exact = exact_bin_mean_planck(t.edges_um[b], t.edges_um[b + 1], temp);
+                if exact > 1e-12 {
+                    worst = worst.max((t.bin_mean_planck(b, temp) / exact - 1.0).abs());
+                }
+            }
+        }
+        eprintln!("Planck table: largest relative error {worst:.2e}");
+        assert!(worst < 1e-5, "{worst}");
     }
 
     #[test]
