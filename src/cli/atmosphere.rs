@@ -7,6 +7,8 @@ use std::time::Instant;
 use crate::physics::lowtran::{Aerosol, AtmosphereTable, ModelAtmosphere, Weather};
 use crate::physics::planck::Band;
 
+use super::report::median;
+
 /// The generator's direct runs off the table's grid.
 const OFFGRID: &str = include_str!("../../assets/atmosphere/lowtran7_offgrid.json");
 
@@ -47,11 +49,6 @@ fn rows(table: &AtmosphereTable) -> Result<(Vec<Row>, Vec<f64>), String> {
         }
     }
     Ok((rows, micros))
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
 }
 
 /// Appends the section to the report.

@@ -24,6 +24,8 @@ use crate::imaging::fusion::{Guidance, Patch, PoissonFusion, Solver};
 use crate::imaging::target_blob::PixelRect;
 use crate::physics::random::{NormalSampler, SplitMix64};
 
+use super::report::median;
+
 /// The script that runs OpenCV, fed to `python3` on its standard input.
 const SCRIPT: &str = include_str!("../../tools/opencv_seamless_clone.py");
 
@@ -140,11 +142,6 @@ impl Case {
     fn region(&self, at: impl Fn(usize, usize) -> f64) -> Vec<f64> {
         (0..self.side * self.side).map(|i| at(MARGIN_PX + i % self.side, MARGIN_PX + i / self.side)).collect()
     }
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// rms and largest difference.

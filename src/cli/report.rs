@@ -195,8 +195,7 @@ fn centroid(frame: &[f32], width: usize, bbox: [f64; 4]) -> Option<[f64; 2]> {
     let at = |x: usize, y: usize| f64::from(frame[y * width + x]);
     let mut ring: Vec<f64> = (x0..=x1).flat_map(|x| [at(x, y0), at(x, y1)]).collect();
     ring.extend((y0 + 1..y1).flat_map(|y| [at(x0, y), at(x1, y)]));
-    ring.sort_by(f64::total_cmp);
-    let floor = ring[ring.len() / 2];
+    let floor = median(&mut ring);
     let (mut sum, mut sx, mut sy) = (0.0, 0.0, 0.0);
     for y in y0..=y1 {
         for x in x0..=x1 {
@@ -264,6 +263,12 @@ const FLOOR: f64 = 1e-4;
 
 /// One plot's points: a series name and its labelled points.
 type Series = (String, Vec<(f64, f64, String)>);
+
+/// The median (the upper one of an even count) of `v`, sorting it; NaN for none.
+pub(super) fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
+}
 
 /// A log–log plot of labelled points (`lines`: joined in order) written as a PNG.
 fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series], lines: bool) -> Result<(), CliError> {

@@ -501,6 +501,7 @@ impl AtmosphereTable {
         let fa = ((c(lo) - self.alt_coord[ia]) / (self.alt_coord[ia + 1] - self.alt_coord[ia])).clamp(0.0, 1.0);
         let fb = ((c(hi) - self.alt_coord[ib]) / (self.alt_coord[ib + 1] - self.alt_coord[ib])).clamp(0.0, 1.0);
         out.iter_mut().for_each(|v| *v = 0.0);
+        let mut buf = Vec::new();
         for (da, wa) in [(0, 1.0 - fa), (1, fa)] {
             for (db, wb) in [(0, 1.0 - fb), (1, fb)] {
                 let w = wa * wb;
@@ -520,7 +521,7 @@ impl AtmosphereTable {
                 // scaled by how the horizontal paths at its two altitudes grow from range_km to dhc (strong lines
                 // saturate within metres, so optical depth is far from proportional to length there)
                 let nb = self.nbins();
-                let mut buf = vec![0.0; 5 * nb];
+                buf.resize(5 * nb, 0.0);
                 let (v, rest) = buf.split_at_mut(nb);
                 let (ar, rest) = rest.split_at_mut(nb);
                 let (ad, rest) = rest.split_at_mut(nb);
@@ -567,7 +568,7 @@ impl AtmosphereTable {
         // linear in √range: short paths' optical depth grows like √range (saturated lines), long ones' nearly
         // linearly, and √ follows both between the nodes better than linear does (measured)
         let f = if r1 > r0 { ((r.sqrt() - r0.sqrt()) / (r1.sqrt() - r0.sqrt())).clamp(0.0, 1.0) } else { 0.0 };
-        let base = (model_offset(m, self.npairs()) + self.pair_index(p, q)) * self.nodes_per_pair();
+        let base = (m * self.npairs() + self.pair_index(p, q)) * self.nodes_per_pair();
         for (node, w) in [(n0, 1.0 - f), (n1, f)] {
             if w == 0.0 {
                 continue;
@@ -705,22 +706,23 @@ impl AtmosphereTable {
         let (lo, hi) = if h1 <= h2 { (h1, h2) } else { (h2, h1) };
         let ia = bracket(&self.alt_km, lo);
         let ib = bracket(&self.alt_km, hi);
+        let finish = |transmittance: Vec<f64>, path_radiance_w_m2_sr_um: Vec<f64>, info: CornerInfo| PathSpectrum {
+            edges_um: self.edges_um.clone(),
+            samples: self.samples.clone(),
+            transmittance,
+            path_radiance_w_m2_sr_um,
+            cell: GridCell {
+                model: weather.model.name(),
+                lower_alt_km: [self.alt_km[ia], self.alt_km[ia + 1]],
+                upper_alt_km: [self.alt_km[ib], self.alt_km[ib + 1]],
+                range_km: info.range.unwrap_or([0.0, 0.0]),
+                visibility_km: vis_bracket,
+                untraceable_corner: info.untraceable,
+                lowtran_first_traced_km: info.traced,
+            },
+        };
         if range_km == 0.0 {
-            return Ok(PathSpectrum {
-                edges_um: self.edges_um.clone(),
-                samples: self.samples.clone(),
-                transmittance: vec![1.0; nb],
-                path_radiance_w_m2_sr_um: vec![0.0; nb],
-                cell: GridCell {
-                    model: weather.model.name(),
-                    lower_alt_km: [self.alt_km[ia], self.alt_km[ia + 1]],
-                    upper_alt_km: [self.alt_km[ib], self.alt_km[ib + 1]],
-                    range_km: [0.0, 0.0],
-                    visibility_km: vis_bracket,
-                    untraceable_corner: false,
-                    lowtran_first_traced_km: Vec::new(),
-                },
-            });
+            return Ok(finish(vec![1.0; nb], vec![0.0; nb], CornerInfo::default()));
         }
         let chord = Chord::new(h1, h2, range_km);
         // cumulative aerosol optical depth along the line of sight, at AEROSOL_STEPS + 1 points
@@ -782,22 +784,7 @@ impl AtmosphereTable {
             }
             std::mem::swap(&mut tau_prev, &mut tau_cur);
         }
-        let cell = GridCell {
-            model: weather.model.name(),
-            lower_alt_km: [self.alt_km[ia], self.alt_km[ia + 1]],
-            upper_alt_km: [self.alt_km[ib], self.alt_km[ib + 1]],
-            range_km: cell_info.range.unwrap_or([0.0, 0.0]),
-            visibility_km: vis_bracket,
-            untraceable_corner: cell_info.untraceable,
-            lowtran_first_traced_km: cell_info.traced,
-        };
-        Ok(PathSpectrum {
-            edges_um: self.edges_um.clone(),
-            samples: self.samples.clone(),
-            transmittance,
-            path_radiance_w_m2_sr_um: radiance,
-            cell,
-        })
+        Ok(finish(transmittance, radiance, cell_info))
     }
 
     /// The blackbody's mean spectral radiance over bin `b`, W m⁻² sr⁻¹ µm⁻¹: inside [`PLANCK_TABLE_K`] from a
@@ -823,12 +810,9 @@ fn exact_bin_mean_planck(lo_um: f64, hi_um: f64, temp_k: f64) -> f64 {
     Band::try_new(lo_um, hi_um).map_or(0.0, |band| band_radiance(band, temp_k, 1.0) / (hi_um - lo_um))
 }
 
+/// The model's place in the table (the declaration order, as in [`ModelAtmosphere::ALL`]).
 fn model_index(m: ModelAtmosphere) -> usize {
-    ModelAtmosphere::ALL.iter().position(|&x| x == m).unwrap_or(0)
-}
-
-fn model_offset(m: usize, npairs: usize) -> usize {
-    m * npairs
+    m as usize
 }
 
 /// Aerosol settings with their weights, and the visibilities bracketing the weather's.
@@ -892,15 +876,21 @@ impl PathSpectrum {
         band.lo_um() >= self.edges_um[0] && band.hi_um() <= self.edges_um[self.edges_um.len() - 1]
     }
 
-    /// Band-average transmittance, uniform in wavenumber (the mean of LOWTRAN's samples in the band).
-    pub fn band_average(&self, band: Band) -> f64 {
+    /// Mean of per-bin `values` over the band, uniform in wavenumber (weighted by LOWTRAN's samples); `empty`
+    /// where the band holds no sample.
+    fn sample_mean(&self, values: &[f64], band: Band, empty: f64) -> f64 {
         let (mut num, mut den) = (0.0, 0.0);
         for (b, frac, _) in self.overlaps(band) {
             let w = f64::from(self.samples[b]) * frac;
-            num += w * self.transmittance[b];
+            num += w * values[b];
             den += w;
         }
-        if den > 0.0 { num / den } else { 1.0 }
+        if den > 0.0 { num / den } else { empty }
+    }
+
+    /// Band-average transmittance, uniform in wavenumber (the mean of LOWTRAN's samples in the band).
+    pub fn band_average(&self, band: Band) -> f64 {
+        self.sample_mean(&self.transmittance, band, 1.0)
     }
 
     /// Transmittance weighted by a blackbody's spectrum at `temp_k` over the band: `∫τ B_λ dλ / ∫B_λ dλ`, the τ
@@ -924,13 +914,7 @@ impl PathSpectrum {
     /// Path radiance per µm averaged uniformly in wavenumber over the band (the mean of LOWTRAN's samples),
     /// W m⁻² sr⁻¹ µm⁻¹.
     pub fn band_mean_path_radiance_w_m2_sr_um(&self, band: Band) -> f64 {
-        let (mut num, mut den) = (0.0, 0.0);
-        for (b, frac, _) in self.overlaps(band) {
-            let w = f64::from(self.samples[b]) * frac;
-            num += w * self.path_radiance_w_m2_sr_um[b];
-            den += w;
-        }
-        if den > 0.0 { num / den } else { 0.0 }
+        self.sample_mean(&self.path_radiance_w_m2_sr_um, band, 0.0)
     }
 }
 

@@ -467,7 +467,6 @@ def _offgrid_work(args):
     exe, model, aerosol, vis, h1, h2, r = args
     lt = _lowtran(exe)
     ihaze = 0 if aerosol == "none" else AEROSOLS[aerosol][0]
-    first = None
     res = lt.path(model, ihaze, vis, h1, h2, r)
     if res is None:
         raise RuntimeError(f"LOWTRAN failed off the grid: {model} {aerosol} {vis} {h1} {h2} {r}")
