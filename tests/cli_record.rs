@@ -271,7 +271,18 @@ fn sigterm_leaves_complete_frames_matching_labels_and_a_manifest() {
 fn interrupt_recording(signal: libc::c_int, name: &str) {
     use std::time::{Duration, Instant};
     let out = temp_dir(name);
-    let scenario = root().join("scenarios/paper_clear_sky.toml");
+    // paper_clear_sky flown for as long as it takes: past the LOWTRAN table's 100 km, so with a Beer–Lambert
+    // atmosphere (a LOWTRAN scene that leaves the table is refused at load)
+    let text = std::fs::read_to_string(root().join("scenarios/paper_clear_sky.toml")).unwrap();
+    let start = text.find("model = \"us_standard_1976\"").expect("the LOWTRAN weather");
+    let end = start + text[start..].find("visibility_km = 23").unwrap() + "visibility_km = 23".len();
+    let text = format!(
+        "{}transmittance = {{ model = \"beer_lambert\", extinction_per_km = 0.15 }}{}",
+        &text[..start],
+        &text[end..]
+    );
+    let scenario = std::env::temp_dir().join(format!("irsim-test-{name}-{}.toml", std::process::id()));
+    std::fs::write(&scenario, text).unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_irsim"))
         .args(["record", scenario.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "100000"])
         .arg("--quiet")

@@ -162,7 +162,8 @@ fn noise_free_frames_equal_the_core_pipeline_composed_by_hand() {
         measure: model.measure(),
         observer_altitude_m: eye.z,
         t0_k: spec.atmosphere.t0_k,
-        atmosphere: &spec.atmosphere.transmittance,
+        atmosphere: &spec.atmosphere.override_transmittance(),
+        zenith_emissivity: None,
     })
     .unwrap();
     let intr = s.sensor.intrinsics;

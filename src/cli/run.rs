@@ -197,6 +197,7 @@ pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
         s.sensor.intrinsics.height,
         s.spec.run.frame_rate_hz
     );
+    text.push_str(&format!("atmosphere: {}\n", describe_atmosphere(&s.spec.atmosphere)));
     let resolved = resolved_settings(&mut app, &s);
     let given = s.spec.quality.overrides();
     text.push_str("[quality] as resolved (* = given in the file):");
@@ -209,6 +210,29 @@ pub fn validate(a: &ValidateArgs) -> Result<(), CliError> {
         text.push_str(&format!("\n  sky blur used: {choice}"));
     }
     super::say(&text)
+}
+
+/// The scenario's atmosphere in a line: the LOWTRAN weather or the override.
+pub fn describe_atmosphere(a: &crate::scenario::AtmosphereSpec) -> String {
+    use crate::physics::lowtran::Aerosol;
+    use crate::physics::transmittance::Transmittance;
+    match (a.weather(), a.override_transmittance()) {
+        (Some(w), _) if w.aerosol == Aerosol::None => {
+            format!("LOWTRAN7, {} model atmosphere, no aerosol", w.model.name())
+        }
+        (Some(w), _) => format!(
+            "LOWTRAN7, {} model atmosphere, {} aerosol at {} km visibility",
+            w.model.name(),
+            w.aerosol.name(),
+            crate::physics::Num(w.visibility_km)
+        ),
+        (None, Transmittance::Fixed { tau }) => format!("fixed transmittance {}", crate::physics::Num(tau)),
+        (None, Transmittance::BeerLambert { extinction_per_km, scale_height_km }) => format!(
+            "Beer–Lambert, {} per km at sea level, scale height {} km",
+            crate::physics::Num(extinction_per_km),
+            crate::physics::Num(scale_height_km)
+        ),
+    }
 }
 
 /// `irsim record`.
@@ -471,6 +495,7 @@ fn write_sky(a: &SkyArgs) -> Result<(), CliError> {
         observer_altitude_m: a.altitude_m,
         t0_k: a.t0_k,
         atmosphere: &atmosphere,
+        zenith_emissivity: None,
     })
     .map_err(|e| CliError::Invalid(format!("{}: {}", e.name, e.range)))?;
     let lut = RadianceLut::new(band, Measure::Energy, crate::scenario::Quality::default().radiance_table_step_k);

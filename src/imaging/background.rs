@@ -373,6 +373,7 @@ mod tests {
             observer_altitude_m: 8000.0,
             t0_k: 288.15,
             atmosphere: &atmosphere,
+            zenith_emissivity: None,
         })
         .unwrap()
     }

@@ -11,6 +11,8 @@
 //!   `α·[τ·B(T∞(P_z) + ΔT_base + δT) + (1 − τ)·B(T∞(mid))] + (1 − α)·L_dome(d)`, with `τ` the scenario's
 //!   transmittance over the path and `T∞(mid)` the air at the path's middle height: a cloud is a blackbody at
 //!   its own height's air temperature (plus an offset), seen through the air in front of it, over the clear sky.
+//! - A user image can be taken as the radiance **at its plane** (`[atmosphere] sky_path`): each texel is then seen
+//!   through the path from the observer's start, `τ·L + L_path`, as a layer's clouds are.
 //! - **Misses** (rays that meet no image) take the dome's radiance along their own direction, so the horizon
 //!   and the ground below it appear where the view reaches them, never a black band.
 
@@ -246,13 +248,54 @@ pub fn bake_layer(b: &LayerBake<'_>) -> Result<SkyImage, SkyError> {
             let alpha = f64::from(b.layer.opacity[i]) * base;
             *texel = if alpha > 0.0 {
                 let t_cloud = (b.air_temp_k)(p.z) + b.cloud_offset_k + f64::from(b.layer.temp_offset_k[i]);
-                let tau = b.atmosphere.along_segment(b.eye_m, p).clamp(0.0, 1.0);
-                let t_path = (b.air_temp_k)(0.5 * (p.z + b.eye_m.z));
-                let cloud = tau * b.lut.radiance(t_cloud) + (1.0 - tau) * b.lut.radiance(t_path);
+                let cloud = through_path(b.atmosphere, b.air_temp_k, b.lut, b.eye_m, p, b.lut.radiance(t_cloud));
                 (alpha * cloud + (1.0 - alpha) * dome) as f32
             } else {
                 dome as f32
             };
+        }
+    });
+    SkyImage::from_f32(w, h, out)
+}
+
+/// Radiance `at` a world point `p` as seen from `eye_m`: `τ·at` plus the path's own radiance (the atmosphere's,
+/// or `(1 − τ)·B(T∞)` at the path's middle height).
+fn through_path(
+    atmosphere: &(dyn PathTransmittance + Sync),
+    air_temp_k: &(dyn Fn(f64) -> f64 + Sync),
+    lut: &RadianceLut,
+    eye_m: glam::DVec3,
+    p: glam::DVec3,
+    at: f64,
+) -> f64 {
+    let (tau, path) = atmosphere.transmittance_and_path(eye_m, p);
+    let tau = tau.clamp(0.0, 1.0);
+    let path = match path {
+        Some(l) => l,
+        None => (1.0 - tau) * lut.radiance(air_temp_k(0.5 * (p.z + eye_m.z))),
+    };
+    tau * at + path
+}
+
+/// A calibrated sky image taken as the radiance at its plane, seen through the air from `eye_m`: each texel
+/// becomes `τ·L + L_path` over the path from the eye to the texel's world point.
+pub fn through_air(
+    image: &SkyImage,
+    plane: &SkyPlane,
+    eye_m: glam::DVec3,
+    atmosphere: &(dyn PathTransmittance + Sync),
+    air_temp_k: &(dyn Fn(f64) -> f64 + Sync),
+    lut: &RadianceLut,
+) -> Result<SkyImage, SkyError> {
+    use rayon::prelude::*;
+    let (w, h) = (image.width(), image.height());
+    let source = image.pixels();
+    let mut out = vec![0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, texel) in row.iter_mut().enumerate() {
+            let p = plane.world_point(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
+            let at = f64::from(source[y * w + x]);
+            *texel = through_path(atmosphere, air_temp_k, lut, eye_m, p, at) as f32;
         }
     });
     SkyImage::from_f32(w, h, out)

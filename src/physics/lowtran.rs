@@ -19,9 +19,15 @@
 //! own range axis (which starts at the vertical path, the shortest path between the two altitudes), and bilinearly
 //! in the two altitudes in the coordinate `−exp(−h / 3 km)`, which follows water vapour's fall with height. On
 //! 44 paths up to 50 km (midlatitude summer, no aerosol) that gives at most 0.0020 in band τ (8–12 and 3–5 µm);
-//! linear in altitude gives 0.0047. A corner pair whose vertical path is longer than the path asked holds its
-//! vertical path scaled as the horizontal paths at its altitudes grow, and the range axis is linear in √range
-//! (short paths saturate strong lines within metres). The aerosol extinction is interpolated in altitude as
+//! linear in altitude gives 0.0047. The range axis is linear in √range (short paths saturate strong lines within
+//! metres). A path shorter than the vertical path of one of its corner pairs that rises at most 3 km (short
+//! against the altitude cells it lies in) is the mean, along it, of the horizontal paths of its own length at
+//! its altitudes; a steeper one holds such a corner's vertical path scaled as the horizontal paths at its
+//! altitudes grow; a
+//! horizontal path shorter than the first range (0.5 km) follows each bin's own curve of growth between the first
+//! two ranges as a power law. On 19 such short paths (0.05–3.2 km long, rising up to 3 km; midlatitude summer,
+//! rural 23 km) that gives at most 0.0058 in band τ against direct LOWTRAN runs, where the √range axis and the
+//! scaled vertical paths erred by up to 0.067 (the test `short_paths_match_direct_runs`). The aerosol extinction is interpolated in altitude as
 //! LOWTRAN does between its levels (exponentially, linearly where one regime hands over to the next), and
 //! linearly in 1/visibility between the tabulated visibilities.
 //!
@@ -39,7 +45,7 @@ use std::sync::OnceLock;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use super::planck::{Band, band_radiance};
+use super::planck::{Band, Measure, band_radiance, band_radiance_in};
 
 /// The shipped table.
 const SHIPPED: &[u8] = include_bytes!("../../assets/atmosphere/lowtran7.irat");
@@ -55,6 +61,14 @@ pub const PATH_RADIANCE_SEGMENTS: usize = 32;
 pub const AEROSOL_STEPS: usize = 128;
 /// Temperatures (K, whole kelvins) of the path radiance's Planck table; the model atmospheres to 20 km lie inside.
 const PLANCK_TABLE_K: (f64, f64) = (150.0, 350.0);
+/// A path shorter than one of its corner pairs' vertical paths that rises at most this much, km, is the mean of
+/// horizontal paths along it; a steeper one scales its corners' vertical paths.
+const SHORT_PATH_MAX_RISE_KM: f64 = 3.0;
+/// With `[quality] atmosphere_tolerance` = t, a line of sight is interpolated again once an end's altitude has
+/// moved by t times this, km.
+pub const ALTITUDE_TOLERANCE_SCALE_KM: f64 = 1.0;
+/// Temperature of the blackbody whose photon-to-energy ratio converts a bin's path radiance to photons, K.
+pub const PHOTON_REFERENCE_K: f64 = 250.0;
 /// LOWTRAN's layers (km) where one aerosol regime hands over to the next.
 const REGIME_HANDOVER_KM: [(f64, f64); 2] = [(2.0, 3.0), (10.0, 11.0)];
 /// Lowest point of a line of sight above the ground, km, below which it is refused (1 m), except for the
@@ -470,6 +484,16 @@ impl AtmosphereTable {
         i * n - i * i.saturating_sub(1) / 2 + (j - i)
     }
 
+    /// The spectral bins' edges, µm, increasing.
+    pub fn edges_um(&self) -> &[f64] {
+        &self.edges_um
+    }
+
+    /// The grid's altitudes, km, increasing.
+    pub fn altitudes_km(&self) -> &[f64] {
+        &self.alt_km
+    }
+
     /// Highest altitude of the grid, km.
     pub fn max_altitude_km(&self) -> f64 {
         self.alt_km[self.alt_km.len() - 1]
@@ -501,6 +525,18 @@ impl AtmosphereTable {
         let fa = ((c(lo) - self.alt_coord[ia]) / (self.alt_coord[ia + 1] - self.alt_coord[ia])).clamp(0.0, 1.0);
         let fb = ((c(hi) - self.alt_coord[ib]) / (self.alt_coord[ib + 1] - self.alt_coord[ib])).clamp(0.0, 1.0);
         out.iter_mut().for_each(|v| *v = 0.0);
+        // a short path nearly level: the mean, along it, of horizontal paths of its length
+        let corners = [
+            (ia, ib, (1.0 - fa) * (1.0 - fb)),
+            (ia, ib + 1, (1.0 - fa) * fb),
+            (ia + 1, ib, fa * (1.0 - fb)),
+            (ia + 1, ib + 1, fa * fb),
+        ];
+        let short = corners.iter().any(|&(x, y, w)| w > 0.0 && (self.alt_km[x] - self.alt_km[y]).abs() > range_km);
+        if short && hi - lo <= SHORT_PATH_MAX_RISE_KM {
+            self.horizontal_mean_into(m, lo, hi, range_km, out, info);
+            return;
+        }
         let mut buf = Vec::new();
         for (da, wa) in [(0, 1.0 - fa), (1, fa)] {
             for (db, wb) in [(0, 1.0 - fb), (1, fb)] {
@@ -539,6 +575,28 @@ impl AtmosphereTable {
         }
     }
 
+    /// Molecular optical depth of a path short against the grid's altitude cells: the mean along it of the
+    /// horizontal paths of the same length at its altitudes (the same curve of growth: strong lines saturate
+    /// within metres, so a short path's depth is far from proportional to its length), each interpolated
+    /// between the horizontal paths at the bracketing altitudes, in the altitude coordinate.
+    fn horizontal_mean_into(&self, m: usize, lo: f64, hi: f64, range_km: f64, out: &mut [f64], info: &mut CornerInfo) {
+        const SAMPLES: usize = 16;
+        let mut weights = vec![0.0; self.alt_km.len()];
+        for k in 0..SAMPLES {
+            let h = lo + (hi - lo) * (k as f64 + 0.5) / SAMPLES as f64;
+            let i = bracket(&self.alt_km, h);
+            let f =
+                ((altitude_coord(h) - self.alt_coord[i]) / (self.alt_coord[i + 1] - self.alt_coord[i])).clamp(0.0, 1.0);
+            weights[i] += (1.0 - f) / SAMPLES as f64;
+            weights[i + 1] += f / SAMPLES as f64;
+        }
+        for (node, &w) in weights.iter().enumerate() {
+            if w > 0.0 {
+                self.pair_into(m, node, node, range_km, w, out, info);
+            }
+        }
+    }
+
     /// Adds `weight` × the optical depth of altitude pair `(p, q)` at `range_km` along that pair's range axis.
     #[allow(clippy::too_many_arguments)]
     fn pair_into(
@@ -569,6 +627,23 @@ impl AtmosphereTable {
         // linearly, and √ follows both between the nodes better than linear does (measured)
         let f = if r1 > r0 { ((r.sqrt() - r0.sqrt()) / (r1.sqrt() - r0.sqrt())).clamp(0.0, 1.0) } else { 0.0 };
         let base = (m * self.npairs() + self.pair_index(p, q)) * self.nodes_per_pair();
+        if dh == 0.0 && n0 == 0 && n > 1 && r < r1 {
+            // a horizontal path shorter than the first range: each bin's own curve of growth between the first two
+            // ranges, carried down as a power law (its exponent between ½, saturated lines, and 1, weak ones)
+            let (a, b) = (base + 1, base + 2);
+            info.untraceable |= self.flags[a] != 0 || self.flags[b] != 0;
+            if info.range.is_none() {
+                info.range = Some([0.0, r1]);
+            }
+            let (x1, x2) = (self.ranges_km[0], self.ranges_km[1]);
+            let (row1, row2) = (&self.od[a * nb..(a + 1) * nb], &self.od[b * nb..(b + 1) * nb]);
+            for ((o, &v1), &v2) in out.iter_mut().zip(row1).zip(row2) {
+                let (d1, d2) = (f64::from(v1) * self.od_scale, f64::from(v2) * self.od_scale);
+                let gamma = if d1 > 0.0 && d2 > 0.0 { ((d2 / d1).ln() / (x2 / x1).ln()).clamp(0.5, 1.0) } else { 1.0 };
+                *o += weight * d1 * (r / x1).powf(gamma);
+            }
+            return;
+        }
         for (node, w) in [(n0, 1.0 - f), (n1, f)] {
             if w == 0.0 {
                 continue;
@@ -657,7 +732,10 @@ impl AtmosphereTable {
     }
 
     /// Checks a path's geometry against the grid.
-    fn check_path(&self, observer_alt_km: f64, target_alt_km: f64, range_km: f64) -> Result<(), AtmosphereError> {
+    ///
+    /// # Errors
+    /// [`AtmosphereError::OutsideGrid`] or [`AtmosphereError::BelowGround`] for a path the table does not cover.
+    pub fn check_path(&self, observer_alt_km: f64, target_alt_km: f64, range_km: f64) -> Result<(), AtmosphereError> {
         let top = self.max_altitude_km();
         for (name, v) in [("observer_alt_km", observer_alt_km), ("target_alt_km", target_alt_km)] {
             if !(v >= 0.0 && v <= top) {
@@ -896,19 +974,79 @@ impl PathSpectrum {
     /// Transmittance weighted by a blackbody's spectrum at `temp_k` over the band: `∫τ B_λ dλ / ∫B_λ dλ`, the τ
     /// that multiplies a gray target's band radiance exactly (to the bins' resolution).
     pub fn spectrum_weighted(&self, band: Band, temp_k: f64) -> f64 {
-        let (mut num, mut den) = (0.0, 0.0);
+        self.spectrum_weighted_in(Measure::Energy, band, temp_k)
+    }
+
+    /// [`PathSpectrum::spectrum_weighted`] with the blackbody's spectrum in `measure` (photon radiance for a
+    /// photon detector: the τ that multiplies a gray target's photon band radiance).
+    pub fn spectrum_weighted_in(&self, measure: Measure, band: Band, temp_k: f64) -> f64 {
+        let weights = self.blackbody_weights(measure, band, temp_k);
+        if weights.iter().any(|&w| w > 0.0) { self.weighted(&weights) } else { self.band_average(band) }
+    }
+
+    /// A blackbody's band radiance at `temp_k` in `measure` over each bin's part of the band (0 outside it): the
+    /// weights of [`PathSpectrum::spectrum_weighted_in`], for [`PathSpectrum::weighted`].
+    pub fn blackbody_weights(&self, measure: Measure, band: Band, temp_k: f64) -> Vec<f64> {
+        let mut w = vec![0.0; self.transmittance.len()];
         for (b, _, _) in self.overlaps(band) {
             let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
-            let w = Band::try_new(l, h).map_or(0.0, |part| band_radiance(part, temp_k, 1.0));
-            num += w * self.transmittance[b];
+            w[b] = Band::try_new(l, h).map_or(0.0, |part| band_radiance_in(measure, part, temp_k, 1.0));
+        }
+        w
+    }
+
+    /// The transmittance weighted by per-bin `weights` (from [`PathSpectrum::blackbody_weights`]); 1 without any
+    /// weight.
+    pub fn weighted(&self, weights: &[f64]) -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (&w, &t) in weights.iter().zip(&self.transmittance) {
+            num += w * t;
             den += w;
         }
-        if den > 0.0 { num / den } else { self.band_average(band) }
+        if den > 0.0 { num / den } else { 1.0 }
     }
 
     /// Path radiance integrated over the band, W m⁻² sr⁻¹.
     pub fn band_path_radiance_w_m2_sr(&self, band: Band) -> f64 {
         self.overlaps(band).map(|(b, _, width)| self.path_radiance_w_m2_sr_um[b] * width).sum()
+    }
+
+    /// Path radiance integrated over the band in `measure`. For photons each bin's energy radiance is converted
+    /// with the photon-to-energy ratio of a [`PHOTON_REFERENCE_K`] blackbody over that part of the bin (exact for a
+    /// path at that temperature; between 200 and 300 K the ratio changes by under 0.1 % in the bins beyond 3 µm,
+    /// and by up to 0.6 % in the 0.25 µm bins below, where the air's own radiance is tiny; tested).
+    pub fn band_path_radiance_in(&self, measure: Measure, band: Band) -> f64 {
+        match measure {
+            Measure::Energy => self.band_path_radiance_w_m2_sr(band),
+            Measure::Photon => self
+                .overlaps(band)
+                .map(|(b, _, width)| {
+                    let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
+                    let ratio = Band::try_new(l, h).map_or(0.0, |part| {
+                        let e = band_radiance(part, PHOTON_REFERENCE_K, 1.0);
+                        if e > 0.0 { band_radiance_in(Measure::Photon, part, PHOTON_REFERENCE_K, 1.0) / e } else { 0.0 }
+                    });
+                    self.path_radiance_w_m2_sr_um[b] * width * ratio
+                })
+                .sum(),
+        }
+    }
+
+    /// The spectrum of the same path stretched to `new_length / old_length` of its length, bin by bin as
+    /// Beer–Lambert scales it (`τ' = τ^k`), its path radiance scaled with the emissivity `(1 − τ')/(1 − τ)`: what
+    /// [`crate::scenario::Quality::atmosphere_tolerance`] uses between two interpolations of a moving path.
+    pub fn stretched(&self, k: f64, out: &mut PathSpectrum) {
+        out.edges_um.clone_from(&self.edges_um);
+        out.samples.clone_from(&self.samples);
+        out.cell.clone_from(&self.cell);
+        out.transmittance.clear();
+        out.path_radiance_w_m2_sr_um.clear();
+        for (&t, &l) in self.transmittance.iter().zip(&self.path_radiance_w_m2_sr_um) {
+            let t2 = if t > 0.0 { t.powf(k) } else { 0.0 };
+            let emissivity = 1.0 - t;
+            out.transmittance.push(t2);
+            out.path_radiance_w_m2_sr_um.push(if emissivity > 1e-12 { l * (1.0 - t2) / emissivity } else { l });
+        }
     }
 
     /// Path radiance per µm averaged uniformly in wavenumber over the band (the mean of LOWTRAN's samples),
@@ -953,6 +1091,75 @@ mod tests {
         }
         eprintln!("Planck table: largest relative error {worst:.2e}");
         assert!(worst < 1e-5, "{worst}");
+    }
+
+    #[test]
+    fn photon_ratio_of_a_bin_hardly_depends_on_temperature() {
+        // the claim of band_path_radiance_in: converting a bin with a 250 K ratio is within 0.1 % at 200–300 K
+        // beyond 3 µm (0.6 % in the wide bins below, where the air's own radiance is tiny)
+        let t = table();
+        let (mut worst, mut worst_short) = (0.0f64, 0.0f64);
+        for b in 0..t.nbins() {
+            let part = Band::try_new(t.edges_um[b], t.edges_um[b + 1]).unwrap();
+            let ratio = |k: f64| band_radiance_in(Measure::Photon, part, k, 1.0) / band_radiance(part, k, 1.0);
+            for k in [200.0, 300.0] {
+                let e = (ratio(k) / ratio(PHOTON_REFERENCE_K) - 1.0).abs();
+                if t.edges_um[b] >= 3.0 { worst = worst.max(e) } else { worst_short = worst_short.max(e) }
+            }
+        }
+        eprintln!(
+            "photon/energy ratio of a bin, 200–300 K against 250 K: within {:.3} % beyond 3 µm, {:.2} % below",
+            100.0 * worst,
+            100.0 * worst_short
+        );
+        assert!(worst < 1e-3 && worst_short < 7e-3, "{worst} {worst_short}");
+    }
+
+    #[test]
+    fn stretching_between_interpolations_is_close() {
+        // what [quality] atmosphere_tolerance costs: the path re-interpolated at the new geometry against the old
+        // one stretched to the new range (the range moved by the tolerance), or kept (an end's altitude moved by
+        // the tolerance times ALTITUDE_TOLERANCE_SCALE_KM)
+        let t = table();
+        let bands = [Band::try_new(3.0, 5.0).unwrap(), Band::try_new(8.0, 12.0).unwrap()];
+        for tol in [0.01, 0.05] {
+            let dh = tol * ALTITUDE_TOLERANCE_SCALE_KM;
+            let (mut worst_range, mut worst_alt, mut worst_path) = (0.0f64, 0.0f64, 0.0f64);
+            for (h1, h2, r) in [(1.0, 9.0, 17.0), (0.5, 0.5, 5.0), (1.5, 1.52, 0.3), (8.0, 8.0, 30.0), (0.1, 0.3, 20.0)]
+            {
+                let base = t.path(&MLS_RURAL_23, h1, h2, r).unwrap();
+                let cases = [
+                    (h1, h2, r * (1.0 + tol), false),
+                    (h1, h2, r * (1.0 - tol), false),
+                    (h1, h2 + dh, r, true),
+                    (h1 + dh, h2, r, true),
+                    ((h1 - dh).max(0.0), h2, r, true),
+                ];
+                for (a, b, rr, altitude) in cases {
+                    let Ok(exact) = t.path(&MLS_RURAL_23, a, b, rr) else { continue };
+                    let mut got = base.clone();
+                    base.stretched(rr / r, &mut got);
+                    for band in bands {
+                        let d = (got.spectrum_weighted(band, 300.0) - exact.spectrum_weighted(band, 300.0)).abs();
+                        if altitude {
+                            worst_alt = worst_alt.max(d)
+                        } else {
+                            worst_range = worst_range.max(d)
+                        }
+                        let lp = exact.band_path_radiance_w_m2_sr(band);
+                        if lp > 1e-3 {
+                            worst_path = worst_path.max((got.band_path_radiance_w_m2_sr(band) / lp - 1.0).abs());
+                        }
+                    }
+                }
+            }
+            eprintln!(
+                "atmosphere_tolerance {tol}: |Δτ| ≤ {worst_range:.5} (range moved, stretched), ≤ {worst_alt:.5} \
+                 (an altitude moved), path radiance within {:.2} %",
+                100.0 * worst_path
+            );
+            assert!(worst_range < 0.1 * tol && worst_alt < 0.5 * tol, "{tol}: {worst_range} {worst_alt}");
+        }
     }
 
     #[test]
@@ -1035,6 +1242,45 @@ mod tests {
         assert!((cool - hot).abs() > 1e-3, "{cool} {hot}");
         let flat = p.band_average(band);
         assert!((flat - cool).abs() < 0.2);
+    }
+
+    /// Short paths, against direct LOWTRAN runs (`python3 tools/atmosphere/lowtran_tables.py --point
+    /// --observer-alt-km H1 --target-alt-km H2 --range-km R --band-um LO HI`, midlatitude summer, rural 23 km):
+    /// `(h1, h2, range, τ 3–5 µm, τ 8–12 µm)`.
+    const SHORT_PATHS: [(f64, f64, f64, f64, f64); 19] = [
+        (1.49, 1.52, 0.3, 0.7495, 0.9351),
+        (1.5, 1.52, 0.3, 0.7496, 0.9352),
+        (0.2, 0.3, 0.2, 0.7318, 0.9184),
+        (0.95, 1.05, 0.9, 0.6006, 0.8299),
+        (0.95, 1.05, 1.1, 0.5735, 0.8049),
+        (0.1, 0.1, 0.1, 0.7851, 0.9459),
+        (1.0, 1.0, 0.2, 0.7631, 0.9391),
+        (3.0, 3.0, 0.05, 0.8920, 0.9887),
+        (0.55, 0.6, 0.8, 0.5895, 0.8134),
+        (0.4, 0.6, 0.45, 0.6580, 0.8708),
+        (1.9, 2.6, 0.8, 0.6916, 0.9094),
+        (1.9, 2.35, 0.6, 0.7141, 0.9207),
+        (0.3, 0.75, 0.5, 0.6466, 0.8621),
+        (5.2, 5.6, 0.45, 0.8519, 0.9814),
+        (1.0, 2.8, 2.0, 0.5492, 0.7966),
+        (3.1, 4.9, 1.9, 0.7015, 0.9247),
+        (6.2, 8.9, 2.8, 0.8024, 0.9629),
+        (0.1, 2.9, 2.95, 0.4533, 0.6709),
+        (12.5, 15.5, 3.2, 0.8859, 0.9721),
+    ];
+
+    #[test]
+    fn short_paths_match_direct_runs() {
+        let mut worst = 0.0f64;
+        for (h1, h2, r, mwir, lwir) in SHORT_PATHS {
+            let p = table().path(&MLS_RURAL_23, h1, h2, r).unwrap();
+            for (band, want) in [(Band::MWIR_3_5, mwir), (Band::LWIR_8_12, lwir)] {
+                let d = (p.band_average(band) - want).abs();
+                assert!(d < 0.01, "{h1} → {h2} km over {r} km: {} against {want}", p.band_average(band));
+                worst = worst.max(d);
+            }
+        }
+        eprintln!("short paths: largest |Δτ| {worst:.4}");
     }
 
     /// Direct LOWTRAN runs off the grid (the generator's `lowtran7_offgrid.json`): band τ within 0.01.

@@ -8,6 +8,7 @@ pub mod brdf;
 pub mod detector;
 pub mod exact;
 pub mod lowtran;
+pub mod lowtran_paths;
 pub mod noise;
 pub mod nonideal;
 pub mod planck;

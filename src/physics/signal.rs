@@ -9,6 +9,7 @@ use thiserror::Error;
 use super::ParamError;
 use super::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
 use super::brdf::CookTorrance;
+use super::lowtran::PathSpectrum;
 use super::planck::{Band, Measure, PlanckMethod, band_radiance_in};
 use super::reflection::{ReflectionGeometry, ReflectionInput, SphereQuadrature, Sun, reflected_radiance};
 use super::sensor::{GrayMapping, Radiometer};
@@ -228,6 +229,21 @@ pub struct ApparentContext<'a> {
     /// The reflection is not computed where a bound on what it adds at the aperture (in the measure, after the
     /// path's transmittance) is below this (0: always computed).
     pub reflection_skip_below: f64,
+    /// The line of sight's spectrum (LOWTRAN), when the scene has one: then the target's own emission is
+    /// transmitted with τ weighted by its spectrum at the skin temperature, the reflected sunlight with τ weighted
+    /// by the sun's, and the path radiance is the spectrum's; without it, `atmosphere`'s band τ for both and
+    /// `(1 − τ)·B(T∞(mid-path))`.
+    pub sight: Option<Sight<'a>>,
+}
+
+/// A target's line of sight through a LOWTRAN atmosphere.
+#[derive(Clone, Copy)]
+pub struct Sight<'a> {
+    /// The path's spectral transmittance and path radiance.
+    pub spectrum: &'a PathSpectrum,
+    /// The sun's spectrum per bin in the detector's measure ([`PathSpectrum::blackbody_weights`] at the sun's
+    /// temperature).
+    pub sun_weights: &'a [f64],
 }
 
 /// A target's radiance at the sensor's aperture, in the detector's measure.
@@ -241,11 +257,14 @@ pub struct Apparent {
     pub self_radiance: f64,
     /// Reflected sun radiance, in the measure.
     pub reflected_radiance: f64,
-    /// Transmittance of the path target → sensor.
+    /// Transmittance of the path target → sensor for the target's own emission.
     pub tau: f64,
-    /// Radiance the path itself adds, `(1 − τ)·L(T∞(mid-path))`, in the measure.
+    /// Transmittance of the path target → sensor for the reflected sunlight (equal to `tau` without a LOWTRAN
+    /// line of sight).
+    pub reflected_tau: f64,
+    /// Radiance the path itself adds, in the measure: the LOWTRAN spectrum's, or `(1 − τ)·L(T∞(mid-path))`.
     pub path_radiance: f64,
-    /// `τ·(self + reflected) + path`: what a pixel filled by the target receives, in the measure.
+    /// `τ·self + τ_reflected·reflected + path`: what a pixel filled by the target receives, in the measure.
     pub apparent_radiance: f64,
     /// Range, m.
     pub range_m: f64,
@@ -271,7 +290,16 @@ pub fn apparent_radiance(
     temps.skin_temp_k += heating(target)?;
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let l_self = ctx.planck.band_radiance(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
-    let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m).clamp(0.0, 1.0);
+    let (tau, reflected_tau) = match ctx.sight {
+        Some(Sight { spectrum: p, sun_weights }) => (
+            p.spectrum_weighted_in(ctx.measure, ctx.band, temps.skin_temp_k).clamp(0.0, 1.0),
+            p.weighted(sun_weights).clamp(0.0, 1.0),
+        ),
+        None => {
+            let tau = ctx.atmosphere.along_segment(target.position_m, sensor_m).clamp(0.0, 1.0);
+            (tau, tau)
+        }
+    };
     // the sun's band radiance in energy and in the measure: their ratio converts the grey reflection
     let sun_energy = band_radiance_in(Measure::Energy, ctx.band, ctx.sun.temp_k, 1.0);
     let sun_measure = band_radiance_in(ctx.measure, ctx.band, ctx.sun.temp_k, 1.0);
@@ -281,23 +309,32 @@ pub fn apparent_radiance(
         Measure::Photon => 0.0,
     };
     // the skip threshold at the target, in energy (infinite, so always skipped, where nothing would arrive)
-    let skip_below =
-        if ctx.reflection_skip_below > 0.0 { ctx.reflection_skip_below / (tau * in_measure(1.0)) } else { 0.0 };
+    let skip_below = if ctx.reflection_skip_below > 0.0 {
+        ctx.reflection_skip_below / (reflected_tau * in_measure(1.0))
+    } else {
+        0.0
+    };
     let Sunlit { range_m, reflected: l_re_energy, .. } =
         sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature, skip_below)?;
     let l_re = in_measure(l_re_energy);
-    let mid_z = 0.5 * (target.position_m.z + sensor_m.z);
-    let t_mid = ambient_temperature_k(mid_z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), ctx.t0_k)
-        .map_err(|e| SignalError::Skin(SkinError::from(e)))?;
-    let path_radiance = (1.0 - tau) * ctx.planck.band_radiance(ctx.measure, ctx.band, t_mid, 1.0);
+    let path_radiance = match ctx.sight {
+        Some(Sight { spectrum: p, .. }) => p.band_path_radiance_in(ctx.measure, ctx.band),
+        None => {
+            let mid_z = 0.5 * (target.position_m.z + sensor_m.z);
+            let t_mid = ambient_temperature_k(mid_z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), ctx.t0_k)
+                .map_err(|e| SignalError::Skin(SkinError::from(e)))?;
+            (1.0 - tau) * ctx.planck.band_radiance(ctx.measure, ctx.band, t_mid, 1.0)
+        }
+    };
     Ok(Apparent {
         ambient_temp_k: temps.ambient_temp_k,
         skin_temp_k: temps.skin_temp_k,
         self_radiance: l_self,
         reflected_radiance: l_re,
         tau,
+        reflected_tau,
         path_radiance,
-        apparent_radiance: tau * (l_self + l_re) + path_radiance,
+        apparent_radiance: tau * l_self + reflected_tau * l_re + path_radiance,
         range_m,
     })
 }

@@ -22,6 +22,10 @@
 //! `z_p` is the height at which the path has reached half its optical depth: a near-horizontal path emits at
 //! about the observer's height (so the ground joins the sky at the horizon without a step), a steep one lower.
 //!
+//! With a LOWTRAN atmosphere the ground and limb paths' transmittance and path radiance are LOWTRAN's (from the
+//! observer's table of [`super::lowtran_paths`]), and `ε_z0` defaults to the band's emissivity of LOWTRAN's
+//! vertical path from sea level to 20 km for the scene's weather.
+//!
 //! Not modelled: scattered sunlight (it matters in the MWIR by day), clouds (a sky-plane layer adds them),
 //! Earth's curvature beyond the horizon's dip, and the spectral structure of absorption (a single effective emissivity per band).
 //! Defaults: `ε_z0 = 0.28` for bands centred beyond 6 µm and 0.35 below (the opaque 4.3 µm CO₂ band raises the
@@ -129,8 +133,11 @@ pub struct DomeInputs<'a> {
     pub observer_altitude_m: f64,
     /// Sea-level temperature of eq 2, K.
     pub t0_k: f64,
-    /// Transmittance of ground paths.
+    /// Transmittance of ground paths (and their path radiance, where the model has its own).
     pub atmosphere: &'a (dyn PathTransmittance + Sync),
+    /// The sea-level zenith emissivity the atmosphere model gives the band (LOWTRAN's vertical path to 20 km),
+    /// used where `spec` gives none; `None` takes the band's default.
+    pub zenith_emissivity: Option<f64>,
 }
 
 impl Dome {
@@ -153,7 +160,10 @@ impl Dome {
             })
         };
         let planck = |t: f64| band_radiance_in(inputs.measure, inputs.band, t, 1.0);
-        let eps_z0 = s.zenith_emissivity.unwrap_or_else(|| default_zenith_emissivity(inputs.band));
+        let eps_z0 = s
+            .zenith_emissivity
+            .or(inputs.zenith_emissivity.filter(|e| *e > 0.0 && *e < 1.0))
+            .unwrap_or_else(|| default_zenith_emissivity(inputs.band));
         let scale_m = s.scale_height_km * 1000.0;
         let tau_z = -(1.0 - eps_z0).ln() * (-h.max(0.0) / scale_m).exp();
         let z_e = s.emission_height_km * 1000.0;
@@ -189,9 +199,12 @@ impl Dome {
                 let from = DVec3::new(0.0, 0.0, h);
                 let tangent = DVec3::new(0.0, reach, h_t);
                 let tau = inputs.atmosphere.along_segment(from, tangent).clamp(0.0, 1.0);
+                let path = match inputs.atmosphere.path_radiance(from, tangent) {
+                    Some(l) => l,
+                    None => (1.0 - tau) * planck(t_air(emission_altitude(inputs.atmosphere, from, tangent, tau))?),
+                };
                 // what passes the tangent point is the horizontal sky seen from its height
-                tau * planck(t_air(h_t)?)
-                    + (1.0 - tau) * planck(t_air(emission_altitude(inputs.atmosphere, from, tangent, tau))?)
+                tau * planck(t_air(h_t)?) + path
             } else {
                 // the ray meets the curved ground after t = −(R+h)·sin e − √((R+h)²·sin²e − (2Rh + h²)); the path
                 // is taken, like the grazing one, as a straight descent over that horizontal distance, so the two
@@ -201,8 +214,11 @@ impl Dome {
                 let from = DVec3::new(0.0, 0.0, h);
                 let hit = DVec3::new(0.0, t.max(0.0), 0.0);
                 let tau = inputs.atmosphere.along_segment(from, hit).clamp(0.0, 1.0);
-                let path = planck(t_air(emission_altitude(inputs.atmosphere, from, hit, tau))?);
-                tau * (ground + (1.0 - s.ground_emissivity) * sky(-sin_e)?) + (1.0 - tau) * path
+                let path = match inputs.atmosphere.path_radiance(from, hit) {
+                    Some(l) => l,
+                    None => (1.0 - tau) * planck(t_air(emission_altitude(inputs.atmosphere, from, hit, tau))?),
+                };
+                tau * (ground + (1.0 - s.ground_emissivity) * sky(-sin_e)?) + path
             };
             sky_at.push(value);
         }
@@ -282,6 +298,7 @@ mod tests {
             observer_altitude_m: h,
             t0_k: 288.15,
             atmosphere: &atm,
+            zenith_emissivity: None,
         })
         .unwrap()
     }

@@ -5,7 +5,8 @@
 //! - [`Transmittance::BeerLambert`]: `τ = exp(−∫β ds)` with an extinction coefficient `β(z) = β₀·e^{−z/H}`
 //!   falling with altitude over the scale height `H` (flat Earth). `H = ∞` is a homogeneous atmosphere.
 //!
-//! Every model implements [`PathTransmittance`], the seam where a table-driven model (LOWTRAN7) plugs in.
+//! Every model implements [`PathTransmittance`], the seam where the table-driven model
+//! ([`super::lowtran_paths::LowtranAtmosphere`]) plugs in; a scene holds one of them as a [`SceneAtmosphere`].
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -16,6 +17,71 @@ pub trait PathTransmittance {
     fn along_segment(&self, a_m: DVec3, b_m: DVec3) -> f64;
     /// τ from `from_m` to the top of the atmosphere along `direction` (unit, toward the sun), in [0, 1].
     fn to_space(&self, from_m: DVec3, direction: DVec3) -> f64;
+    /// The band radiance the segment's air itself emits toward `a_m`, in the detector's measure, where the model
+    /// knows it; `None` leaves it to the caller (`(1 − τ)·B(T)` at a temperature it picks).
+    fn path_radiance(&self, _a_m: DVec3, _b_m: DVec3) -> Option<f64> {
+        None
+    }
+    /// [`PathTransmittance::along_segment`] and [`PathTransmittance::path_radiance`] together (one lookup where
+    /// the model shares it).
+    fn transmittance_and_path(&self, a_m: DVec3, b_m: DVec3) -> (f64, Option<f64>) {
+        (self.along_segment(a_m, b_m), self.path_radiance(a_m, b_m))
+    }
+}
+
+/// A scene's atmosphere: a band-averaged override, or the LOWTRAN weather.
+#[derive(Debug, Clone)]
+pub enum SceneAtmosphere {
+    /// [`Transmittance`]: fixed τ or Beer–Lambert.
+    Override(Transmittance),
+    /// LOWTRAN7's tables for the scene's weather, band and observer.
+    Lowtran(std::sync::Arc<super::lowtran_paths::LowtranAtmosphere>),
+}
+
+impl Default for SceneAtmosphere {
+    fn default() -> Self {
+        SceneAtmosphere::Override(Transmittance::default())
+    }
+}
+
+impl SceneAtmosphere {
+    /// The LOWTRAN model, if the scene uses it.
+    pub fn lowtran(&self) -> Option<&super::lowtran_paths::LowtranAtmosphere> {
+        match self {
+            SceneAtmosphere::Lowtran(l) => Some(l),
+            SceneAtmosphere::Override(_) => None,
+        }
+    }
+}
+
+impl PathTransmittance for SceneAtmosphere {
+    fn along_segment(&self, a_m: DVec3, b_m: DVec3) -> f64 {
+        match self {
+            SceneAtmosphere::Override(t) => t.along_segment(a_m, b_m),
+            SceneAtmosphere::Lowtran(l) => l.along_segment(a_m, b_m),
+        }
+    }
+
+    fn to_space(&self, from_m: DVec3, direction: DVec3) -> f64 {
+        match self {
+            SceneAtmosphere::Override(t) => t.to_space(from_m, direction),
+            SceneAtmosphere::Lowtran(l) => l.to_space(from_m, direction),
+        }
+    }
+
+    fn path_radiance(&self, a_m: DVec3, b_m: DVec3) -> Option<f64> {
+        match self {
+            SceneAtmosphere::Override(t) => t.path_radiance(a_m, b_m),
+            SceneAtmosphere::Lowtran(l) => l.path_radiance(a_m, b_m),
+        }
+    }
+
+    fn transmittance_and_path(&self, a_m: DVec3, b_m: DVec3) -> (f64, Option<f64>) {
+        match self {
+            SceneAtmosphere::Override(t) => t.transmittance_and_path(a_m, b_m),
+            SceneAtmosphere::Lowtran(l) => l.transmittance_and_path(a_m, b_m),
+        }
+    }
 }
 
 /// An invalid transmittance parameter: its name, value and allowed range.

@@ -25,6 +25,8 @@ use crate::imaging::sky_plane::{MissFill, SkyError, SkyPlacement};
 use crate::imaging::vibration::VibrationSpec;
 use crate::physics::ParamError;
 use crate::physics::brdf::CookTorrance;
+use crate::physics::lowtran::{Aerosol, AtmosphereTable, ModelAtmosphere, Weather};
+use crate::physics::lowtran_paths::LowtranAtmosphere;
 use crate::physics::planck::band_radiance_in;
 use crate::physics::reflection::Sun;
 use crate::physics::skin::StagnationModel;
@@ -262,21 +264,64 @@ impl SkySpec {
     }
 }
 
-/// Air temperature profile, skin heating and transmittance.
+/// Air temperature profile, skin heating, and the atmosphere's transmittance and path radiance: the LOWTRAN7
+/// weather (`model`, `aerosol`, `visibility_km`) or a band-averaged override (`transmittance`), not both.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AtmosphereSpec {
     /// Sea-level temperature for eq 2, K.
     pub t0_k: f64,
-    /// Transmittance model.
-    pub transmittance: Transmittance,
+    /// LOWTRAN model atmosphere: with it, LOWTRAN7's tables give every path's transmittance and path radiance.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model: Option<ModelAtmosphere>,
+    /// LOWTRAN aerosol model (default `rural`; `none` for a clear, aerosol-free path).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub aerosol: Option<Aerosol>,
+    /// Meteorological range at sea level of the aerosol, km (default 23).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub visibility_km: Option<f64>,
+    /// Band-averaged transmittance override: a fixed τ or Beer–Lambert (without `model`; neither: τ = 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transmittance: Option<Transmittance>,
+    /// The sky image holds the radiance at its plane, not at the sensor: each texel is seen through the path from
+    /// the observer's start to it (transmitted, plus that path's own radiance). Generated layers always are.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub sky_path: bool,
     /// Stagnation constants of eq 1.
     pub stagnation: StagnationModel,
 }
 
 impl Default for AtmosphereSpec {
     fn default() -> Self {
-        Self { t0_k: 288.15, transmittance: Transmittance::default(), stagnation: StagnationModel::default() }
+        Self {
+            t0_k: 288.15,
+            model: None,
+            aerosol: None,
+            visibility_km: None,
+            transmittance: None,
+            sky_path: false,
+            stagnation: StagnationModel::default(),
+        }
+    }
+}
+
+/// Visibility of the LOWTRAN weather when the scenario gives none, km.
+pub const DEFAULT_VISIBILITY_KM: f64 = 23.0;
+
+impl AtmosphereSpec {
+    /// The LOWTRAN weather, if the scenario names a model atmosphere.
+    pub fn weather(&self) -> Option<Weather> {
+        let aerosol = self.aerosol.unwrap_or(Aerosol::Rural);
+        Some(Weather {
+            model: self.model?,
+            aerosol,
+            visibility_km: self.visibility_km.unwrap_or(DEFAULT_VISIBILITY_KM),
+        })
+    }
+
+    /// The band-averaged override (τ = 1 when none is given).
+    pub fn override_transmittance(&self) -> Transmittance {
+        self.transmittance.unwrap_or_default()
     }
 }
 
@@ -696,8 +741,11 @@ impl Scenario {
         if !(a.t0_k.is_finite() && a.t0_k > 100.0 && a.t0_k < 400.0) {
             return Err(fe("atmosphere.t0_k", format!("{} must be in (100, 400) K", num(a.t0_k))));
         }
-        a.transmittance.validate().map_err(at("atmosphere.transmittance"))?;
+        if let Some(t) = &a.transmittance {
+            t.validate().map_err(at("atmosphere.transmittance"))?;
+        }
         a.stagnation.validate().map_err(|e| fe("atmosphere.stagnation", e))?;
+        let lowtran = check_weather(a, &sensor)?;
         let sun = &self.sun;
         for (n, v, ok) in [
             ("temp_k", sun.temp_k, sun.temp_k >= 0.0 && sun.temp_k <= 1e5),
@@ -744,6 +792,123 @@ impl Scenario {
             }
             t.brdf.validate().map_err(at(&format!("{p}.brdf")))?;
         }
+        if let Some(table) = lowtran {
+            check_lines_of_sight(self, table, &observer, &trajectories)?;
+        }
         Ok(Checked { observer, targets: trajectories, sky_image, sensor, quality })
     }
+}
+
+/// Checks the LOWTRAN weather's fields; the table when the scenario uses it.
+fn check_weather(a: &AtmosphereSpec, sensor: &ResolvedSensor) -> Result<Option<&'static AtmosphereTable>, FieldError> {
+    let Some(model) = a.model else {
+        for (name, given) in [("aerosol", a.aerosol.is_some()), ("visibility_km", a.visibility_km.is_some())] {
+            if given {
+                return Err(fe(
+                    format!("atmosphere.{name}"),
+                    "is part of the LOWTRAN weather: give `atmosphere.model` too (e.g. \"midlatitude_summer\")",
+                ));
+            }
+        }
+        return Ok(None);
+    };
+    if a.transmittance.is_some() {
+        return Err(fe(
+            "atmosphere.transmittance",
+            format!(
+                "overrides the LOWTRAN weather (`model = \"{}\"`): give one of `atmosphere.model` and \
+                 `atmosphere.transmittance`, not both",
+                model.name()
+            ),
+        ));
+    }
+    let table = AtmosphereTable::shipped().map_err(|e| fe("atmosphere.model", e))?;
+    let aerosol = a.aerosol.unwrap_or(Aerosol::Rural);
+    if let Some(v) = a.visibility_km {
+        if aerosol == Aerosol::None {
+            return Err(fe("atmosphere.visibility_km", "has no effect with `aerosol = \"none\"`: leave it out"));
+        }
+        let tabulated = table.visibilities_km(aerosol);
+        let (lo, hi) = (tabulated[0], tabulated[tabulated.len() - 1]);
+        if !(v.is_finite() && v >= lo && v <= hi) {
+            return Err(fe(
+                "atmosphere.visibility_km",
+                format!(
+                    "{} is outside the {lo}–{hi} km that LOWTRAN's {} aerosol is tabulated for ({})",
+                    num(v),
+                    aerosol.name(),
+                    tabulated.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(", ")
+                ),
+            ));
+        }
+    }
+    let band = sensor.model.band;
+    let (lo, hi) = (table.edges_um()[0], table.edges_um()[table.edges_um().len() - 1]);
+    if band.lo_um() < lo || band.hi_um() > hi {
+        return Err(fe(
+            "atmosphere.model",
+            format!(
+                "the sensor's band {}–{} µm is not inside the {lo}–{hi} µm that the LOWTRAN table covers; use \
+                 `atmosphere.transmittance` for this band",
+                num(band.lo_um()),
+                num(band.hi_um())
+            ),
+        ));
+    }
+    Ok(Some(table))
+}
+
+/// Frames at most sampled by [`check_lines_of_sight`] (every frame up to this many).
+const SIGHT_CHECK_FRAMES: u64 = 20_000;
+
+/// Checks that every target's line of sight stays inside the LOWTRAN table's grid over the run (0–20 km,
+/// ranges to 100 km, above the ground): a path outside it is an error, never an extrapolation.
+fn check_lines_of_sight(
+    spec: &Scenario,
+    table: &AtmosphereTable,
+    observer: &Trajectory,
+    targets: &[Trajectory],
+) -> Result<(), FieldError> {
+    let r = &spec.run;
+    let stride = r.frames.div_ceil(SIGHT_CHECK_FRAMES).max(1);
+    let mut frames: Vec<u64> = (0..r.frames).step_by(stride as usize).collect();
+    if frames.last() != Some(&(r.frames - 1)) {
+        frames.push(r.frames - 1);
+    }
+    let top_m = table.max_altitude_km() * 1000.0;
+    for &k in &frames {
+        let t = r.start_time_s + k as f64 / r.frame_rate_hz;
+        let eye = observer.state(t).0;
+        if !(eye.z >= 0.0 && eye.z <= top_m) {
+            return Err(fe(
+                "observer.trajectory",
+                format!(
+                    "at frame {k} (t = {} s) the observer is at {} m, outside the 0–{} m that the LOWTRAN table \
+                     covers; use `atmosphere.transmittance` for this scene",
+                    num(t),
+                    num(eye.z),
+                    num(top_m)
+                ),
+            ));
+        }
+        for (i, tr) in targets.iter().enumerate() {
+            let p = tr.state(t).0;
+            if let Err(e) = LowtranAtmosphere::check_sight(table, eye, p) {
+                return Err(fe(
+                    format!("targets[{i}].trajectory"),
+                    format!(
+                        "at frame {k} (t = {} s) the line of sight from the observer ({} m up) to `{}` ({} m up, \
+                         {} m away) leaves the LOWTRAN table: {e}; keep the scene within 0–20 km altitude and \
+                         100 km range, or use `atmosphere.transmittance`",
+                        num(t),
+                        num(eye.z),
+                        spec.targets[i].name,
+                        num(p.z),
+                        num(eye.distance(p))
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }

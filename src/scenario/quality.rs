@@ -127,6 +127,11 @@ pub struct Quality {
     /// relative to the range, its heading (rad) or its speed changes by more than this fraction since the
     /// last computation (0: at every change).
     pub radiometry_tolerance: f64,
+    /// With a LOWTRAN atmosphere, a target's line of sight is interpolated from the table again only when its
+    /// range has changed by more than this fraction, or either end's altitude by more than this many km, since
+    /// the last interpolation; in between, that spectrum is stretched to the new range bin by bin, Beer–Lambert
+    /// (0: at every change).
+    pub atmosphere_tolerance: f64,
 }
 
 impl Quality {
@@ -156,6 +161,7 @@ impl Quality {
             reflection_skip_below_dn: 0.0,
             planck: PlanckMethod::Series,
             radiometry_tolerance: 0.0,
+            atmosphere_tolerance: STANDARD_ATMOSPHERE_TOLERANCE,
         };
         // the other two say where they differ from it (the fusion solver and guidance and the reflection geometry
         // are the same in all three)
@@ -174,6 +180,7 @@ impl Quality {
                 blob_roi_fraction: MIN_ROI_FRACTION,
                 poisson_normal_threshold_e: MAX_POISSON_THRESHOLD_E,
                 reflection_grid: [192, 384],
+                atmosphere_tolerance: 0.0,
                 ..standard
             },
             QualityPreset::Draft => Self {
@@ -194,6 +201,7 @@ impl Quality {
                 reflection_skip_below_dn: DRAFT_REFLECTION_SKIP_BELOW_DN,
                 planck: PlanckMethod::GaussLegendre { points: DRAFT_PLANCK_POINTS },
                 radiometry_tolerance: DRAFT_RADIOMETRY_TOLERANCE,
+                atmosphere_tolerance: DRAFT_ATMOSPHERE_TOLERANCE,
                 ..standard
             },
         }
@@ -232,7 +240,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 23] = [
+pub const SWITCHES: [&str; 24] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -256,6 +264,7 @@ pub const SWITCHES: [&str; 23] = [
     "reflection_skip_below_dn",
     "planck",
     "radiometry_tolerance",
+    "atmosphere_tolerance",
 ];
 
 /// Smallest `psf_energy_cutoff` (the kernel's radius is also capped at 12 px).
@@ -278,6 +287,12 @@ pub const DRAFT_PLANCK_POINTS: usize = 4;
 pub const DRAFT_RADIOMETRY_TOLERANCE: f64 = 1e-3;
 /// Largest `radiometry_tolerance`.
 pub const MAX_RADIOMETRY_TOLERANCE: f64 = 0.1;
+/// The standard preset's `atmosphere_tolerance`.
+pub const STANDARD_ATMOSPHERE_TOLERANCE: f64 = 0.01;
+/// The draft preset's `atmosphere_tolerance`.
+pub const DRAFT_ATMOSPHERE_TOLERANCE: f64 = 0.05;
+/// Largest `atmosphere_tolerance`.
+pub const MAX_ATMOSPHERE_TOLERANCE: f64 = 0.2;
 /// Smallest `blob_roi_fraction`.
 pub const MIN_ROI_FRACTION: f64 = 1e-9;
 /// Largest `poisson_normal_threshold_e`: every count exact.
@@ -355,6 +370,9 @@ pub struct QualitySpec {
     /// See [`Quality::radiometry_tolerance`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub radiometry_tolerance: Option<f64>,
+    /// See [`Quality::atmosphere_tolerance`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub atmosphere_tolerance: Option<f64>,
 }
 
 impl QualitySpec {
@@ -404,7 +422,8 @@ impl QualitySpec {
             reflection_grid,
             reflection_skip_below_dn,
             planck,
-            radiometry_tolerance
+            radiometry_tolerance,
+            atmosphere_tolerance
         );
         let range = |name: &str, v: f64, lo: f64, hi: f64, unit: &str| {
             if v.is_finite() && (lo..=hi).contains(&v) {
@@ -458,6 +477,7 @@ impl QualitySpec {
         }
         range("reflection_skip_below_dn", q.reflection_skip_below_dn, 0.0, 1e6, " DN")?;
         range("radiometry_tolerance", q.radiometry_tolerance, 0.0, MAX_RADIOMETRY_TOLERANCE, "")?;
+        range("atmosphere_tolerance", q.atmosphere_tolerance, 0.0, MAX_ATMOSPHERE_TOLERANCE, "")?;
         if let Err(e) = q.planck.check() {
             let field = match q.planck {
                 PlanckMethod::Simpson { .. } => "quality.planck.intervals",

@@ -91,6 +91,8 @@ pub struct Signature {
     pub error: Option<String>,
     /// Inputs of the last computation.
     pub(super) key: Option<[f64; 10]>,
+    /// The line of sight's LOWTRAN spectrum, when the scene has that atmosphere.
+    pub(super) sight: super::radiometry::Sightline,
 }
 
 /// Where a target falls in the image this frame.

@@ -8,8 +8,11 @@ use bevy::prelude::FixedUpdate;
 use super::{
     Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, SimSettings, Skin,
 };
-use crate::physics::signal::{ApparentContext, TargetState, apparent_radiance};
+use crate::physics::lowtran::{ALTITUDE_TOLERANCE_SCALE_KM, AtmosphereError, PathSpectrum};
+use crate::physics::lowtran_paths::LowtranAtmosphere;
+use crate::physics::signal::{ApparentContext, Sight, TargetState, apparent_radiance};
 use crate::physics::skin::mach_number;
+use glam::DVec3;
 
 /// Computes each target's signature.
 pub struct RadiometryPlugin;
@@ -46,6 +49,7 @@ pub fn update_signatures(
             dn if dn > 0.0 => dn / sensor.dn_per_radiance,
             _ => 0.0,
         },
+        sight: None,
     };
     let tolerance = settings.quality.radiometry_tolerance;
     for (kin, body, skin, mut sig) in &mut targets {
@@ -68,7 +72,21 @@ pub fn update_signatures(
             semi_axes_m: body.semi_axes_m,
             attitude: body.body_to_world(kin.velocity_m_s),
         };
-        let ctx = ApparentContext { reflection: skin.reflection, ..ctx };
+        let sig = &mut *sig;
+        let sight = match scene.atmosphere.lowtran() {
+            Some(lowtran) => match sig.sight.update(lowtran, eye, p, settings.quality.atmosphere_tolerance) {
+                Ok(spectrum) => Some(Sight { spectrum, sun_weights: lowtran.sun_weights() }),
+                Err(e) => {
+                    sig.signal = None;
+                    sig.error = Some(e.to_string());
+                    sig.mach = mach;
+                    sig.key = Some(key);
+                    continue;
+                }
+            },
+            None => None,
+        };
+        let ctx = ApparentContext { reflection: skin.reflection, sight, ..ctx };
         match apparent_radiance(&state, eye, &ctx) {
             Ok(signal) => {
                 sig.signal = Some(signal);
@@ -81,6 +99,58 @@ pub fn update_signatures(
         }
         sig.mach = mach;
         sig.key = Some(key);
+    }
+}
+
+/// A target's line of sight through a LOWTRAN atmosphere: the spectrum last interpolated from the table and the
+/// geometry it was interpolated for, and the spectrum in use now (stretched from it, see
+/// [`crate::scenario::Quality::atmosphere_tolerance`]).
+#[derive(Debug, Clone, Default)]
+pub struct Sightline {
+    base: Option<(DVec3, DVec3, PathSpectrum)>,
+    current: Option<PathSpectrum>,
+}
+
+impl Sightline {
+    /// The spectrum of the line of sight from `eye_m` to `target_m`: interpolated from the table again when the
+    /// range has moved by more than `tolerance` of itself or either altitude by more than `tolerance` times
+    /// [`ALTITUDE_TOLERANCE_SCALE_KM`] since the last interpolation (0: whenever either end moved), else the last
+    /// interpolation stretched to the new range.
+    ///
+    /// # Errors
+    /// [`AtmosphereError`] for a line of sight outside the table.
+    pub fn update(
+        &mut self,
+        atmosphere: &LowtranAtmosphere,
+        eye_m: DVec3,
+        target_m: DVec3,
+        tolerance: f64,
+    ) -> Result<&PathSpectrum, AtmosphereError> {
+        let range = eye_m.distance(target_m);
+        let reuse = match &self.base {
+            Some((e0, t0, _)) if tolerance > 0.0 => {
+                let r0 = e0.distance(*t0);
+                let dh_m = tolerance * ALTITUDE_TOLERANCE_SCALE_KM * 1000.0;
+                r0 > 0.0
+                    && (range - r0).abs() <= tolerance * r0
+                    && (eye_m.z - e0.z).abs() <= dh_m
+                    && (target_m.z - t0.z).abs() <= dh_m
+            }
+            Some((e0, t0, _)) => *e0 == eye_m && *t0 == target_m,
+            None => false,
+        };
+        if let (true, Some((e0, t0, base)), Some(current)) = (reuse, &self.base, &mut self.current) {
+            if *e0 == eye_m && *t0 == target_m {
+                current.clone_from(base);
+            } else {
+                base.stretched(range / e0.distance(*t0), current);
+            }
+        } else {
+            let spectrum = atmosphere.sight(eye_m, target_m)?;
+            self.current = Some(spectrum.clone());
+            self.base = Some((eye_m, target_m, spectrum));
+        }
+        self.current.as_ref().ok_or_else(|| AtmosphereError::Table("no line of sight was interpolated".into()))
     }
 }
 

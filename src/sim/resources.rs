@@ -9,7 +9,7 @@ use crate::labels::FrameLabels;
 use crate::physics::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
 use crate::physics::reflection::{SphereQuadrature, Sun};
 use crate::physics::skin::StagnationModel;
-use crate::physics::transmittance::Transmittance;
+use crate::physics::transmittance::SceneAtmosphere;
 use crate::scenario::{BlobSettings, Quality};
 
 /// Frame counter and time step.
@@ -62,8 +62,8 @@ pub struct SceneParams {
     pub stagnation: StagnationModel,
     /// The sun.
     pub sun: Sun,
-    /// Transmittance.
-    pub atmosphere: Transmittance,
+    /// Transmittance and path radiance: an override, or LOWTRAN's for the scene's weather.
+    pub atmosphere: SceneAtmosphere,
     /// Quadrature for ellipsoid-averaged reflection.
     pub quadrature: SphereQuadrature,
 }

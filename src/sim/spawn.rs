@@ -15,14 +15,16 @@ use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, p
 use crate::imaging::camera::{Camera, Jitter};
 use crate::imaging::frame::Frame;
 use crate::imaging::psf::{Psf, PsfOptics};
-use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate};
+use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air};
 use crate::imaging::sky_gen::{SkyGenSpec, generate};
 use crate::imaging::sky_plane::{SkyImage, SkyPlane};
 use crate::imaging::vibration::Vibration;
+use crate::physics::lowtran_paths::LowtranAtmosphere;
 use crate::physics::nonideal::{FocalPlane, NonIdeal};
 use crate::physics::random::SplitMix64;
 use crate::physics::reflection::SphereQuadrature;
 use crate::physics::sky::{Dome, DomeInputs};
+use crate::physics::transmittance::SceneAtmosphere;
 use crate::scenario::sensor::{PsfSettings, ResolvedSensor};
 use crate::scenario::{CheckedScenario, Pointing};
 
@@ -87,17 +89,26 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         detectable_snr: spec.labels.detectable_snr,
         mask_fraction: spec.labels.mask_fraction,
     });
+    let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
+    let atmosphere = match spec.atmosphere.weather() {
+        Some(weather) => {
+            let model = &sensor_spec.model;
+            let lowtran = LowtranAtmosphere::new(weather, model.band, model.measure(), p0.z, spec.sun.temp_k)
+                .map_err(|e| setup("atmosphere.model")(e.to_string()))?;
+            SceneAtmosphere::Lowtran(Arc::new(lowtran))
+        }
+        None => SceneAtmosphere::Override(spec.atmosphere.override_transmittance()),
+    };
     let scene = SceneParams {
         t0_k: spec.atmosphere.t0_k,
         stagnation: spec.atmosphere.stagnation,
         sun: spec.sun,
-        atmosphere: spec.atmosphere.transmittance,
+        atmosphere,
         quadrature: SphereQuadrature::new(scenario.quality.reflection_grid[0], scenario.quality.reflection_grid[1]),
     };
 
     let intrinsics = sensor_spec.intrinsics;
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
-    let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
     let sky = build_sky(scenario, &scene, p0, seed)?;
     let mut sensor = build_sensor(&sensor_spec, &sky, seed)?;
     if let (Some(plane), Some(psf), Some(cfg), true) = (&sky.plane, &sensor.psf, sensor_spec.psf, sensor.blur_frame)
@@ -188,6 +199,7 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
         observer_altitude_m: eye.z,
         t0_k: scene.t0_k,
         atmosphere: &scene.atmosphere,
+        zenith_emissivity: scene.atmosphere.lowtran().map(|l| 1.0 - l.zenith_transmittance()),
     })
     .map_err(|e| SetupError { field: format!("sky.dome.{}", e.name), message: e.to_string() })?;
     let dome = Arc::new(dome);
@@ -199,6 +211,15 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
             let calibration = sky.calibration.ok_or_else(|| setup("sky.calibration")("is required".into()))?;
             let image = calibrate(&raw, &calibration, &lut, &path.display().to_string())
                 .map_err(|e| setup("sky.calibration")(e.to_string()))?;
+            let image = if scenario.spec.atmosphere.sky_path {
+                let geometry =
+                    SkyPlane::new(image.clone(), &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
+                let air = |z: f64| scene.air_temp_k(z);
+                through_air(&image, &geometry, eye, &scene.atmosphere, &air, &lut)
+                    .map_err(|e| setup("atmosphere.sky_path")(e.to_string()))?
+            } else {
+                image
+            };
             Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
         }
         (Some(gen_spec), None, Some(placement)) => {
