@@ -5,7 +5,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{irsim, root};
+use common::{SMALL_SCENARIO, irsim, root};
 use glam::DVec3;
 use irsim::physics::lowtran::{Aerosol, AtmosphereTable, ModelAtmosphere, Weather};
 use irsim::physics::planck::{band_radiance_in, brightness_temperature};
@@ -13,51 +13,22 @@ use irsim::scenario::load::{Format, load_str};
 use irsim::scenario::{CheckedScenario, ScenarioError};
 use irsim::sim::{RunOptions, build_app, step};
 
-/// A small scenario in LOWTRAN's mid-latitude summer, rural 23 km; the sun below the horizon (no reflection).
-const BASE: &str = r#"
-[run]
-frame_rate_hz = 30
-frames = 4
-seed = 3
-
-[sensor]
-width = 64
-height = 48
-pixel_pitch_um = 17
-focal_length_mm = 100
-aperture_mm = 100
-band_um = [8, 12]
-
-[observer]
-trajectory = { kind = "constant_velocity", position_m = [0, 0, 1000] }
-pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
-
-[atmosphere]
-model = "midlatitude_summer"
-aerosol = "rural"
-visibility_km = 23
-
-[sun]
-elevation_deg = -10
-
-[[targets]]
-name = "a"
-trajectory = { kind = "constant_velocity", position_m = [-20, 3000, 1005], velocity_m_s = [100, 0, 0] }
-semi_axes_m = [4, 2, 1]
-
-[[targets]]
-name = "b"
-trajectory = { kind = "constant_velocity", position_m = [10, 4000, 1010], velocity_m_s = [-80, 0, 0] }
-semi_axes_m = [4, 2, 1]
-"#;
+/// [`SMALL_SCENARIO`] in LOWTRAN's mid-latitude summer, rural 23 km; the sun below the horizon (no reflection).
+fn base() -> String {
+    format!(
+        "{SMALL_SCENARIO}\n[atmosphere]\nmodel = \"midlatitude_summer\"\naerosol = \"rural\"\nvisibility_km = 23\n\n\
+         [sun]\nelevation_deg = -10\n"
+    )
+}
 
 fn load(text: &str) -> Result<CheckedScenario, ScenarioError> {
     load_str(text, Format::Toml, Path::new("weather.toml"), &root().join("scenarios"))
 }
 
 fn with(replace: &str, by: &str) -> String {
-    assert!(BASE.contains(replace), "{replace}");
-    BASE.replacen(replace, by, 1)
+    let base = base();
+    assert!(base.contains(replace), "{replace}");
+    base.replacen(replace, by, 1)
 }
 
 fn refused(text: &str, field: &str) -> String {
@@ -69,7 +40,7 @@ fn refused(text: &str, field: &str) -> String {
 
 #[test]
 fn weather_fields_are_checked_with_their_path() {
-    load(BASE).unwrap();
+    load(&base()).unwrap();
     let both = with("visibility_km = 23", "visibility_km = 23\ntransmittance = { model = \"fixed\", tau = 0.5 }");
     let e = refused(&both, "atmosphere.transmittance");
     assert!(e.contains("not both"), "{e}");
@@ -124,7 +95,7 @@ fn the_cli_names_file_line_and_field() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("bad.toml:") && err.contains("atmosphere.visibility_km"), "{err}");
     let good = dir.join("good.toml");
-    std::fs::write(&good, BASE).unwrap();
+    std::fs::write(&good, base()).unwrap();
     let (code, out, err) = irsim(&["validate", good.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("LOWTRAN7, midlatitude_summer model atmosphere, rural aerosol at 23 km visibility"), "{out}");
@@ -132,7 +103,7 @@ fn the_cli_names_file_line_and_field() {
 
 #[test]
 fn a_target_is_seen_through_the_tables_line_of_sight() {
-    let s = load(BASE).unwrap();
+    let s = load(&base()).unwrap();
     let mut app = build_app(&s, RunOptions::default()).unwrap();
     let labels = step(&mut app);
     let table = AtmosphereTable::shipped().unwrap();

@@ -12,6 +12,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use common::SMALL_SCENARIO as BASE;
 use common::{irsim, root, temp_dir};
 use irsim::imaging::frame::Frame;
 use irsim::imaging::fusion::{Guidance, Patch, PoissonFusion, Solver};
@@ -29,37 +30,6 @@ fn load_toml(text: &str) -> Result<CheckedScenario, ScenarioError> {
 fn load_json(text: &str) -> Result<CheckedScenario, ScenarioError> {
     load_str(text, Format::Json, Path::new("hard.json"), &root().join("scenarios"))
 }
-
-/// A small valid scenario: 64×48 sensor looking north, one target 3 km ahead crossing east.
-const BASE: &str = r#"
-[run]
-frame_rate_hz = 30
-frames = 4
-seed = 3
-
-[sensor]
-width = 64
-height = 48
-pixel_pitch_um = 17
-focal_length_mm = 100
-aperture_mm = 100
-band_um = [8, 12]
-
-[observer]
-trajectory = { kind = "constant_velocity", position_m = [0, 0, 1000] }
-pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
-
-[[targets]]
-name = "a"
-trajectory = { kind = "constant_velocity", position_m = [-20, 3000, 1005], velocity_m_s = [100, 0, 0] }
-semi_axes_m = [4, 2, 1]
-
-[[targets]]
-name = "b"
-trajectory = { kind = "constant_velocity", position_m = [10, 4000, 1010], velocity_m_s = [-80, 0, 0] }
-semi_axes_m = [4, 2, 1]
-brdf = { kd = 0.5, ks = 0.5, f0 = 0.05, roughness = 0.3 }
-"#;
 
 fn with(replace: &str, by: &str) -> String {
     assert!(BASE.contains(replace), "{replace}");

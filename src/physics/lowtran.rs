@@ -538,39 +538,33 @@ impl AtmosphereTable {
             return;
         }
         let mut buf = Vec::new();
-        for (da, wa) in [(0, 1.0 - fa), (1, fa)] {
-            for (db, wb) in [(0, 1.0 - fb), (1, fb)] {
-                let w = wa * wb;
-                if w == 0.0 {
-                    continue;
-                }
-                let (p, q) = {
-                    let (x, y) = (ia + da, ib + db);
-                    if x <= y { (x, y) } else { (y, x) }
-                };
-                let dhc = self.alt_km[q] - self.alt_km[p];
-                if range_km >= dhc {
-                    self.pair_into(m, p, q, range_km, w, out, info);
-                    continue;
-                }
-                // a corner whose shortest path (vertical, dhc) is longer than the path asked: its vertical path
-                // scaled by how the horizontal paths at its two altitudes grow from range_km to dhc (strong lines
-                // saturate within metres, so optical depth is far from proportional to length there)
-                let nb = self.nbins();
-                buf.resize(5 * nb, 0.0);
-                let (v, rest) = buf.split_at_mut(nb);
-                let (ar, rest) = rest.split_at_mut(nb);
-                let (ad, rest) = rest.split_at_mut(nb);
-                let (br, bd) = rest.split_at_mut(nb);
-                self.pair_into(m, p, q, dhc, 1.0, v, info);
-                self.pair_into(m, p, p, range_km, 1.0, ar, info);
-                self.pair_into(m, p, p, dhc, 1.0, ad, info);
-                self.pair_into(m, q, q, range_km, 1.0, br, info);
-                self.pair_into(m, q, q, dhc, 1.0, bd, info);
-                let ratio = |x: f64, y: f64| if y > 0.0 { x / y } else { range_km / dhc };
-                for b in 0..nb {
-                    out[b] += w * v[b] * 0.5 * (ratio(ar[b], ad[b]) + ratio(br[b], bd[b]));
-                }
+        for &(x, y, w) in &corners {
+            if w == 0.0 {
+                continue;
+            }
+            let (p, q) = (x.min(y), x.max(y));
+            let dhc = self.alt_km[q] - self.alt_km[p];
+            if range_km >= dhc {
+                self.pair_into(m, p, q, range_km, w, out, info);
+                continue;
+            }
+            // a corner whose shortest path (vertical, dhc) is longer than the path asked: its vertical path
+            // scaled by how the horizontal paths at its two altitudes grow from range_km to dhc (strong lines
+            // saturate within metres, so optical depth is far from proportional to length there)
+            let nb = self.nbins();
+            buf.resize(5 * nb, 0.0);
+            let (v, rest) = buf.split_at_mut(nb);
+            let (ar, rest) = rest.split_at_mut(nb);
+            let (ad, rest) = rest.split_at_mut(nb);
+            let (br, bd) = rest.split_at_mut(nb);
+            self.pair_into(m, p, q, dhc, 1.0, v, info);
+            self.pair_into(m, p, p, range_km, 1.0, ar, info);
+            self.pair_into(m, p, p, dhc, 1.0, ad, info);
+            self.pair_into(m, q, q, range_km, 1.0, br, info);
+            self.pair_into(m, q, q, dhc, 1.0, bd, info);
+            let ratio = |x: f64, y: f64| if y > 0.0 { x / y } else { range_km / dhc };
+            for b in 0..nb {
+                out[b] += w * v[b] * 0.5 * (ratio(ar[b], ad[b]) + ratio(br[b], bd[b]));
             }
         }
     }
@@ -980,17 +974,29 @@ impl PathSpectrum {
     /// [`PathSpectrum::spectrum_weighted`] with the blackbody's spectrum in `measure` (photon radiance for a
     /// photon detector: the τ that multiplies a gray target's photon band radiance).
     pub fn spectrum_weighted_in(&self, measure: Measure, band: Band, temp_k: f64) -> f64 {
-        let weights = self.blackbody_weights(measure, band, temp_k);
-        if weights.iter().any(|&w| w > 0.0) { self.weighted(&weights) } else { self.band_average(band) }
+        let (mut num, mut den) = (0.0, 0.0);
+        for (b, w) in self.blackbody_in_bins(measure, band, temp_k) {
+            num += w * self.transmittance[b];
+            den += w;
+        }
+        if den > 0.0 { num / den } else { self.band_average(band) }
+    }
+
+    /// `(bin, a blackbody's band radiance at temp_k in measure over the bin's part of the band)` for each bin
+    /// overlapping the band.
+    fn blackbody_in_bins(&self, measure: Measure, band: Band, temp_k: f64) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.overlaps(band).map(move |(b, _, _)| {
+            let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
+            (b, Band::try_new(l, h).map_or(0.0, |part| band_radiance_in(measure, part, temp_k, 1.0)))
+        })
     }
 
     /// A blackbody's band radiance at `temp_k` in `measure` over each bin's part of the band (0 outside it): the
     /// weights of [`PathSpectrum::spectrum_weighted_in`], for [`PathSpectrum::weighted`].
     pub fn blackbody_weights(&self, measure: Measure, band: Band, temp_k: f64) -> Vec<f64> {
         let mut w = vec![0.0; self.transmittance.len()];
-        for (b, _, _) in self.overlaps(band) {
-            let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
-            w[b] = Band::try_new(l, h).map_or(0.0, |part| band_radiance_in(measure, part, temp_k, 1.0));
+        for (b, v) in self.blackbody_in_bins(measure, band, temp_k) {
+            w[b] = v;
         }
         w
     }

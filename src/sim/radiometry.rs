@@ -74,29 +74,21 @@ pub fn update_signatures(
         };
         let sig = &mut *sig;
         let sight = match scene.atmosphere.lowtran() {
-            Some(lowtran) => match sig.sight.update(lowtran, eye, p, settings.quality.atmosphere_tolerance) {
-                Ok(spectrum) => Some(Sight { spectrum, sun_weights: lowtran.sun_weights() }),
-                Err(e) => {
-                    sig.signal = None;
-                    sig.error = Some(e.to_string());
-                    sig.mach = mach;
-                    sig.key = Some(key);
-                    continue;
-                }
-            },
-            None => None,
+            Some(lowtran) => sig
+                .sight
+                .update(lowtran, eye, p, settings.quality.atmosphere_tolerance)
+                .map(|spectrum| Some(Sight { spectrum, sun_weights: lowtran.sun_weights() }))
+                .map_err(|e| e.to_string()),
+            None => Ok(None),
         };
-        let ctx = ApparentContext { reflection: skin.reflection, sight, ..ctx };
-        match apparent_radiance(&state, eye, &ctx) {
-            Ok(signal) => {
-                sig.signal = Some(signal);
-                sig.error = None;
-            }
-            Err(e) => {
-                sig.signal = None;
-                sig.error = Some(e.to_string());
-            }
-        }
+        let result = sight.and_then(|sight| {
+            let ctx = ApparentContext { reflection: skin.reflection, sight, ..ctx };
+            apparent_radiance(&state, eye, &ctx).map_err(|e| e.to_string())
+        });
+        (sig.signal, sig.error) = match result {
+            Ok(signal) => (Some(signal), None),
+            Err(e) => (None, Some(e)),
+        };
         sig.mach = mach;
         sig.key = Some(key);
     }

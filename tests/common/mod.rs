@@ -24,3 +24,35 @@ pub fn temp_dir(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     d
 }
+
+/// A small valid scenario: 64×48 sensor looking north, two targets 3 and 4 km ahead crossing east and west.
+#[allow(dead_code)] // not every test binary uses it
+pub const SMALL_SCENARIO: &str = r#"
+[run]
+frame_rate_hz = 30
+frames = 4
+seed = 3
+
+[sensor]
+width = 64
+height = 48
+pixel_pitch_um = 17
+focal_length_mm = 100
+aperture_mm = 100
+band_um = [8, 12]
+
+[observer]
+trajectory = { kind = "constant_velocity", position_m = [0, 0, 1000] }
+pointing = { mode = "yaw_pitch_roll", yaw_deg = 0 }
+
+[[targets]]
+name = "a"
+trajectory = { kind = "constant_velocity", position_m = [-20, 3000, 1005], velocity_m_s = [100, 0, 0] }
+semi_axes_m = [4, 2, 1]
+
+[[targets]]
+name = "b"
+trajectory = { kind = "constant_velocity", position_m = [10, 4000, 1010], velocity_m_s = [-80, 0, 0] }
+semi_axes_m = [4, 2, 1]
+brdf = { kd = 0.5, ks = 0.5, f0 = 0.05, roughness = 0.3 }
+"#;
