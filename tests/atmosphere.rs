@@ -57,6 +57,23 @@ fn weather_fields_are_checked_with_their_path() {
     load(&with("model = \"midlatitude_summer\"\naerosol = \"rural\"\nvisibility_km = 23", "t0_k = 290")).unwrap();
     load(&with("aerosol = \"rural\"\nvisibility_km = 23", "aerosol = \"none\"")).unwrap();
     load(&with("model = \"midlatitude_summer\"", "model = \"us_standard_1976\"")).unwrap();
+    // the air follows the model atmosphere's profile: a sea-level temperature beside it is refused
+    let e = refused(&with("visibility_km = 23", "visibility_km = 23\nt0_k = 290"), "atmosphere.t0_k");
+    assert!(e.contains("294.2"), "{e}");
+}
+
+#[test]
+fn the_clear_sky_source_is_checked_against_the_weather() {
+    let dome = |fields: &str| base().replace("[atmosphere]", &format!("[sky.dome]\n{fields}\n\n[atmosphere]"));
+    load(&dome("clear_sky = \"lowtran\"")).unwrap();
+    load(&dome("clear_sky = \"parametric\"\nscale_height_km = 3")).unwrap();
+    let e = refused(&dome("scale_height_km = 3"), "sky.dome.scale_height_km");
+    assert!(e.contains("parametric"), "{e}");
+    refused(&dome("clear_sky = \"lowtran\"\nzenith_emissivity = 0.3"), "sky.dome.zenith_emissivity");
+    let override_only = dome("clear_sky = \"lowtran\"")
+        .replace("model = \"midlatitude_summer\"\naerosol = \"rural\"\nvisibility_km = 23", "");
+    refused(&override_only, "sky.dome.clear_sky");
+    refused(&dome("clear_sky = \"modtran\""), "sky.dome.clear_sky");
 }
 
 #[test]

@@ -186,3 +186,43 @@ fn transmittance_refuses_paths_off_the_table() {
     ]);
     assert_eq!(code, 2, "{err}");
 }
+
+#[test]
+fn sky_prints_the_clear_sky_and_refuses_the_ground() {
+    let sky = |alt: &str, elevation: &str| {
+        irsim(&[
+            "calc",
+            "sky",
+            "--model",
+            "us-standard-1976",
+            "--aerosol",
+            "none",
+            "--observer-alt-km",
+            alt,
+            "--elevation-deg",
+            elevation,
+        ])
+    };
+    let (code, zenith, err) = sky("0", "90");
+    assert_eq!(code, 0, "{err}");
+    let bt = |v: &serde_json::Value| v["brightness_temp_k"].as_f64().unwrap();
+    // a clear 8–12 µm zenith sky from sea level: about 210 K, colder than the air, warmer than space
+    assert!(bt(&zenith) > 190.0 && bt(&zenith) < 240.0, "{zenith}");
+    let tau = zenith["transmittance_band_average"].as_f64().unwrap();
+    assert!(tau > 0.6 && tau < 0.9, "{zenith}");
+    // toward the horizon the path thickens: warmer, up to the air's own temperature
+    let (_, low, _) = sky("0", "2");
+    assert!(bt(&low) > bt(&zenith) + 30.0 && bt(&low) < 290.0, "{low}");
+    // from 10 km the sky is far colder, and the limb below the horizontal is still sky
+    let (_, high, _) = sky("10", "90");
+    assert!(bt(&high) < bt(&zenith) - 30.0, "{high}");
+    let (code, _, err) = sky("10", "-1");
+    assert_eq!(code, 0, "{err}");
+    for (alt, elevation, says) in
+        [("10", "-5", "looks at the ground"), ("30", "10", "--observer-alt-km"), ("1", "nan", "--elevation-deg")]
+    {
+        let (code, _, err) = sky(alt, elevation);
+        assert_eq!(code, 2, "{alt} {elevation}: {err}");
+        assert!(err.contains(says), "{alt} {elevation}: {err}");
+    }
+}

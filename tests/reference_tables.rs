@@ -1,5 +1,6 @@
 //! Every row of the independent reference tables (mpmath, 25+ digits) in `tests/data/`.
 
+use irsim::physics::atmosphere::AirTemperature;
 use irsim::physics::brdf::CookTorrance;
 use irsim::physics::planck::{Band, C2_M_K, band_radiance};
 use irsim::physics::skin::{StagnationModel, self_radiance, skin_temperatures};
@@ -46,7 +47,7 @@ fn stagnation_table_every_row() {
     let model = StagnationModel::default();
     for r in rows("stagnation_table.csv") {
         let (h_km, mach) = (num(&r[0]), num(&r[1]));
-        let t = skin_temperatures(&model, h_km * 1000.0, mach, 288.15).unwrap();
+        let t = skin_temperatures(&model, h_km * 1000.0, mach, &AirTemperature::default()).unwrap();
         let close = |got: f64, want: f64, tol: f64| ((got - want) / want).abs() <= tol;
         assert!(close(t.ambient_temp_k, num(&r[2]), 1e-14), "H={h_km}: T∞ {} vs {}", t.ambient_temp_k, r[2]);
         assert!(close(t.skin_temp_k, num(&r[3]), 1e-14), "H={h_km} M={mach}: Ts {} vs {}", t.skin_temp_k, r[3]);

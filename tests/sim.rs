@@ -161,9 +161,10 @@ fn noise_free_frames_equal_the_core_pipeline_composed_by_hand() {
         band: model.band,
         measure: model.measure(),
         observer_altitude_m: eye.z,
-        t0_k: spec.atmosphere.t0_k,
+        air: spec.atmosphere.air_temperature().unwrap(),
         atmosphere: &spec.atmosphere.override_transmittance(),
         zenith_emissivity: None,
+        clear_sky: None,
     })
     .unwrap();
     let intr = s.sensor.intrinsics;

@@ -4,6 +4,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use glam::{DMat3, DVec3};
 use serde_json::{Value, json};
 
+use crate::physics::atmosphere::AirTemperature;
 use crate::physics::brdf::CookTorrance;
 use crate::physics::lowtran::{Aerosol, AtmosphereError, AtmosphereTable, ModelAtmosphere, Weather};
 use crate::physics::planck::{Band, band_radiance};
@@ -32,6 +33,32 @@ pub enum CalcCommand {
     /// Atmospheric transmittance and thermal path radiance of a slant path from the LOWTRAN7 table: band-average
     /// and spectrum-weighted τ, path radiance and the grid cell used.
     Transmittance(TransmittanceArgs),
+    /// The clear sky's thermal radiance toward an elevation from the LOWTRAN7 table: the whole path up (down to a
+    /// tangent point and up again below the horizontal), its band τ, radiance and brightness temperature.
+    Sky(SkyArgs),
+}
+
+/// Flags of `calc sky`.
+#[derive(Debug, Args)]
+pub struct SkyArgs {
+    /// LOWTRAN model atmosphere.
+    #[arg(long, value_enum, default_value = "midlatitude-summer")]
+    pub model: ModelAtmosphere,
+    /// Aerosol model.
+    #[arg(long, value_enum, default_value = "rural")]
+    pub aerosol: Aerosol,
+    /// Visibility (meteorological range at sea level), km; ignored with `--aerosol none`.
+    #[arg(long, default_value_t = 23.0, allow_negative_numbers = true)]
+    pub visibility_km: f64,
+    /// Observer's altitude, km.
+    #[arg(long, allow_negative_numbers = true)]
+    pub observer_alt_km: f64,
+    /// Elevation of the view above the horizontal, degrees (negative: below it, down to the horizon's dip).
+    #[arg(long, allow_negative_numbers = true)]
+    pub elevation_deg: f64,
+    /// Band bounds, µm: LO HI.
+    #[arg(long, num_args = 2, value_names = ["LO", "HI"], default_values_t = [8.0, 12.0], allow_negative_numbers = true)]
+    pub band_um: Vec<f64>,
 }
 
 /// Flags of `calc transmittance`.
@@ -265,7 +292,9 @@ pub fn run(cmd: &CalcCommand) -> Result<Value, CliError> {
         }
         CalcCommand::Skin(a) => {
             let model = StagnationModel { recovery: a.recovery, gamma: a.gamma };
-            let t = skin_temperatures(&model, a.altitude_km * 1000.0, a.mach, a.t0_k).map_err(invalid)?;
+            let t =
+                skin_temperatures(&model, a.altitude_km * 1000.0, a.mach, &AirTemperature::Standard { t0_k: a.t0_k })
+                    .map_err(invalid)?;
             let mut out = json!({
                 "ambient_temp_k": t.ambient_temp_k,
                 "skin_temp_k": t.skin_temp_k,
@@ -298,6 +327,7 @@ pub fn run(cmd: &CalcCommand) -> Result<Value, CliError> {
         }
         CalcCommand::Signal(a) => signal(a),
         CalcCommand::Transmittance(a) => transmittance(a),
+        CalcCommand::Sky(a) => sky(a),
     }
 }
 
@@ -348,6 +378,57 @@ fn transmittance(a: &TransmittanceArgs) -> Result<Value, CliError> {
     }))
 }
 
+/// `calc sky`: the clear sky toward one elevation through the LOWTRAN7 table.
+fn sky(a: &SkyArgs) -> Result<Value, CliError> {
+    let band = band_from(&a.band_um)?;
+    finite("observer_alt_km", a.observer_alt_km, true, "finite")?;
+    finite("visibility_km", a.visibility_km, true, "finite")?;
+    finite("elevation_deg", a.elevation_deg, (-90.0..=90.0).contains(&a.elevation_deg), "[−90, 90]")?;
+    let table = AtmosphereTable::shipped().map_err(|e| CliError::Failed(e.to_string()))?;
+    let weather = Weather { model: a.model, aerosol: a.aerosol, visibility_km: a.visibility_km };
+    let sin_e = a.elevation_deg.to_radians().sin();
+    let lowest = crate::physics::lowtran::horizon_sin_e(a.observer_alt_km);
+    if a.observer_alt_km >= 0.0 && sin_e < lowest {
+        return Err(CliError::Invalid(format!(
+            "--elevation-deg: {} looks at the ground from {} km; the horizon's dip there is {:.4}°",
+            crate::physics::Num(a.elevation_deg),
+            crate::physics::Num(a.observer_alt_km),
+            lowest.asin().to_degrees()
+        )));
+    }
+    let p = table.sky(&weather, a.observer_alt_km, sin_e).map_err(|e| match e {
+        AtmosphereError::OutsideGrid { name, value, range } => CliError::Invalid(format!(
+            "--{}: {} is outside the LOWTRAN table's range {range}",
+            name.replace('_', "-"),
+            crate::physics::Num(value)
+        )),
+        other => CliError::Invalid(other.to_string()),
+    })?;
+    if !p.covers(band) {
+        return Err(CliError::Invalid(format!(
+            "--band-um: {}–{} µm is outside the table's 1–14 µm",
+            crate::physics::Num(band.lo_um()),
+            crate::physics::Num(band.hi_um())
+        )));
+    }
+    let radiance = p.band_path_radiance_w_m2_sr(band);
+    Ok(json!({
+        "model": a.model.name(),
+        "aerosol": a.aerosol.name(),
+        "visibility_km": if a.aerosol == Aerosol::None { Value::Null } else { json!(a.visibility_km) },
+        "observer_alt_km": a.observer_alt_km,
+        "elevation_deg": a.elevation_deg,
+        "band_um": [band.lo_um(), band.hi_um()],
+        "transmittance_band_average": p.band_average(band),
+        "radiance_w_m2_sr": radiance,
+        "radiance_band_mean_w_m2_sr_um": p.band_mean_path_radiance_w_m2_sr_um(band),
+        "brightness_temp_k": crate::physics::planck::brightness_temperature(
+            crate::physics::planck::Measure::Energy, band, radiance),
+        "source": "LOWTRAN7 table assets/atmosphere/lowtran7.irat (built in): paths to 20 km chained, LOWTRAN's \
+                   vertical paths above",
+    }))
+}
+
 fn signal(a: &SignalArgs) -> Result<Value, CliError> {
     let band = band_from(&a.band_um)?;
     for (name, v) in
@@ -395,7 +476,7 @@ fn signal(a: &SignalArgs) -> Result<Value, CliError> {
     };
     let ctx = OwnedSignalContext {
         band,
-        t0_k: a.t0_k,
+        air: AirTemperature::Standard { t0_k: a.t0_k },
         stagnation: StagnationModel::default(),
         sun: Sun { azimuth_deg: a.sun_azimuth_deg, elevation_deg: a.sun_elevation_deg, ..Sun::default() },
         atmosphere,

@@ -493,9 +493,10 @@ fn write_sky(a: &SkyArgs) -> Result<(), CliError> {
         band,
         measure: Measure::Energy,
         observer_altitude_m: a.altitude_m,
-        t0_k: a.t0_k,
+        air: crate::physics::atmosphere::AirTemperature::Standard { t0_k: a.t0_k },
         atmosphere: &atmosphere,
         zenith_emissivity: None,
+        clear_sky: None,
     })
     .map_err(|e| CliError::Invalid(format!("{}: {}", e.name, e.range)))?;
     let lut = RadianceLut::new(band, Measure::Energy, crate::scenario::Quality::default().radiance_table_step_k);

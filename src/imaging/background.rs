@@ -371,9 +371,10 @@ mod tests {
             band: Band::LWIR_8_12,
             measure: Measure::Energy,
             observer_altitude_m: 8000.0,
-            t0_k: 288.15,
+            air: crate::physics::atmosphere::AirTemperature::default(),
             atmosphere: &atmosphere,
             zenith_emissivity: None,
+            clear_sky: None,
         })
         .unwrap()
     }

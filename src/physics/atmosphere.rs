@@ -10,8 +10,14 @@
 //! of the standard's 186.87 K kinetic temperature in its 86–91 km isothermal layer.
 //!
 //! The supported range is −5 km to 86 km (the 1976 tables start at −5 km).
+//!
+//! With a LOWTRAN weather the air follows the model atmosphere's own profile ([`AirTemperature`]), so that the
+//! skin heating, the speed of sound and the air's emission agree with the transmittance: mid-latitude summer is
+//! 294.2 K at sea level, sub-arctic winter 257.2 K.
 
 use thiserror::Error;
+
+use super::lowtran::{AtmosphereTable, ModelAtmosphere, Profile};
 
 /// Sea-level temperature of the standard atmosphere, K.
 pub const STANDARD_T0_K: f64 = 288.15;
@@ -41,6 +47,66 @@ pub enum AtmosphereError {
         /// The temperature given, K.
         t0_k: f64,
     },
+}
+
+/// The air's temperature against altitude: eq 2 from a sea-level temperature, or a LOWTRAN model atmosphere's
+/// profile.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AirTemperature {
+    /// Eq 2 (the 1976 standard's lapse rates) from sea level at `t0_k`, K.
+    Standard {
+        /// Sea-level temperature, K.
+        t0_k: f64,
+    },
+    /// A LOWTRAN model atmosphere's levels, linear between them (constant beyond its lowest and highest).
+    Profile(&'static Profile),
+}
+
+impl Default for AirTemperature {
+    fn default() -> Self {
+        Self::Standard { t0_k: STANDARD_T0_K }
+    }
+}
+
+impl AirTemperature {
+    /// The air temperature of a LOWTRAN model atmosphere. US Standard 1976 is eq 2 itself from 288.15 K (LOWTRAN
+    /// lists its levels rounded to 0.1 K); the others follow their profiles.
+    pub fn of_model(model: ModelAtmosphere, table: &'static AtmosphereTable) -> Self {
+        match model {
+            ModelAtmosphere::UsStandard1976 => Self::Standard { t0_k: STANDARD_T0_K },
+            other => Self::Profile(table.profile(other)),
+        }
+    }
+
+    /// Temperature at `altitude_m`, K.
+    ///
+    /// # Errors
+    /// As [`ambient_temperature_k`].
+    pub fn at_k(&self, altitude_m: f64) -> Result<f64, AtmosphereError> {
+        match self {
+            Self::Standard { t0_k } => ambient_temperature_k(altitude_m, *t0_k),
+            Self::Profile(p) => {
+                if !(altitude_m.is_finite() && (MIN_ALTITUDE_M..=MAX_ALTITUDE_M).contains(&altitude_m)) {
+                    return Err(AtmosphereError::AltitudeOutOfRange { altitude_m });
+                }
+                Ok(p.temperature_at(altitude_m / 1000.0))
+            }
+        }
+    }
+
+    /// Temperature at `altitude_m` clamped to the supported altitudes, K.
+    pub fn clamped_k(&self, altitude_m: f64) -> f64 {
+        let z = if altitude_m.is_nan() { 0.0 } else { altitude_m.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M) };
+        self.at_k(z).unwrap_or(self.sea_level_k())
+    }
+
+    /// Temperature at sea level, K.
+    pub fn sea_level_k(&self) -> f64 {
+        match self {
+            Self::Standard { t0_k } => *t0_k,
+            Self::Profile(p) => p.temperature_at(0.0),
+        }
+    }
 }
 
 /// Ambient temperature T∞(H) in K at `altitude_m`, for sea-level temperature `t0_k` (paper eq 2, 1976 above).

@@ -18,9 +18,18 @@
 
 use glam::DVec3;
 
-use super::lowtran::{AtmosphereError, AtmosphereTable, EARTH_RADIUS_KM, PathSpectrum, Weather};
+use super::lowtran::{AtmosphereError, AtmosphereTable, EARTH_RADIUS_KM, PathSpectrum, Weather, horizon_sin_e};
 use super::planck::{Band, Measure, band_radiance};
 use super::transmittance::PathTransmittance;
+
+/// Nodes of the clear sky's radiance between the horizontal and the zenith, spaced as the square of their index.
+pub const SKY_NODES: usize = 96;
+/// Nodes between the horizon's dip and the horizontal (the limb), spaced as the square of their index from the
+/// horizontal.
+pub const LIMB_NODES: usize = 32;
+
+/// Nodes between the nadir and the horizon's dip (the ground), spaced as the square of their index from the dip.
+pub const GROUND_NODES: usize = 48;
 
 /// Ranges of the observer's table of band paths.
 const RANGE_NODES: usize = 33;
@@ -180,6 +189,59 @@ impl LowtranAtmosphere {
             .map_or(1.0, |p| p.weighted(&self.air_weights))
     }
 
+    /// Sine of the lowest elevation whose ray from the observer's start misses the ground.
+    pub fn horizon_sin_e(&self) -> f64 {
+        horizon_sin_e(self.eye_alt_km)
+    }
+
+    /// The clear sky's spectrum toward elevation `asin(sin_e)` from the observer's start
+    /// ([`AtmosphereTable::sky`]).
+    ///
+    /// # Errors
+    /// As [`AtmosphereTable::sky`].
+    pub fn sky_spectrum(&self, sin_e: f64) -> Result<PathSpectrum, AtmosphereError> {
+        self.table.sky(&self.weather, self.eye_alt_km, sin_e)
+    }
+
+    /// The clear sky's band radiance in the detector's measure toward elevation `asin(sin_e)` (see
+    /// [`LowtranAtmosphere::sky_spectrum`]).
+    ///
+    /// # Errors
+    /// As [`LowtranAtmosphere::sky_spectrum`].
+    pub fn sky_radiance(&self, sin_e: f64) -> Result<f64, AtmosphereError> {
+        Ok(self.sky_spectrum(sin_e)?.band_path_radiance_in(self.measure, self.band))
+    }
+
+    /// The clear sky's band radiance on [`SKY_NODES`] + [`LIMB_NODES`] elevations from the horizon's dip to the
+    /// zenith, for [`ClearSky::radiance`] to interpolate.
+    ///
+    /// # Errors
+    /// As [`LowtranAtmosphere::sky_spectrum`].
+    pub fn clear_sky(&self) -> Result<ClearSky, AtmosphereError> {
+        use rayon::prelude::*;
+        let dip = -self.horizon_sin_e().asin();
+        let mut elevation_rad: Vec<f64> = Vec::with_capacity(SKY_NODES + LIMB_NODES + 1);
+        if dip > 1e-9 {
+            elevation_rad.extend((1..=LIMB_NODES).rev().map(|k| -dip * (k as f64 / LIMB_NODES as f64).powi(2)));
+        }
+        elevation_rad
+            .extend((0..=SKY_NODES).map(|k| std::f64::consts::FRAC_PI_2 * (k as f64 / SKY_NODES as f64).powi(2)));
+        let radiance = elevation_rad.par_iter().map(|&e| self.sky_radiance(e.sin())).collect::<Result<Vec<_>, _>>()?;
+        let span = std::f64::consts::FRAC_PI_2 - dip;
+        let ground_elevation_rad: Vec<f64> =
+            (0..=GROUND_NODES).rev().map(|k| -dip - span * (k as f64 / GROUND_NODES as f64).powi(2)).collect();
+        let ground = ground_elevation_rad
+            .par_iter()
+            .map(|&e| {
+                let (p, _) =
+                    self.table.ray(&self.weather, self.eye_alt_km, e.sin().min(self.horizon_sin_e() - 1e-12))?;
+                Ok((p.weighted(&self.air_weights), p.band_path_radiance_in(self.measure, self.band)))
+            })
+            .collect::<Result<Vec<(f64, f64)>, AtmosphereError>>()?;
+        let (ground_tau, ground_path) = ground.into_iter().unzip();
+        Ok(ClearSky { elevation_rad, radiance, ground_elevation_rad, ground_tau, ground_path })
+    }
+
     /// `(ln τ, path radiance)` of the band from the observer's starting altitude to altitude `h_km` over `r_km`.
     fn observer_path(&self, h_km: f64, r_km: f64) -> (f64, f64) {
         let top = self.alt_km[self.alt_km.len() - 1];
@@ -261,6 +323,51 @@ impl LowtranAtmosphere {
             None
         }
     }
+}
+
+/// The clear sky's band radiance from one observer, on elevation nodes ([`LowtranAtmosphere::clear_sky`]).
+#[derive(Debug, Clone)]
+pub struct ClearSky {
+    /// Elevations, rad, increasing from the horizon's dip to the zenith.
+    pub elevation_rad: Vec<f64>,
+    /// Band radiance in the detector's measure at each.
+    pub radiance: Vec<f64>,
+    /// Elevations of the rays that meet the ground, rad, increasing from the nadir to the horizon's dip.
+    pub ground_elevation_rad: Vec<f64>,
+    /// Their band transmittance to the ground, weighted by the air's spectrum at the observer.
+    pub ground_tau: Vec<f64>,
+    /// Their band path radiance in the detector's measure.
+    pub ground_path: Vec<f64>,
+}
+
+impl ClearSky {
+    /// Sine of the lowest elevation covered (the horizon's dip).
+    pub fn lowest_sin_e(&self) -> f64 {
+        self.elevation_rad[0].sin()
+    }
+
+    /// Radiance toward elevation `asin(sin_e)`, linear in the elevation between the nodes (clamped to them).
+    pub fn radiance(&self, sin_e: f64) -> f64 {
+        interpolate(&self.elevation_rad, &self.radiance, sin_e.clamp(-1.0, 1.0).asin())
+    }
+
+    /// Band transmittance and path radiance of the ray toward elevation `asin(sin_e)` down to the ground (clamped
+    /// to the ground's nodes).
+    pub fn ground(&self, sin_e: f64) -> (f64, f64) {
+        let e = sin_e.clamp(-1.0, 1.0).asin();
+        (
+            interpolate(&self.ground_elevation_rad, &self.ground_tau, e),
+            interpolate(&self.ground_elevation_rad, &self.ground_path, e),
+        )
+    }
+}
+
+/// `y` at `at`, linear between the increasing nodes `x` (clamped to them).
+fn interpolate(x: &[f64], y: &[f64], at: f64) -> f64 {
+    let n = x.len();
+    let i = x.partition_point(|&v| v <= at).saturating_sub(1).min(n - 2);
+    let f = ((at - x[i]) / (x[i + 1] - x[i])).clamp(0.0, 1.0);
+    y[i] + f * (y[i + 1] - y[i])
 }
 
 /// The table's altitude coordinate.
@@ -410,23 +517,87 @@ mod tests {
         for (lo, hi) in [(7.5, 13.5), (3.0, 5.0)] {
             let band = Band::try_new(lo, hi).unwrap();
             let atm = LowtranAtmosphere::new(w, band, Measure::Energy, 2000.0, 5778.0).unwrap();
+            let clear = atm.clear_sky().unwrap();
+            for lowtran_sky in [false, true] {
+                let dome = Dome::new(&DomeInputs {
+                    spec: DomeSpec::default(),
+                    band,
+                    measure: Measure::Energy,
+                    observer_altitude_m: 2000.0,
+                    air: crate::physics::atmosphere::AirTemperature::default(),
+                    atmosphere: &atm,
+                    zenith_emissivity: Some(1.0 - atm.zenith_transmittance()),
+                    clear_sky: lowtran_sky.then_some(&clear),
+                })
+                .unwrap();
+                let at = |deg: f64| {
+                    let e = deg.to_radians();
+                    f64::from(dome.radiance_toward(DVec3::new(0.0, e.cos(), e.sin())))
+                };
+                let dip = -atm.horizon_sin_e().asin().to_degrees();
+                // no step: across the edge the radiance changes no more than the local gradient gives
+                for edge in [0.0, -dip] {
+                    let (above, below) = (at(edge + 0.02), at(edge - 0.02));
+                    let gradient = (at(edge + 0.06) - above).abs().max((below - at(edge - 0.06)).abs());
+                    assert!(
+                        (above - below).abs() <= 1.5 * gradient + 0.002 * above,
+                        "{lo}–{hi} µm, LOWTRAN sky {lowtran_sky}, at {edge:.3}°: {above} above, {below} below, \
+                         {gradient} over the next 0.04°"
+                    );
+                }
+            }
+        }
+    }
+
+    /// Against direct LOWTRAN runs up to 100 km (the generator's `sky` runs), the LOWTRAN clear sky is closer than
+    /// the parametric one, whose zenith emissivity comes from LOWTRAN's vertical path.
+    #[test]
+    fn the_lowtran_sky_is_closer_to_lowtran_than_the_parametric_one() {
+        use crate::physics::planck::brightness_temperature;
+        use crate::physics::sky::{Dome, DomeInputs, DomeSpec};
+        let text =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/atmosphere/lowtran7_offgrid.json"))
+                .unwrap();
+        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let band = Band::LWIR_8_12;
+        let w = Weather { model: ModelAtmosphere::UsStandard1976, aerosol: Aerosol::Rural, visibility_km: 23.0 };
+        let (mut lowtran_worst, mut parametric_worst) = (0.0f64, 0.0f64);
+        for h in [0.0, 3.0, 10.0] {
+            let atm = LowtranAtmosphere::new(w, band, Measure::Energy, h * 1000.0, 5778.0).unwrap();
+            let clear = atm.clear_sky().unwrap();
             let dome = Dome::new(&DomeInputs {
                 spec: DomeSpec::default(),
                 band,
                 measure: Measure::Energy,
-                observer_altitude_m: 2000.0,
-                t0_k: 288.15,
+                observer_altitude_m: h * 1000.0,
+                air: crate::physics::atmosphere::AirTemperature::default(),
                 atmosphere: &atm,
                 zenith_emissivity: Some(1.0 - atm.zenith_transmittance()),
+                clear_sky: None,
             })
             .unwrap();
-            let at = |deg: f64| {
-                let e = deg.to_radians();
-                f64::from(dome.radiance_toward(DVec3::new(0.0, e.cos(), e.sin())))
-            };
-            let (above, below) = (at(0.02), at(-0.02));
-            assert!((above / below - 1.0).abs() < 0.005, "{lo}–{hi} µm: {above} above, {below} below");
+            for r in doc["sky"].as_array().unwrap() {
+                if r["model"] != "us_standard_1976"
+                    || r["aerosol"] != "rural"
+                    || r["observer_alt_km"].as_f64() != Some(h)
+                {
+                    continue;
+                }
+                let zenith = r["zenith_angle_deg"].as_f64().unwrap();
+                let sin_e = (90.0 - zenith).to_radians().sin();
+                let bt = |l: f64| brightness_temperature(Measure::Energy, band, l).unwrap();
+                let want = bt(r["bands_um"]["8-12"]["path_radiance"].as_f64().unwrap() * 4.0);
+                let lowtran = bt(clear.radiance(sin_e)) - want;
+                let parametric = bt(f64::from(dome.radiance(sin_e))) - want;
+                eprintln!("{h} km, zenith {zenith}°: LOWTRAN sky {lowtran:+.2} K, parametric {parametric:+.2} K");
+                lowtran_worst = lowtran_worst.max(lowtran.abs());
+                parametric_worst = parametric_worst.max(parametric.abs());
+            }
         }
+        eprintln!(
+            "largest brightness-temperature error: LOWTRAN sky {lowtran_worst:.2} K, parametric {parametric_worst:.2} K"
+        );
+        assert!(lowtran_worst < parametric_worst);
     }
 
     #[test]

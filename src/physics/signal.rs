@@ -7,7 +7,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use super::ParamError;
-use super::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
+use super::atmosphere::{AirTemperature, MAX_ALTITUDE_M, MIN_ALTITUDE_M};
 use super::brdf::CookTorrance;
 use super::lowtran::PathSpectrum;
 use super::planck::{Band, Measure, PlanckMethod, band_radiance_in};
@@ -61,8 +61,8 @@ fn heating(target: &TargetState) -> Result<f64, SignalError> {
 pub struct SignalContext<'a> {
     /// Sensor band.
     pub band: Band,
-    /// Sea-level temperature for eq 2, K.
-    pub t0_k: f64,
+    /// The air's temperature against altitude.
+    pub air: AirTemperature,
     /// Stagnation constants.
     pub stagnation: StagnationModel,
     /// The sun.
@@ -127,7 +127,7 @@ pub fn target_signal(
     target.brdf.validate()?;
     ctx.radiometer.validate()?;
     ctx.gray.validate()?;
-    let mut temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, ctx.t0_k)?;
+    let mut temps = skin_temperatures(&ctx.stagnation, target.position_m.z, target.mach, &ctx.air)?;
     temps.skin_temp_k += heating(target)?;
     let l_self = self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let Sunlit { range_m, to_viewer, sun_tau, reflected: l_re } =
@@ -212,8 +212,8 @@ pub struct ApparentContext<'a> {
     pub band: Band,
     /// The detector's measure (energy or photons).
     pub measure: Measure,
-    /// Sea-level temperature for eq 2, K.
-    pub t0_k: f64,
+    /// The air's temperature against altitude.
+    pub air: AirTemperature,
     /// Stagnation constants.
     pub stagnation: StagnationModel,
     /// The sun.
@@ -286,7 +286,7 @@ pub fn apparent_radiance(
     target.brdf.validate()?;
     // a scene may fly above or below the profile's range: the air there is taken at the nearest end
     let altitude_m = target.position_m.z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M);
-    let mut temps = skin_temperatures(&ctx.stagnation, altitude_m, target.mach, ctx.t0_k)?;
+    let mut temps = skin_temperatures(&ctx.stagnation, altitude_m, target.mach, &ctx.air)?;
     temps.skin_temp_k += heating(target)?;
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let l_self = ctx.planck.band_radiance(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
@@ -321,7 +321,9 @@ pub fn apparent_radiance(
         Some(Sight { spectrum: p, .. }) => p.band_path_radiance_in(ctx.measure, ctx.band),
         None => {
             let mid_z = 0.5 * (target.position_m.z + sensor_m.z);
-            let t_mid = ambient_temperature_k(mid_z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), ctx.t0_k)
+            let t_mid = ctx
+                .air
+                .at_k(mid_z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M))
                 .map_err(|e| SignalError::Skin(SkinError::from(e)))?;
             (1.0 - tau) * ctx.planck.band_radiance(ctx.measure, ctx.band, t_mid, 1.0)
         }
@@ -344,8 +346,8 @@ pub fn apparent_radiance(
 pub struct OwnedSignalContext {
     /// Sensor band.
     pub band: Band,
-    /// Sea-level temperature, K.
-    pub t0_k: f64,
+    /// The air's temperature against altitude.
+    pub air: AirTemperature,
     /// Stagnation constants.
     pub stagnation: StagnationModel,
     /// The sun.
@@ -369,7 +371,7 @@ impl OwnedSignalContext {
     pub fn as_context(&self) -> SignalContext<'_> {
         SignalContext {
             band: self.band,
-            t0_k: self.t0_k,
+            air: self.air,
             stagnation: self.stagnation,
             sun: self.sun,
             atmosphere: &self.atmosphere,

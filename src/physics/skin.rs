@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use super::ParamError;
-use super::atmosphere::{AtmosphereError, ambient_temperature_k};
+use super::atmosphere::{AirTemperature, AtmosphereError};
 use super::planck::{Band, band_radiance};
 
 /// Ratio of specific heats of dry air used for the speed of sound (not eq 1's `k`).
@@ -77,7 +77,7 @@ pub struct SkinTemperatures {
     pub skin_temp_k: f64,
 }
 
-/// T∞ (eq 2) and T_s (eq 1) for an aircraft at `altitude_m` flying at `mach`, sea level at `t0_k`.
+/// T∞ (eq 2, or the model atmosphere's profile) and T_s (eq 1) for an aircraft at `altitude_m` flying at `mach`.
 ///
 /// # Errors
 /// Those of [`ambient_temperature_k`] and [`StagnationModel::skin_temperature_k`].
@@ -85,9 +85,9 @@ pub fn skin_temperatures(
     model: &StagnationModel,
     altitude_m: f64,
     mach: f64,
-    t0_k: f64,
+    air: &AirTemperature,
 ) -> Result<SkinTemperatures, SkinError> {
-    let ambient_temp_k = ambient_temperature_k(altitude_m, t0_k)?;
+    let ambient_temp_k = air.at_k(altitude_m)?;
     let skin_temp_k = model.skin_temperature_k(ambient_temp_k, mach)?;
     Ok(SkinTemperatures { ambient_temp_k, skin_temp_k })
 }

@@ -1,5 +1,9 @@
-//! The clear sky and the ground as a radiance field over the view direction's elevation (a simple documented
-//! model; a LOWTRAN-grounded one can replace it behind the same interface).
+//! The clear sky and the ground as a radiance field over the view direction's elevation.
+//!
+//! With a LOWTRAN weather the sky, the limb and the paths to the ground are LOWTRAN's by default
+//! ([`ClearSkyModel::Lowtran`]: every ray traced through the table, [`super::lowtran_paths::ClearSky`]); the
+//! ground's emission and reflection are as below. Otherwise, or with [`ClearSkyModel::Parametric`], this module's
+//! own documented model:
 //!
 //! **Sky** (elevation `e > 0`): a plane-parallel atmosphere whose absorber (water vapour, and CO₂ in the
 //! 4.3 µm band) falls off with scale height `H` above sea level. Its zenith optical depth above the observer
@@ -37,7 +41,8 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::ParamError;
-use super::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
+use super::atmosphere::{AirTemperature, MAX_ALTITUDE_M, MIN_ALTITUDE_M};
+use super::lowtran_paths::ClearSky;
 use super::planck::{Band, Measure, band_radiance_in};
 use super::transmittance::PathTransmittance;
 
@@ -51,12 +56,20 @@ const TABLE_SAMPLES: usize = 8193;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DomeSpec {
-    /// Zenith emissivity of the whole atmosphere seen from sea level, (0, 1); `None` takes the band's default.
+    /// Where the clear sky above the ground comes from; `None`: LOWTRAN with an `atmosphere.model`, else the
+    /// parametric model.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clear_sky: Option<ClearSkyModel>,
+    /// Parametric sky: zenith emissivity of the whole atmosphere seen from sea level, (0, 1); `None` takes the
+    /// band's default (LOWTRAN's vertical path with an `atmosphere.model`).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub zenith_emissivity: Option<f64>,
-    /// Scale height of the absorber, km, > 0.
-    pub scale_height_km: f64,
-    /// Height above the observer from which a zenith path's emission comes, km, ≥ 0.
-    pub emission_height_km: f64,
+    /// Parametric sky: scale height of the absorber, km, > 0; `None` is 2.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale_height_km: Option<f64>,
+    /// Parametric sky: height above the observer from which a zenith path's emission comes, km, ≥ 0; `None` is 1.5.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub emission_height_km: Option<f64>,
     /// Ground temperature, K; `None` is 5 K above the sea-level air temperature.
     pub ground_temp_k: Option<f64>,
     /// Ground emissivity, [0, 1].
@@ -66,9 +79,10 @@ pub struct DomeSpec {
 impl Default for DomeSpec {
     fn default() -> Self {
         Self {
+            clear_sky: None,
             zenith_emissivity: None,
-            scale_height_km: 2.0,
-            emission_height_km: 1.5,
+            scale_height_km: None,
+            emission_height_km: None,
             ground_temp_k: None,
             ground_emissivity: 0.95,
         }
@@ -87,11 +101,13 @@ impl DomeSpec {
         {
             return bad("zenith_emissivity", e, "(0, 1)");
         }
-        if !(self.scale_height_km.is_finite() && self.scale_height_km >= 0.1 && self.scale_height_km <= 100.0) {
-            return bad("scale_height_km", self.scale_height_km, "[0.1, 100] km");
+        let scale = self.scale_height();
+        if !(scale.is_finite() && (0.1..=100.0).contains(&scale)) {
+            return bad("scale_height_km", scale, "[0.1, 100] km");
         }
-        if !(self.emission_height_km.is_finite() && (0.0..=20.0).contains(&self.emission_height_km)) {
-            return bad("emission_height_km", self.emission_height_km, "[0, 20] km");
+        let emission = self.emission_height();
+        if !(emission.is_finite() && (0.0..=20.0).contains(&emission)) {
+            return bad("emission_height_km", emission, "[0, 20] km");
         }
         if let Some(t) = self.ground_temp_k
             && !(t.is_finite() && (150.0..=400.0).contains(&t))
@@ -102,6 +118,40 @@ impl DomeSpec {
             return bad("ground_emissivity", self.ground_emissivity, "[0, 1]");
         }
         Ok(())
+    }
+}
+
+/// Where the clear sky's radiance comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClearSkyModel {
+    /// LOWTRAN7's paths from the observer up through the whole atmosphere (needs `atmosphere.model`).
+    Lowtran,
+    /// The plane-parallel model of this module (zenith emissivity, scale height, emission height).
+    Parametric,
+}
+
+impl DomeSpec {
+    /// Scale height of the parametric sky's absorber, km.
+    pub fn scale_height(&self) -> f64 {
+        self.scale_height_km.unwrap_or(2.0)
+    }
+
+    /// Emission height of the parametric sky, km.
+    pub fn emission_height(&self) -> f64 {
+        self.emission_height_km.unwrap_or(1.5)
+    }
+
+    /// The parametric sky's fields that the scenario gives, by name.
+    pub fn parametric_fields_given(&self) -> Vec<&'static str> {
+        [
+            ("zenith_emissivity", self.zenith_emissivity.is_some()),
+            ("scale_height_km", self.scale_height_km.is_some()),
+            ("emission_height_km", self.emission_height_km.is_some()),
+        ]
+        .into_iter()
+        .filter_map(|(n, given)| given.then_some(n))
+        .collect()
     }
 }
 
@@ -132,12 +182,15 @@ pub struct DomeInputs<'a> {
     /// Observer altitude, m.
     pub observer_altitude_m: f64,
     /// Sea-level temperature of eq 2, K.
-    pub t0_k: f64,
+    pub air: AirTemperature,
     /// Transmittance of ground paths (and their path radiance, where the model has its own).
     pub atmosphere: &'a (dyn PathTransmittance + Sync),
     /// The sea-level zenith emissivity the atmosphere model gives the band (LOWTRAN's vertical path to 20 km),
     /// used where `spec` gives none; `None` takes the band's default.
     pub zenith_emissivity: Option<f64>,
+    /// LOWTRAN's clear sky from the observer: with it, every ray that misses the ground (the sky, and the limb
+    /// down to the horizon's dip) takes its radiance, and the ground reflects it; the parametric model otherwise.
+    pub clear_sky: Option<&'a ClearSky>,
 }
 
 impl Dome {
@@ -153,9 +206,9 @@ impl Dome {
             return Err(ParamError { name: "observer_altitude_m", value: h, range: "[−5000, 86000] m".into() });
         }
         let t_air = |z: f64| {
-            ambient_temperature_k(z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), inputs.t0_k).map_err(|e| ParamError {
+            inputs.air.at_k(z.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M)).map_err(|e| ParamError {
                 name: "t0_k",
-                value: inputs.t0_k,
+                value: inputs.air.sea_level_k(),
                 range: e.to_string(),
             })
         };
@@ -164,12 +217,15 @@ impl Dome {
             .zenith_emissivity
             .or(inputs.zenith_emissivity.filter(|e| *e > 0.0 && *e < 1.0))
             .unwrap_or_else(|| default_zenith_emissivity(inputs.band));
-        let scale_m = s.scale_height_km * 1000.0;
+        let scale_m = s.scale_height() * 1000.0;
         let tau_z = -(1.0 - eps_z0).ln() * (-h.max(0.0) / scale_m).exp();
-        let z_e = s.emission_height_km * 1000.0;
+        let z_e = s.emission_height() * 1000.0;
         let mut sky_at = Vec::with_capacity(TABLE_SAMPLES);
         // the sky for every positive sin e (also the reflection of the sky in the ground)
         let sky = |sin_e: f64| -> Result<f64, ParamError> {
+            if let Some(clear) = inputs.clear_sky {
+                return Ok(clear.radiance(sin_e.max(0.0)));
+            }
             let eps = if sin_e <= 0.0 { 1.0 } else { -(-tau_z / sin_e).exp_m1() };
             Ok(eps * planck(t_air(h + z_e * sin_e.max(0.0))?))
         };
@@ -183,7 +239,10 @@ impl Dome {
         let dip = (EARTH_RADIUS_M / (EARTH_RADIUS_M + h.max(0.0))).acos();
         for i in 0..TABLE_SAMPLES {
             let sin_e = -1.0 + 2.0 * i as f64 / (TABLE_SAMPLES - 1) as f64;
-            let value = if sin_e > 0.0 || (sin_e == 0.0 && h <= 0.0) {
+            let lowtran_sky = inputs.clear_sky.filter(|c| sin_e >= c.lowest_sin_e() && (h > 0.0 || sin_e >= 0.0));
+            let value = if let Some(clear) = lowtran_sky {
+                clear.radiance(sin_e)
+            } else if sin_e > 0.0 || (sin_e == 0.0 && h <= 0.0) {
                 sky(sin_e)?
             } else if h <= 0.0 {
                 // an observer on the ground sees the ground below the horizon at once
@@ -209,6 +268,11 @@ impl Dome {
                 // the ray meets the curved ground after t = −(R+h)·sin e − √((R+h)²·sin²e − (2Rh + h²)); the path
                 // is taken, like the grazing one, as a straight descent over that horizontal distance, so the two
                 // agree at the horizon
+                if let Some(clear) = inputs.clear_sky {
+                    let (tau, path) = clear.ground(sin_e);
+                    sky_at.push(tau * (ground + (1.0 - s.ground_emissivity) * sky(-sin_e)?) + path);
+                    continue;
+                }
                 let r_h = EARTH_RADIUS_M + h;
                 let t = -r_h * sin_e - (r_h * r_h * sin_e * sin_e - (2.0 * EARTH_RADIUS_M * h + h * h)).max(0.0).sqrt();
                 let from = DVec3::new(0.0, 0.0, h);
@@ -296,9 +360,10 @@ mod tests {
             band,
             measure: Measure::Energy,
             observer_altitude_m: h,
-            t0_k: 288.15,
+            air: AirTemperature::default(),
             atmosphere: &atm,
             zenith_emissivity: None,
+            clear_sky: None,
         })
         .unwrap()
     }
@@ -350,8 +415,12 @@ mod tests {
         assert!(below(-1.0) > below(0.3));
         // just below the horizontal the limb emits at about the observer's height, as the sky just above does
         let near = below(-1e-3);
-        let air =
-            band_radiance_in(Measure::Energy, Band::LWIR_8_12, ambient_temperature_k(1500.0, 288.15).unwrap(), 1.0);
+        let air = band_radiance_in(
+            Measure::Energy,
+            Band::LWIR_8_12,
+            crate::physics::atmosphere::ambient_temperature_k(1500.0, 288.15).unwrap(),
+            1.0,
+        );
         assert!(((near - air) / air).abs() < 0.02, "{near} vs {air}");
         assert!(((below(1e-3) - near) / air).abs() < 0.02, "step at the horizon: {} vs {near}", below(1e-3));
         // and brightens smoothly down to the visible horizon (dip 1.24° at 1.5 km) and the ground beyond

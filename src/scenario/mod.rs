@@ -24,13 +24,14 @@ use crate::imaging::sky_gen::SkyGenSpec;
 use crate::imaging::sky_plane::{MissFill, SkyError, SkyPlacement};
 use crate::imaging::vibration::VibrationSpec;
 use crate::physics::ParamError;
+use crate::physics::atmosphere::{AirTemperature, STANDARD_T0_K};
 use crate::physics::brdf::CookTorrance;
 use crate::physics::lowtran::{Aerosol, AtmosphereTable, ModelAtmosphere, Weather};
 use crate::physics::lowtran_paths::LowtranAtmosphere;
 use crate::physics::planck::band_radiance_in;
 use crate::physics::reflection::Sun;
 use crate::physics::skin::StagnationModel;
-use crate::physics::sky::DomeSpec;
+use crate::physics::sky::{ClearSkyModel, DomeSpec};
 use crate::physics::transmittance::Transmittance;
 pub use load::{ScenarioError, load, load_str};
 pub use quality::{Quality, QualityPreset, QualitySpec};
@@ -266,11 +267,12 @@ impl SkySpec {
 
 /// Air temperature profile, skin heating, and the atmosphere's transmittance and path radiance: the LOWTRAN7
 /// weather (`model`, `aerosol`, `visibility_km`) or a band-averaged override (`transmittance`), not both.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AtmosphereSpec {
-    /// Sea-level temperature for eq 2, K.
-    pub t0_k: f64,
+    /// Sea-level temperature for eq 2, K (default 288.15); refused with `model`, whose own profile the air follows.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub t0_k: Option<f64>,
     /// LOWTRAN model atmosphere: with it, LOWTRAN7's tables give every path's transmittance and path radiance.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub model: Option<ModelAtmosphere>,
@@ -291,20 +293,6 @@ pub struct AtmosphereSpec {
     pub stagnation: StagnationModel,
 }
 
-impl Default for AtmosphereSpec {
-    fn default() -> Self {
-        Self {
-            t0_k: 288.15,
-            model: None,
-            aerosol: None,
-            visibility_km: None,
-            transmittance: None,
-            sky_path: false,
-            stagnation: StagnationModel::default(),
-        }
-    }
-}
-
 /// Visibility of the LOWTRAN weather when the scenario gives none, km.
 pub const DEFAULT_VISIBILITY_KM: f64 = 23.0;
 
@@ -316,6 +304,17 @@ impl AtmosphereSpec {
             model: self.model?,
             aerosol,
             visibility_km: self.visibility_km.unwrap_or(DEFAULT_VISIBILITY_KM),
+        })
+    }
+
+    /// The air's temperature against altitude: the model atmosphere's profile, or eq 2 from `t0_k`.
+    ///
+    /// # Errors
+    /// [`AtmosphereError`] if the built-in LOWTRAN table cannot be read.
+    pub fn air_temperature(&self) -> Result<AirTemperature, crate::physics::lowtran::AtmosphereError> {
+        Ok(match self.model {
+            Some(model) => AirTemperature::of_model(model, AtmosphereTable::shipped()?),
+            None => AirTemperature::Standard { t0_k: self.t0_k.unwrap_or(STANDARD_T0_K) },
         })
     }
 
@@ -738,14 +737,30 @@ impl Scenario {
         };
 
         let a = &self.atmosphere;
-        if !(a.t0_k.is_finite() && a.t0_k > 100.0 && a.t0_k < 400.0) {
-            return Err(fe("atmosphere.t0_k", format!("{} must be in (100, 400) K", num(a.t0_k))));
+        if let Some(t0) = a.t0_k {
+            if !(t0.is_finite() && t0 > 100.0 && t0 < 400.0) {
+                return Err(fe("atmosphere.t0_k", format!("{} must be in (100, 400) K", num(t0))));
+            }
+            if let Some(model) = a.model {
+                let sea = AtmosphereTable::shipped()
+                    .map(|t| AirTemperature::of_model(model, t).sea_level_k())
+                    .map_err(|e| fe("atmosphere.model", e))?;
+                return Err(fe(
+                    "atmosphere.t0_k",
+                    format!(
+                        "the air follows the model atmosphere's own temperature profile (`model = \"{}\"`, {sea:.2} K \
+                         at sea level): leave t0_k out, or give `atmosphere.transmittance` instead of `model`",
+                        model.name()
+                    ),
+                ));
+            }
         }
         if let Some(t) = &a.transmittance {
             t.validate().map_err(at("atmosphere.transmittance"))?;
         }
         a.stagnation.validate().map_err(|e| fe("atmosphere.stagnation", e))?;
         let lowtran = check_weather(a, &sensor)?;
+        check_clear_sky(&self.sky.dome, a)?;
         let sun = &self.sun;
         for (n, v, ok) in [
             ("temp_k", sun.temp_k, sun.temp_k >= 0.0 && sun.temp_k <= 1e5),
@@ -856,6 +871,30 @@ fn check_weather(a: &AtmosphereSpec, sensor: &ResolvedSensor) -> Result<Option<&
         ));
     }
     Ok(Some(table))
+}
+
+/// The clear sky's source against the weather: LOWTRAN's needs a model atmosphere, and the parametric sky's
+/// fields are refused where LOWTRAN's sky would leave them unused.
+fn check_clear_sky(dome: &DomeSpec, a: &AtmosphereSpec) -> Result<(), FieldError> {
+    match (dome.clear_sky, a.model) {
+        (Some(ClearSkyModel::Lowtran), None) => Err(fe(
+            "sky.dome.clear_sky",
+            "\"lowtran\" needs the LOWTRAN weather: give `atmosphere.model` (e.g. \"midlatitude_summer\"), or use \
+             \"parametric\"",
+        )),
+        (None | Some(ClearSkyModel::Lowtran), Some(model)) => match dome.parametric_fields_given().first() {
+            Some(name) => Err(fe(
+                format!("sky.dome.{name}"),
+                format!(
+                    "belongs to the parametric clear sky, but with `atmosphere.model = \"{}\"` the clear sky is \
+                     LOWTRAN's: leave it out, or set `sky.dome.clear_sky = \"parametric\"`",
+                    model.name()
+                ),
+            )),
+            None => Ok(()),
+        },
+        _ => Ok(()),
+    }
 }
 
 /// Frames at most sampled by [`check_lines_of_sight`] (every frame up to this many).

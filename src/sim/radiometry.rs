@@ -37,7 +37,7 @@ pub fn update_signatures(
     let ctx = ApparentContext {
         band: sensor.resolved.model.band,
         measure: sensor.measure(),
-        t0_k: scene.t0_k,
+        air: scene.air,
         stagnation: scene.stagnation,
         sun: scene.sun,
         atmosphere: &scene.atmosphere,

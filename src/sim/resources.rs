@@ -6,7 +6,7 @@ use crate::imaging::frame::Frame;
 use crate::imaging::fusion::PoissonFusion;
 use crate::imaging::target_blob::PixelRect;
 use crate::labels::FrameLabels;
-use crate::physics::atmosphere::{MAX_ALTITUDE_M, MIN_ALTITUDE_M, ambient_temperature_k};
+use crate::physics::atmosphere::AirTemperature;
 use crate::physics::reflection::{SphereQuadrature, Sun};
 use crate::physics::skin::StagnationModel;
 use crate::physics::transmittance::SceneAtmosphere;
@@ -56,8 +56,8 @@ pub struct SimSettings {
 /// The scene's physics.
 #[derive(Resource, Debug, Clone)]
 pub struct SceneParams {
-    /// Sea-level temperature, K.
-    pub t0_k: f64,
+    /// The air's temperature against altitude.
+    pub air: AirTemperature,
     /// Stagnation constants.
     pub stagnation: StagnationModel,
     /// The sun.
@@ -71,7 +71,7 @@ pub struct SceneParams {
 impl SceneParams {
     /// Air temperature at `altitude_m` (clamped to the model's range), K.
     pub fn air_temp_k(&self, altitude_m: f64) -> f64 {
-        ambient_temperature_k(altitude_m.clamp(MIN_ALTITUDE_M, MAX_ALTITUDE_M), self.t0_k).unwrap_or(self.t0_k)
+        self.air.clamped_k(altitude_m)
     }
 }
 

@@ -23,7 +23,7 @@ use crate::physics::lowtran_paths::LowtranAtmosphere;
 use crate::physics::nonideal::{FocalPlane, NonIdeal};
 use crate::physics::random::SplitMix64;
 use crate::physics::reflection::SphereQuadrature;
-use crate::physics::sky::{Dome, DomeInputs};
+use crate::physics::sky::{ClearSkyModel, Dome, DomeInputs};
 use crate::physics::transmittance::SceneAtmosphere;
 use crate::scenario::sensor::{PsfSettings, ResolvedSensor};
 use crate::scenario::{CheckedScenario, Pointing};
@@ -100,7 +100,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         None => SceneAtmosphere::Override(spec.atmosphere.override_transmittance()),
     };
     let scene = SceneParams {
-        t0_k: spec.atmosphere.t0_k,
+        air: spec.atmosphere.air_temperature().map_err(|e| setup("atmosphere.model")(e.to_string()))?,
         stagnation: spec.atmosphere.stagnation,
         sun: spec.sun,
         atmosphere,
@@ -192,14 +192,19 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
     let sky = &scenario.spec.sky;
     let model = &scenario.sensor.model;
     let (band, measure) = (model.band, model.measure());
+    let clear_sky = match (sky.dome.clear_sky, scene.atmosphere.lowtran()) {
+        (Some(ClearSkyModel::Parametric), _) | (_, None) => None,
+        (_, Some(lowtran)) => Some(lowtran.clear_sky().map_err(|e| setup("sky.dome.clear_sky")(e.to_string()))?),
+    };
     let dome = Dome::new(&DomeInputs {
         spec: sky.dome,
         band,
         measure,
         observer_altitude_m: eye.z,
-        t0_k: scene.t0_k,
+        air: scene.air,
         atmosphere: &scene.atmosphere,
         zenith_emissivity: scene.atmosphere.lowtran().map(|l| 1.0 - l.zenith_transmittance()),
+        clear_sky: clear_sky.as_ref(),
     })
     .map_err(|e| SetupError { field: format!("sky.dome.{}", e.name), message: e.to_string() })?;
     let dome = Arc::new(dome);

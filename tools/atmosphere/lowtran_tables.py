@@ -43,7 +43,10 @@ length, u32 CRC-32 of the uncompressed payload, u64 uncompressed length, then th
      the high bytes of the whole block followed by its low bytes;
   2. per model, pair and range node a u8 flag (0 LOWTRAN's path, 1 not traceable: a neighbour's values) and an f32
      length traced on the first try (km; 0 for the vertical path);
-  3. aerosol extinction, f32 per km, per model, aerosol setting (header.aerosols), altitude and spectral bin.
+  3. aerosol extinction, f32 per km, per model, aerosol setting (header.aerosols), altitude and spectral bin;
+  4. molecular optical depth of the vertical path from each grid altitude to each of header.above_top_km (20 to
+     100 km; 0 where the level is not above the altitude), f32, per model, altitude, level and spectral bin: the
+     air above the grid's top as seen through the column below it, for the clear sky.
 """
 from __future__ import annotations
 
@@ -80,7 +83,7 @@ SOURCE_URL = (
 )
 SOURCE_SHA256 = "51cfc2d882423e32933ef6be765d7aad97c3432300247d04164a0f76613579f5"
 FORTRAN_SHA256 = "25e83d94e24bb8acc3242dfd3b97e0bd8ca8ffceff9ec6dce1f5a37c9c5459ac"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 # LOWTRAN card 1 MODEL numbers.
 MODELS = {
@@ -102,6 +105,18 @@ AEROSOLS = {
 ALTITUDES_KM = [0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0,
                 14.0, 16.0, 18.0, 20.0]
 RANGES_KM = [0.5, 1.0, 2.0, 3.0, 5.0, 7.5, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 75.0, 100.0]
+# Levels (km) of the vertical paths from every grid altitude up through the table's top (20 km), LOWTRAN's own
+# levels above it: the absorption, and so the emission, of the stratosphere and mesosphere, which the sky seen
+# from below needs (its ozone gives about a third of the 8-12 um zenith radiance seen from 10 km), as seen through
+# the column below (one LOWTRAN path each, so the lines' correlation between the column and the layers above is
+# LOWTRAN's). Aerosol off.
+ABOVE_TOP_KM = [20.0, 22.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0, 70.0, 100.0]
+# Sky paths for the accuracy checks: from each observer altitude (km) up to LOWTRAN's top (100 km) at these zenith
+# angles (degrees); beyond 90 the path dips to a tangent point and climbs again (LOWTRAN's long path), used only
+# where the tangent point stays 1 km above the ground.
+SKY_OBSERVERS_KM = [0.0, 1.0, 3.0, 6.0, 10.0, 15.0]
+SKY_ZENITH_DEG = [0.0, 30.0, 60.0, 75.0, 85.0, 88.0, 89.5, 90.0, 90.5, 91.5]
+SKY_TOP_KM = 100.0
 # Spectral bins (um): edges on a 0.1 um grid in 8-12 um and 0.05 um in 3-5 um, so that the common bands' edges
 # are bin edges.
 BIN_EDGES_UM = sorted(
@@ -172,13 +187,13 @@ class Lowtran:
         (workdir / "out").mkdir(parents=True, exist_ok=True)
 
     def raw(self, model: str, ihaze: int, vis_km: float, itype: int, h1: float, h2: float, angle: float,
-            range_km: float, listing: bool = False):
+            range_km: float, listing: bool = False, long_path: bool = False):
         """One run: wavenumbers (cm-1), transmittance, path radiance (W m-2 sr-1 um-1), the TAPE6 listing; None
         where LOWTRAN fails."""
         card1 = "%5d%5d%5d%5d%5d%5d%5d%5d%5d%5d%5d%5d%5d%8.3f%7.2f\n" % (
             MODELS[model], itype, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0 if listing else 1, 0.0, 0.0)
         card2 = "%5d%5d%5d%5d%5d%5d%10.3f%10.3f%10.3f%10.3f%10.3f\n" % (ihaze, 0, 0, 0, 0, 0, vis_km, 0, 0, 0, 0)
-        card3 = "%10.3f%10.3f%10.3f%10.3f%10.3f%10.3f%5d\n" % (h1, h2, angle, range_km, 0.0, 0.0, 0)
+        card3 = "%10.3f%10.3f%10.3f%10.3f%10.3f%10.3f%5d\n" % (h1, h2, angle, range_km, 0.0, 0.0, int(long_path))
         card4 = "%10.3f%10.3f%10.3f\n" % (V1_CM, V2_CM, DV_CM)
         (self.workdir / "TAPE5").write_text(card1 + card2 + card3 + card4 + "%5d\n" % 0)
         for tape in ("TAPE6", "TAPE7", "TAPE8"):
@@ -359,6 +374,21 @@ def _aerosol_work(args):
     return binned(on[0], -np.log(np.minimum(ratio, 1.0)))
 
 
+def _above_work(args):
+    """Optical depth per bin of the vertical path from one grid altitude to each of ABOVE_TOP_KM, aerosol off."""
+    exe, model, base = args
+    lt = _lowtran(exe)
+    rows = np.zeros((len(ABOVE_TOP_KM), len(BIN_EDGES_UM) - 1))
+    for k, h in enumerate(ABOVE_TOP_KM):
+        if h <= base:
+            continue
+        r = lt.raw(model, 0, 0.0, 2, base, h, 0.0, 0.0)
+        if r is None:
+            raise RuntimeError(f"LOWTRAN failed on the vertical path {model} {base}-{h} km")
+        rows[k] = -np.log(np.maximum(binned(r[0], r[1]), 1e-30))
+    return rows
+
+
 def header(profiles: dict) -> dict:
     return {
         "format": "irsim LOWTRAN7 atmosphere table",
@@ -373,6 +403,7 @@ def header(profiles: dict) -> dict:
         "lowtran_sampling_cm": DV_CM,
         "optical_depth_scale": OPTICAL_DEPTH_SCALE,
         "profiles": profiles,
+        "above_top_km": ABOVE_TOP_KM,
     }
 
 
@@ -393,12 +424,14 @@ def generate(out_dir: Path, jobs: int) -> None:
         atasks = [(str(exe), m, a, v, h) for m in MODELS for a, v in aerosol_settings() for h in ALTITUDES_KM]
         ext = np.array(pool.map(_aerosol_work, atasks)).reshape(-1, nbins)
         print(f"  aerosol: {len(atasks)} altitudes", file=sys.stderr)
+        above = np.array(pool.map(_above_work, [(str(exe), m, h) for m in MODELS for h in ALTITUDES_KM]))
+        print(f"  above the top: {len(MODELS) * len(ALTITUDES_KM)} columns", file=sys.stderr)
     od = np.array(od)
     q = np.round(np.clip(od, 0.0, 65535 * OPTICAL_DEPTH_SCALE) / OPTICAL_DEPTH_SCALE).astype("<u2")
     raw = q.tobytes()
     shuffled = raw[1::2] + raw[0::2]  # high bytes, then low bytes: smooth data compresses far better
     payload = (shuffled + np.array(flags, dtype=np.uint8).tobytes() + np.array(traced, dtype="<f4").tobytes()
-               + ext.astype("<f4").tobytes())
+               + ext.astype("<f4").tobytes() + above.astype("<f4").tobytes())
     write_table(out_dir / TABLE, header(profiles), payload)
     offgrid(exe, out_dir / OFFGRID, jobs)
 
@@ -480,18 +513,48 @@ def _offgrid_work(args):
     return row
 
 
+def sky_cases() -> list[tuple[str, str, float, float, float]]:
+    """Every model, without aerosol and with rural 23 km, from each observer altitude at each zenith angle whose
+    path stays 1 km above the ground."""
+    cases = []
+    for m in MODELS:
+        for a, v in (("none", 0.0), ("rural", 23.0)):
+            for h in SKY_OBSERVERS_KM:
+                for z in SKY_ZENITH_DEG:
+                    tangent = (6371.23 + h) * math.sin(math.radians(z)) - 6371.23
+                    if z > 90.0 and tangent < 1.0:
+                        continue
+                    cases.append((m, a, v, h, z))
+    return cases
+
+
+def _sky_work(args):
+    exe, model, aerosol, vis, h, zenith = args
+    lt = _lowtran(exe)
+    ihaze = 0 if aerosol == "none" else AEROSOLS[aerosol][0]
+    r = lt.raw(model, ihaze, vis, 2, h, SKY_TOP_KM, zenith, 0.0, long_path=zenith > 90.0)
+    if r is None:
+        raise RuntimeError(f"LOWTRAN failed on the sky path {model} {aerosol} {vis} {h} km at {zenith} deg")
+    return {"model": model, "aerosol": aerosol, "visibility_km": vis, "observer_alt_km": h,
+            "zenith_angle_deg": zenith, "bands_um": band_means(r[0], r[1], r[2])}
+
+
 def offgrid(exe: Path, path: Path, jobs: int) -> None:
     tasks = [(str(exe),) + c for c in offgrid_cases()]
     with multiprocessing.Pool(jobs) as pool:
         rows = pool.map(_offgrid_work, tasks)
+        sky = pool.map(_sky_work, [(str(exe),) + c for c in sky_cases()])
     doc = {"about": "direct LOWTRAN7 runs off the table's grid, for the range asked (lengths corrected as the "
                     "table's are; first_try_bands_um: LOWTRAN's first traced path), band means uniform in "
                     "wavenumber (LOWTRAN's samples), path radiance in W m-2 sr-1 um-1; made by "
-                    "python3 tools/atmosphere/lowtran_tables.py", "runs": rows}
+                    "python3 tools/atmosphere/lowtran_tables.py", "runs": rows,
+           "sky_about": f"direct LOWTRAN7 runs from the observer's altitude up to {SKY_TOP_KM:g} km at a zenith "
+                        "angle (beyond 90 degrees through a tangent point): the clear sky's thermal radiance "
+                        "(path radiance) and transmittance, band means as above", "sky": sky}
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(doc, indent=1) + "\n")
     tmp.rename(path)
-    print(f"wrote {path} ({len(rows)} runs)", file=sys.stderr)
+    print(f"wrote {path} ({len(rows)} runs, {len(sky)} sky paths)", file=sys.stderr)
 
 
 def read_table(path: Path) -> tuple[dict, bytes]:
