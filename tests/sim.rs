@@ -113,7 +113,7 @@ fn runs_are_deterministic_and_thread_count_independent() {
 /// the hashes with the values printed in the failure message, and say why in the commit. If the change was not
 /// meant to change frames, the failure is a regression.
 const GOLDEN_PAPER_CLEAR_SKY: [u64; 3] =
-    [6_943_550_854_559_519_141, 3_703_466_374_349_845_508, 15_460_739_181_218_882_996];
+    [12_072_516_881_204_727_797, 4_475_941_217_713_973_911, 17_559_555_310_275_683_688];
 
 #[test]
 fn golden_frame_hashes() {
