@@ -177,8 +177,8 @@ fn sky_section(md: &mut String, table: &AtmosphereTable) {
     let _ = writeln!(
         md,
         "Clear sky (`sky.dome.clear_sky = \"lowtran\"`, `irsim calc sky`): the ray from the observer up to the table's \
-         top in pieces of at most 100 km chained bin by bin, LOWTRAN's vertical paths above 20 km stretched to the \
-         ray. Against the generator's {} direct LOWTRAN7 runs from the observer up to 100 km (six model \
+         top in pieces of at most 100 km chained bin by bin, LOWTRAN's layers from 20 to 100 km seen through the \
+         observer's own vertical column and stretched to the ray. Against the generator's {} direct LOWTRAN7 runs from the observer up to 100 km (six model \
          atmospheres, no aerosol and rural 23 km, observers at 0–15 km, zenith angles 0–91.5°), brightness \
          temperature of the band radiance and band-average τ. Chaining the pieces and the layers above the top \
          ignores how the lines of one piece correlate with the next, so τ comes out low and the radiance high, most \

@@ -425,7 +425,7 @@ fn sky(a: &SkyArgs) -> Result<Value, CliError> {
         "brightness_temp_k": crate::physics::planck::brightness_temperature(
             crate::physics::planck::Measure::Energy, band, radiance),
         "source": "LOWTRAN7 table assets/atmosphere/lowtran7.irat (built in): paths to 20 km chained, LOWTRAN's \
-                   vertical paths above",
+                   layers above seen through the observer's column",
     }))
 }
 
