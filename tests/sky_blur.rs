@@ -66,7 +66,10 @@ fn prefiltered_sky_is_closer_to_the_exact_blur_than_the_frame_blur() {
         "{name}, {counted} pixels, DN against the brute-force blur: prefilter worst {worst_pre:.3} rms {rms_pre:.3}; \
          frame worst {worst_ref:.3} rms {rms_ref:.3}"
     );
-    // measured: prefilter worst 3.1 DN, rms 1.3; frame worst 12.1, rms 6.7 (the camera's temporal noise is 2 DN)
+    // measured: prefilter worst 8.6 DN, rms 3.4; frame worst 31.1, rms 19.7 (the camera's temporal noise is 2 DN).
+    // With the parametric clear sky the clouds stood out less against it (prefilter 3.1 / 1.3, frame 12.1 / 6.7):
+    // LOWTRAN's sky behind them is colder (the parametric one was 10–25 K too warm at 2–30° elevation from 0–3 km
+    // against direct LOWTRAN runs), so their edges carry more DN
     assert!(worst_pre < 0.5 * worst_ref && rms_pre < 0.5 * rms_ref);
-    assert!(worst_pre < 5.0 && rms_pre < 2.0, "{worst_pre} DN, rms {rms_pre}");
+    assert!(worst_pre < 12.0 && rms_pre < 5.0, "{worst_pre} DN, rms {rms_pre}");
 }
