@@ -38,9 +38,9 @@ pub enum CalcCommand {
     Sky(SkyArgs),
 }
 
-/// Flags of `calc sky`.
+/// The LOWTRAN weather flags of `calc transmittance` and `calc sky`.
 #[derive(Debug, Args)]
-pub struct SkyArgs {
+pub struct WeatherArgs {
     /// LOWTRAN model atmosphere.
     #[arg(long, value_enum, default_value = "midlatitude-summer")]
     pub model: ModelAtmosphere,
@@ -50,6 +50,56 @@ pub struct SkyArgs {
     /// Visibility (meteorological range at sea level), km; ignored with `--aerosol none`.
     #[arg(long, default_value_t = 23.0, allow_negative_numbers = true)]
     pub visibility_km: f64,
+}
+
+impl WeatherArgs {
+    /// The weather, its visibility checked to be finite.
+    fn weather(&self) -> Result<Weather, CliError> {
+        finite("visibility_km", self.visibility_km, true, "finite")?;
+        Ok(Weather { model: self.model, aerosol: self.aerosol, visibility_km: self.visibility_km })
+    }
+
+    /// The weather's fields of the JSON answer.
+    fn json(&self) -> serde_json::Map<String, Value> {
+        let mut m = serde_json::Map::new();
+        m.insert("model".into(), json!(self.model.name()));
+        m.insert("aerosol".into(), json!(self.aerosol.name()));
+        let vis = if self.aerosol == Aerosol::None { Value::Null } else { json!(self.visibility_km) };
+        m.insert("visibility_km".into(), vis);
+        m
+    }
+}
+
+/// A table path's error as a flag's error, and a band outside the table's spectrum.
+fn table_error(e: AtmosphereError) -> CliError {
+    match e {
+        AtmosphereError::OutsideGrid { name, value, range } => CliError::Invalid(format!(
+            "--{}: {} is outside the LOWTRAN table's range {range}",
+            name.replace('_', "-"),
+            crate::physics::Num(value)
+        )),
+        other => CliError::Invalid(other.to_string()),
+    }
+}
+
+/// Refuses a band the table's spectrum does not cover.
+fn check_covers(p: &crate::physics::lowtran::PathSpectrum, band: Band) -> Result<(), CliError> {
+    if p.covers(band) {
+        return Ok(());
+    }
+    Err(CliError::Invalid(format!(
+        "--band-um: {}–{} µm is outside the table's 1–14 µm",
+        crate::physics::Num(band.lo_um()),
+        crate::physics::Num(band.hi_um())
+    )))
+}
+
+/// Flags of `calc sky`.
+#[derive(Debug, Args)]
+pub struct SkyArgs {
+    /// The weather.
+    #[command(flatten)]
+    pub weather: WeatherArgs,
     /// Observer's altitude, km.
     #[arg(long, allow_negative_numbers = true)]
     pub observer_alt_km: f64,
@@ -64,15 +114,9 @@ pub struct SkyArgs {
 /// Flags of `calc transmittance`.
 #[derive(Debug, Args)]
 pub struct TransmittanceArgs {
-    /// LOWTRAN model atmosphere.
-    #[arg(long, value_enum, default_value = "midlatitude-summer")]
-    pub model: ModelAtmosphere,
-    /// Aerosol model.
-    #[arg(long, value_enum, default_value = "rural")]
-    pub aerosol: Aerosol,
-    /// Visibility (meteorological range at sea level), km; ignored with `--aerosol none`.
-    #[arg(long, default_value_t = 23.0, allow_negative_numbers = true)]
-    pub visibility_km: f64,
+    /// The weather.
+    #[command(flatten)]
+    pub weather: WeatherArgs,
     /// Observer's altitude, km.
     #[arg(long, allow_negative_numbers = true)]
     pub observer_alt_km: f64,
@@ -335,35 +379,16 @@ pub fn run(cmd: &CalcCommand) -> Result<Value, CliError> {
 fn transmittance(a: &TransmittanceArgs) -> Result<Value, CliError> {
     let band = band_from(&a.band_um)?;
     finite("temp_k", a.temp_k, a.temp_k > 0.0 && a.temp_k <= 1e4, "(0, 1e4]")?;
-    for (name, v) in [
-        ("observer_alt_km", a.observer_alt_km),
-        ("target_alt_km", a.target_alt_km),
-        ("range_km", a.range_km),
-        ("visibility_km", a.visibility_km),
-    ] {
+    for (name, v) in
+        [("observer_alt_km", a.observer_alt_km), ("target_alt_km", a.target_alt_km), ("range_km", a.range_km)]
+    {
         finite(name, v, true, "finite")?;
     }
+    let weather = a.weather.weather()?;
     let table = AtmosphereTable::shipped().map_err(|e| CliError::Failed(e.to_string()))?;
-    let weather = Weather { model: a.model, aerosol: a.aerosol, visibility_km: a.visibility_km };
-    let p = table.path(&weather, a.observer_alt_km, a.target_alt_km, a.range_km).map_err(|e| match e {
-        AtmosphereError::OutsideGrid { name, value, range } => CliError::Invalid(format!(
-            "--{}: {} is outside the LOWTRAN table's range {range}",
-            name.replace('_', "-"),
-            crate::physics::Num(value)
-        )),
-        other => CliError::Invalid(other.to_string()),
-    })?;
-    if !p.covers(band) {
-        return Err(CliError::Invalid(format!(
-            "--band-um: {}–{} µm is outside the table's 1–14 µm",
-            crate::physics::Num(band.lo_um()),
-            crate::physics::Num(band.hi_um())
-        )));
-    }
-    Ok(json!({
-        "model": a.model.name(),
-        "aerosol": a.aerosol.name(),
-        "visibility_km": if a.aerosol == Aerosol::None { Value::Null } else { json!(a.visibility_km) },
+    let p = table.path(&weather, a.observer_alt_km, a.target_alt_km, a.range_km).map_err(table_error)?;
+    check_covers(&p, band)?;
+    let mut out = json!({
         "observer_alt_km": a.observer_alt_km,
         "target_alt_km": a.target_alt_km,
         "range_km": a.range_km,
@@ -375,17 +400,20 @@ fn transmittance(a: &TransmittanceArgs) -> Result<Value, CliError> {
         "path_radiance_band_mean_w_m2_sr_um": p.band_mean_path_radiance_w_m2_sr_um(band),
         "grid_cell": p.cell,
         "source": "LOWTRAN7 table assets/atmosphere/lowtran7.irat (built in)",
-    }))
+    });
+    if let Some(fields) = out.as_object_mut() {
+        fields.extend(a.weather.json());
+    }
+    Ok(out)
 }
 
 /// `calc sky`: the clear sky toward one elevation through the LOWTRAN7 table.
 fn sky(a: &SkyArgs) -> Result<Value, CliError> {
     let band = band_from(&a.band_um)?;
     finite("observer_alt_km", a.observer_alt_km, true, "finite")?;
-    finite("visibility_km", a.visibility_km, true, "finite")?;
     finite("elevation_deg", a.elevation_deg, (-90.0..=90.0).contains(&a.elevation_deg), "[−90, 90]")?;
+    let weather = a.weather.weather()?;
     let table = AtmosphereTable::shipped().map_err(|e| CliError::Failed(e.to_string()))?;
-    let weather = Weather { model: a.model, aerosol: a.aerosol, visibility_km: a.visibility_km };
     let sin_e = a.elevation_deg.to_radians().sin();
     let lowest = crate::physics::lowtran::horizon_sin_e(a.observer_alt_km);
     if a.observer_alt_km >= 0.0 && sin_e < lowest {
@@ -396,26 +424,10 @@ fn sky(a: &SkyArgs) -> Result<Value, CliError> {
             lowest.asin().to_degrees()
         )));
     }
-    let p = table.sky(&weather, a.observer_alt_km, sin_e).map_err(|e| match e {
-        AtmosphereError::OutsideGrid { name, value, range } => CliError::Invalid(format!(
-            "--{}: {} is outside the LOWTRAN table's range {range}",
-            name.replace('_', "-"),
-            crate::physics::Num(value)
-        )),
-        other => CliError::Invalid(other.to_string()),
-    })?;
-    if !p.covers(band) {
-        return Err(CliError::Invalid(format!(
-            "--band-um: {}–{} µm is outside the table's 1–14 µm",
-            crate::physics::Num(band.lo_um()),
-            crate::physics::Num(band.hi_um())
-        )));
-    }
+    let p = table.sky(&weather, a.observer_alt_km, sin_e).map_err(table_error)?;
+    check_covers(&p, band)?;
     let radiance = p.band_path_radiance_w_m2_sr(band);
-    Ok(json!({
-        "model": a.model.name(),
-        "aerosol": a.aerosol.name(),
-        "visibility_km": if a.aerosol == Aerosol::None { Value::Null } else { json!(a.visibility_km) },
+    let mut out = json!({
         "observer_alt_km": a.observer_alt_km,
         "elevation_deg": a.elevation_deg,
         "band_um": [band.lo_um(), band.hi_um()],
@@ -426,7 +438,11 @@ fn sky(a: &SkyArgs) -> Result<Value, CliError> {
             crate::physics::planck::Measure::Energy, band, radiance),
         "source": "LOWTRAN7 table assets/atmosphere/lowtran7.irat (built in): paths to 20 km chained, LOWTRAN's \
                    layers above seen through the observer's column",
-    }))
+    });
+    if let Some(fields) = out.as_object_mut() {
+        fields.extend(a.weather.json());
+    }
+    Ok(out)
 }
 
 fn signal(a: &SignalArgs) -> Result<Value, CliError> {
