@@ -80,7 +80,7 @@ pub struct SkinTemperatures {
 /// T∞ (eq 2, or the model atmosphere's profile) and T_s (eq 1) for an aircraft at `altitude_m` flying at `mach`.
 ///
 /// # Errors
-/// Those of [`ambient_temperature_k`] and [`StagnationModel::skin_temperature_k`].
+/// Those of [`AirTemperature::at_k`] and [`StagnationModel::skin_temperature_k`].
 pub fn skin_temperatures(
     model: &StagnationModel,
     altitude_m: f64,

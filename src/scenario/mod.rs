@@ -310,7 +310,7 @@ impl AtmosphereSpec {
     /// The air's temperature against altitude: the model atmosphere's profile, or eq 2 from `t0_k`.
     ///
     /// # Errors
-    /// [`AtmosphereError`] if the built-in LOWTRAN table cannot be read.
+    /// [`crate::physics::lowtran::AtmosphereError`] if the built-in LOWTRAN table cannot be read.
     pub fn air_temperature(&self) -> Result<AirTemperature, crate::physics::lowtran::AtmosphereError> {
         Ok(match self.model {
             Some(model) => AirTemperature::of_model(model, AtmosphereTable::shipped()?),
