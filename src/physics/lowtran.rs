@@ -880,21 +880,22 @@ impl AtmosphereTable {
     }
 
     /// The clear sky's spectrum toward elevation `asin(sin_e)` from an observer at `observer_alt_km`, for a ray
-    /// that misses the ground: its transmittance and thermal radiance per bin all the way up. The straight ray (down to its
-    /// tangent point and up again, below the horizontal) is cut where it leaves the table's top (20 km) and into
-    /// pieces of at most the table's longest range, each an interpolated path of the table, chained bin by bin
-    /// (`L += τ_before·L_piece`, `τ ×= τ_piece`); above the top, LOWTRAN's layers up to 100 km seen through the observer's column.
+    /// that misses the ground: its transmittance and thermal radiance per bin all the way up. The straight ray
+    /// (down to its tangent point and up again, below the horizontal) is cut where it leaves the table's top
+    /// (20 km) and into pieces of at most the table's longest range, each an interpolated path of the table,
+    /// chained bin by bin (`L += τ_before·L_piece`, `τ ×= τ_piece`); above the top, LOWTRAN's layers up to 100 km
+    /// seen through the observer's column.
     ///
     /// # Errors
-    /// [`AtmosphereError::BelowGround`] for a ray that meets the ground.
+    /// [`AtmosphereError::OutsideGrid`] for an observer outside the table's altitudes, or a ray below the
+    /// horizon's dip (it meets the ground).
     pub fn sky(&self, weather: &Weather, observer_alt_km: f64, sin_e: f64) -> Result<PathSpectrum, AtmosphereError> {
         match self.ray(weather, observer_alt_km, sin_e)? {
             (p, false) => Ok(p),
-            (_, true) => Err(AtmosphereError::BelowGround {
-                observer_alt_km,
-                target_alt_km: 0.0,
-                range_km: f64::NAN,
-                below_m: observer_alt_km * 1000.0,
+            (_, true) => Err(AtmosphereError::OutsideGrid {
+                name: "sin_elevation",
+                value: sin_e,
+                range: format!("[{}, 1] (below it the ray meets the ground)", horizon_sin_e(observer_alt_km)),
             }),
         }
     }
@@ -1222,6 +1223,14 @@ impl PathSpectrum {
     }
 }
 
+/// The generator's direct LOWTRAN runs (`lowtran7_offgrid.json`), for the accuracy tests.
+#[cfg(test)]
+pub(crate) fn offgrid_runs() -> serde_json::Value {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/atmosphere/lowtran7_offgrid.json"))
+        .expect("the off-grid runs are committed");
+    serde_json::from_str(&text).expect("the off-grid runs are JSON")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1452,10 +1461,7 @@ mod tests {
     /// Direct LOWTRAN runs off the grid (the generator's `lowtran7_offgrid.json`): band τ within 0.01.
     #[test]
     fn matches_direct_lowtran_runs_off_the_grid() {
-        let text =
-            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/atmosphere/lowtran7_offgrid.json"))
-                .expect("the off-grid runs are committed");
-        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let doc = offgrid_runs();
         let runs = doc["runs"].as_array().unwrap();
         assert!(runs.len() > 100);
         let (mut worst, mut worst_at, mut rad_worst) = (0.0f64, String::new(), 0.0f64);
@@ -1491,10 +1497,7 @@ mod tests {
     #[test]
     fn the_clear_sky_matches_direct_lowtran_sky_paths() {
         use crate::physics::planck::{Measure, brightness_temperature};
-        let text =
-            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/atmosphere/lowtran7_offgrid.json"))
-                .expect("the off-grid runs are committed");
-        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let doc = offgrid_runs();
         let runs = doc["sky"].as_array().unwrap();
         assert!(runs.len() > 500);
         let mut worst: std::collections::BTreeMap<String, (f64, f64, String)> = Default::default();

@@ -555,10 +555,7 @@ mod tests {
     fn the_lowtran_sky_is_closer_to_lowtran_than_the_parametric_one() {
         use crate::physics::planck::brightness_temperature;
         use crate::physics::sky::{Dome, DomeInputs, DomeSpec};
-        let text =
-            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/atmosphere/lowtran7_offgrid.json"))
-                .unwrap();
-        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let doc = crate::physics::lowtran::offgrid_runs();
         let band = Band::LWIR_8_12;
         let w = Weather { model: ModelAtmosphere::UsStandard1976, aerosol: Aerosol::Rural, visibility_km: 23.0 };
         let (mut lowtran_worst, mut parametric_worst) = (0.0f64, 0.0f64);
