@@ -116,6 +116,9 @@ pub struct BackgroundBlur<'a> {
     pub sky_blur: SkyBlur,
     /// Largest relative (Frobenius) difference between a tile's Jacobian and its prefiltered texture's.
     pub tolerance: f64,
+    /// Whether a frame that sees only the dome is blurred (false when the dome's largest curvature keeps the
+    /// blur's change under `skip_below`).
+    pub dome: bool,
 }
 
 /// What rendering a background did.
@@ -182,6 +185,17 @@ impl BackgroundRenderer {
         // a point-sampled sky needs the pixel aperture in the kernel; an area-averaged one has it already
         let area_sampled = matches!(sky.sampling, Sampling::Supersample { n } if n > 1);
         let kernel = if area_sampled { b.psf.area_kernel() } else { b.psf.point_kernel() };
+        if sky.miss == MissFill::Dome && !plane.seen_by(camera) {
+            // the dome alone, as a run without an image layer renders it
+            render_dome(camera, sky.dome, frame, false);
+            if b.dome {
+                stats.blur = self.convolver.apply_where_needed(kernel, frame, b.method, b.skip_below);
+            } else {
+                let t = BLUR_TILE_PX;
+                stats.blur.tiles = frame.width().div_ceil(t) * frame.height().div_ceil(t);
+            }
+            return stats;
+        }
         // the blurred texture is read nearest where the sky is, bilinearly otherwise
         let texture_sampling = if sky.sampling == Sampling::Nearest { Sampling::Nearest } else { Sampling::Bilinear };
         let prefiltered = if b.sky_blur != SkyBlur::Frame {
@@ -408,6 +422,7 @@ mod tests {
             psf: &p,
             method: ConvolutionMethod::Separable,
             skip_below: 0.0,
+            dome: true,
             sky_blur: how,
             tolerance: 0.05,
         };

@@ -613,8 +613,8 @@ fn jacobi_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
 
 /// Per [`BLUR_TILE_PX`] tile of `frame`, the largest `|F_xx| + |F_yy| + 2·|F_xy|` (central second differences
 /// along the axes, the forward mixed difference of the pixel's 2 × 2 cell; edges replicated) into `out`; NaN
-/// where a pixel or a neighbour is NaN. Rows of tiles whose entry in `rows` is false are left at 0.
-fn tile_curvature(frame: &Frame, rows: &[bool], out: &mut Vec<f32>) {
+/// where a pixel or a neighbour is NaN. Tiles whose entry in `wanted` (row-major) is false are left at 0.
+fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
     let (w, h) = (frame.width(), frame.height());
     let t = BLUR_TILE_PX;
     let (tw, th) = (w.div_ceil(t), h.div_ceil(t));
@@ -624,22 +624,33 @@ fn tile_curvature(frame: &Frame, rows: &[bool], out: &mut Vec<f32>) {
     out.par_chunks_mut(tw).enumerate().for_each_init(
         || vec![0.0f32; w],
         |line, (ty, tiles)| {
-            if !rows[ty] {
-                return;
-            }
+            let wanted = &wanted[ty * tw..(ty + 1) * tw];
             for y in ty * t..((ty + 1) * t).min(h) {
                 let (up, mid, down) = (&px[y.saturating_sub(1) * w..], &px[y * w..], &px[(y + 1).min(h - 1) * w..]);
-                for (x, c) in line.iter_mut().enumerate() {
-                    let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                    let fxx = mid[l] - 2.0 * mid[x] + mid[r];
-                    let fyy = up[x] - 2.0 * mid[x] + down[x];
-                    let fxy = down[r] - down[x] - mid[r] + mid[x];
-                    *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
-                }
-                for (tx, tile) in tiles.iter_mut().enumerate() {
-                    for &c in &line[tx * t..((tx + 1) * t).min(w)] {
-                        // NaN sticks
-                        *tile = if c.is_nan() || tile.is_nan() { f32::NAN } else { tile.max(c) };
+                // runs of wanted tiles
+                let mut tx = 0;
+                while tx < tw {
+                    if !wanted[tx] {
+                        tx += 1;
+                        continue;
+                    }
+                    let start = tx;
+                    while tx < tw && wanted[tx] {
+                        tx += 1;
+                    }
+                    let (x0, x1) = (start * t, (tx * t).min(w));
+                    for (x, c) in line.iter_mut().enumerate().take(x1).skip(x0) {
+                        let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                        let fxx = mid[l] - 2.0 * mid[x] + mid[r];
+                        let fyy = up[x] - 2.0 * mid[x] + down[x];
+                        let fxy = down[r] - down[x] - mid[r] + mid[x];
+                        *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
+                    }
+                    for (k, tile) in tiles.iter_mut().enumerate().take(tx).skip(start) {
+                        for &c in &line[k * t..((k + 1) * t).min(w)] {
+                            // NaN sticks
+                            *tile = if c.is_nan() || tile.is_nan() { f32::NAN } else { tile.max(c) };
+                        }
                     }
                 }
             }
@@ -845,14 +856,16 @@ impl Convolver {
             return BlurStats { tiles_needed: considered, tiles_blurred: considered, tiles };
         }
         let reach = kernel.radius.div_ceil(t) as isize;
-        // curvature only on the rows of tiles a candidate's reach covers
-        let rows: Vec<bool> = (0..th as isize)
-            .map(|ty| {
-                ((ty - reach).max(0)..=(ty + reach).min(th as isize - 1))
-                    .any(|y| (0..tw).any(|x| candidate(y as usize * tw + x)))
+        // curvature only on the tiles a candidate's reach covers
+        let near = |i: usize| {
+            let (tx, ty) = ((i % tw) as isize, (i / tw) as isize);
+            ((ty - reach).max(0)..=(ty + reach).min(th as isize - 1)).any(|y| {
+                ((tx - reach).max(0)..=(tx + reach).min(tw as isize - 1))
+                    .any(|x| candidate(y as usize * tw + x as usize))
             })
-            .collect();
-        tile_curvature(frame, &rows, &mut self.rough);
+        };
+        let wanted: Vec<bool> = (0..tiles).map(near).collect();
+        tile_curvature(frame, &wanted, &mut self.rough);
         let factor = (0.25 * kernel.second_moment_px2) as f32;
         self.needed.clear();
         self.needed.extend((0..tiles).map(|i| {

@@ -309,7 +309,9 @@ pub fn render_dome(camera: &Camera, dome: &Dome, frame: &mut Frame, only_nan: bo
     let r = camera.camera_to_world;
     let f = camera.intrinsics.focal_px();
     let c = camera.intrinsics.principal_point();
-    frame.pixels_mut().par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+    // rows in batches: one row is too little work to be worth a task
+    let rows_per_task = (8_192 / width.max(1)).max(1);
+    frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
         if only_nan && !row.iter().any(|v| v.is_nan()) {
             return;
         }
@@ -317,11 +319,9 @@ pub fn render_dome(camera: &Camera, dome: &Dome, frame: &mut Frame, only_nan: bo
         // the unnormalised ray is linear in the column
         let base = r * glam::DVec3::new((0.5 - c.x) / f, y, 1.0);
         let step = r.x_axis / f;
-        for (i, p) in row.iter_mut().enumerate() {
-            if only_nan && !p.is_nan() {
-                continue;
-            }
-            *p = dome.radiance_toward(base + step * i as f64);
-        }
+        crate::physics::simd::widest(
+            #[inline(always)]
+            || dome.radiance_along(base, step, row, only_nan),
+        );
     });
 }

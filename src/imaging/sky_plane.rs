@@ -422,6 +422,12 @@ impl SkyPlane {
         });
     }
 
+    /// Whether any ray of `camera`'s render may see the image (false: every pixel is a miss).
+    pub fn seen_by(&self, camera: &Camera) -> bool {
+        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        RowGeometry::new(self, camera).sees_image(self, f64::from(w), f64::from(h))
+    }
+
     /// Unit normal, toward the camera side.
     pub fn normal(&self) -> DVec3 {
         self.normal
@@ -580,6 +586,9 @@ struct RowGeometry {
     base: DVec3,
     du: DVec3,
     dv: DVec3,
+    /// Whether a row's ray cast skips the pixels that cannot see the image (off only to test that skipping
+    /// changes nothing).
+    clip: bool,
 }
 
 impl RowGeometry {
@@ -600,6 +609,7 @@ impl RowGeometry {
             base: dot(d0),
             du: dot(d_u),
             dv: dot(d_v),
+            clip: true,
         }
     }
 
@@ -628,14 +638,32 @@ impl RowGeometry {
         let exact = |i: f64| self.coordinates(d0, i);
         let sample = |p: DVec2| plane.sample(p, sampling, fill);
         let span = self.span_length(d0, out.len(), plane.span_tolerance_px);
+        // pixels outside `seen` miss the image (an edge fill samples every pixel)
+        let seen = if matches!(fill, MissFill::Edge) { 0..out.len() } else { self.seen_pixels(plane, d0, out.len()) };
+        let put_miss = |block: &mut [f32]| {
+            for o in block {
+                *o = if accumulate { *o + miss } else { miss };
+            }
+        };
         let mut i0 = 0;
-        let mut p0 = exact(0.0);
+        let mut p0 = None;
         while i0 < out.len() {
             let len = span.min(out.len() - i0);
-            let p1 = exact((i0 + len) as f64);
             let block = &mut out[i0..i0 + len];
+            // a span wholly outside: what the spans below would give it, without a ray cast
+            if i0 + len <= seen.start || i0 >= seen.end {
+                put_miss(block);
+                i0 += len;
+                p0 = None;
+                continue;
+            }
+            let p_start = match p0 {
+                Some(p) => p,
+                None => exact(i0 as f64),
+            };
+            let p1 = exact((i0 + len) as f64);
             let mid = if len > 2 { exact(i0 as f64 + len as f64 / 2.0) } else { None };
-            match (p0, mid, p1) {
+            match (p_start, mid, p1) {
                 (Some(a), Some(m), Some(b)) => {
                     let span = Quadratic::through(a, m, b, len as f64);
                     if !self.fast_span(&plane.image, &span, bilinear, block, accumulate) {
@@ -647,14 +675,113 @@ impl RowGeometry {
                 }
                 _ => {
                     for (k, o) in block.iter_mut().enumerate() {
-                        let value = exact((i0 + k) as f64).map_or(miss, sample);
+                        let value =
+                            if seen.contains(&(i0 + k)) { exact((i0 + k) as f64).map_or(miss, sample) } else { miss };
                         *o = if accumulate { *o + value } else { value };
                     }
                 }
             }
             i0 += len;
-            p0 = p1;
+            p0 = Some(p1);
         }
+    }
+
+    /// The linear forms `c` whose values `c·d` at a ray's dot products `d` are all ≥ 0 wherever the ray meets the
+    /// plane in front of the camera within one image pixel of the image (`None`: no ray does, the camera lies on
+    /// the plane). The ray parameter is `t = n / D` and the image coordinates `o + n·N/D`; where `t > 0`, `D` has
+    /// the sign `s` of `n`, so each bound of the image widened by one pixel, multiplied by `s·D`, is linear in
+    /// `d = (D, Nx, Ny)`.
+    fn seen_forms(&self, plane: &SkyPlane) -> Option<[DVec3; 5]> {
+        let n = self.numerator;
+        if n == 0.0 || !n.is_finite() {
+            return None;
+        }
+        let s = n.signum();
+        let (w, h) = (plane.image.width as f64, plane.image.height as f64);
+        let o = self.origin_px;
+        Some([
+            DVec3::new(s, 0.0, 0.0),                // in front of the camera
+            s * DVec3::new(o.x + 1.0, n, 0.0),      // x ≥ −1
+            s * DVec3::new(w + 1.0 - o.x, -n, 0.0), // x ≤ width + 1
+            s * DVec3::new(o.y + 1.0, 0.0, n),      // y ≥ −1
+            s * DVec3::new(h + 1.0 - o.y, 0.0, -n), // y ≤ height + 1
+        ])
+    }
+
+    /// The pixels of the row whose pixel 0 has dot products `d0` that may see the image: every pixel outside
+    /// the range has exact image coordinates more than one image pixel outside the image, or its ray misses
+    /// the plane, so neither its exact sample nor an interpolated one (within the span tolerance, at most ½ px,
+    /// of the exact coordinates) lies inside. Along the row each of [`RowGeometry::seen_forms`] is `a + b·i`;
+    /// the range is where all are ≥ 0, widened by one pixel for rounding.
+    fn seen_pixels(&self, plane: &SkyPlane, d0: DVec3, pixels: usize) -> std::ops::Range<usize> {
+        if !self.clip {
+            return 0..pixels;
+        }
+        let Some(forms) = self.seen_forms(plane) else {
+            return 0..0;
+        };
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for c in forms {
+            let (a, b) = (c.dot(d0), c.dot(self.du));
+            if !(a.is_finite() && b.is_finite()) {
+                return 0..pixels;
+            }
+            if b > 0.0 {
+                lo = lo.max(-a / b);
+            } else if b < 0.0 {
+                hi = hi.min(-a / b);
+            } else if a < 0.0 {
+                return 0..0;
+            }
+        }
+        if lo.is_nan() || hi.is_nan() {
+            return 0..pixels;
+        }
+        if lo > hi {
+            return 0..0;
+        }
+        let first = (lo - 1.0).ceil().clamp(0.0, pixels as f64) as usize;
+        let end = ((hi + 1.0).floor() + 1.0).clamp(0.0, pixels as f64) as usize;
+        first..end.max(first)
+    }
+
+    /// Whether some ray through the sensor `width × height` px (widened by a pixel all round) may see the image:
+    /// the sensor rectangle clipped by each of [`RowGeometry::seen_forms`], affine in the sensor point `(u, v)`,
+    /// is not empty. False only when every pixel of a render misses the image.
+    fn sees_image(&self, plane: &SkyPlane, width: f64, height: f64) -> bool {
+        let Some(forms) = self.seen_forms(plane) else {
+            return false;
+        };
+        let mut poly = vec![
+            DVec2::new(-1.0, -1.0),
+            DVec2::new(width + 1.0, -1.0),
+            DVec2::new(width + 1.0, height + 1.0),
+            DVec2::new(-1.0, height + 1.0),
+        ];
+        let mut next = Vec::with_capacity(8);
+        for c in forms {
+            let (a, gu, gv) = (c.dot(self.base), c.dot(self.du), c.dot(self.dv));
+            if !(a.is_finite() && gu.is_finite() && gv.is_finite()) {
+                return true;
+            }
+            let f = |p: DVec2| a + gu * p.x + gv * p.y;
+            next.clear();
+            for (k, &p) in poly.iter().enumerate() {
+                let q = poly[(k + 1) % poly.len()];
+                let (fp, fq) = (f(p), f(q));
+                if fp >= 0.0 {
+                    next.push(p);
+                }
+                if (fp >= 0.0) != (fq >= 0.0) {
+                    next.push(p + (q - p) * (fp / (fp - fq)));
+                }
+            }
+            std::mem::swap(&mut poly, &mut next);
+            if poly.is_empty() {
+                return false;
+            }
+        }
+        true
     }
 
     /// Image coordinates of the ray through pixel `i` of the row whose pixel 0 has dot products `d0` (None:
@@ -859,6 +986,77 @@ mod tests {
             }
         }
         assert!(checked > 10_000, "{checked}");
+    }
+
+    #[test]
+    fn skipping_the_pixels_that_cannot_see_the_image_changes_no_pixel() {
+        // views into the image, across its edges, past it, grazing it and away from it; every fill but the edge
+        // one (which samples every pixel); exact and interpolated spans
+        let intr = Intrinsics::try_new(160, 120, 0.1, 17e-6).unwrap();
+        let image: Vec<f32> = (0..640 * 480).map(|i| (i % 61) as f32 + 0.25 * (i / 640) as f32).collect();
+        let mut skipped = 0usize;
+        let mut seen = 0usize;
+        let mut views = [0usize; 2];
+        for (normal, camera_x, roll) in [
+            (-DVec3::Y, 0.0, 0.0),
+            (DVec3::new(0.5, -1.0, 0.2), -8000.0, -40.0),
+            (DVec3::new(0.99, -0.1, 0.0), 9000.0, 5.0),
+        ] {
+            let placement = SkyPlacement {
+                anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
+                anchor_px: None,
+                width_m: 4000.0,
+                height_m: 3000.0,
+                normal: Some(normal),
+                up: None,
+            };
+            let cam_pos = DVec3::new(camera_x, 0.0, 8000.0);
+            let mut p =
+                SkyPlane::new(SkyImage::from_f32(640, 480, image.clone()).unwrap(), &placement, cam_pos).unwrap();
+            for (look_x, look_y) in
+                [(320.0, 240.0), (0.0, 100.0), (700.0, -50.0), (2000.0, 300.0), (-30000.0, 240.0), (320.0, 9000.0)]
+            {
+                for roll_extra in [0.0, 33.0] {
+                    let target = p.world_point(DVec2::new(look_x, look_y));
+                    for look in [target, cam_pos * 2.0 - target, cam_pos + (target - cam_pos).cross(DVec3::Z)] {
+                        let Ok(cam) = Camera::look_at(intr, cam_pos, look, roll + roll_extra) else {
+                            continue;
+                        };
+                        let mut g = RowGeometry::new(&p, &cam);
+                        // a camera that cannot see the image renders misses only
+                        p.set_span_tolerance(SPAN_TOLERANCE_PX);
+                        let mut f = Frame::new(160, 120);
+                        p.render(&cam, Sampling::Bilinear, MissFill::Dome, &mut f);
+                        let sees = f.pixels().iter().any(|v| !v.is_nan());
+                        assert!(sees <= p.seen_by(&cam), "look {look_x} {look_y}: seen but said unseen");
+                        views[usize::from(p.seen_by(&cam))] += 1;
+                        for tolerance in [0.0, SPAN_TOLERANCE_PX, 0.5] {
+                            p.set_span_tolerance(tolerance);
+                            for sampling in [Sampling::Nearest, Sampling::Bilinear] {
+                                for fill in [MissFill::Dome, MissFill::Zero, MissFill::Constant { value: -3.0 }] {
+                                    for row in (0..120).step_by(3) {
+                                        let v = row as f64 + 0.5;
+                                        let (mut a, mut b) = (vec![1.0f32; 160], vec![1.0f32; 160]);
+                                        g.clip = true;
+                                        g.cast_row(&p, v, 0.5, sampling, fill, &mut a, true);
+                                        let range = g.seen_pixels(&p, g.base + g.dv * v + g.du * 0.5, 160);
+                                        g.clip = false;
+                                        g.cast_row(&p, v, 0.5, sampling, fill, &mut b, true);
+                                        let same = a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits());
+                                        assert!(same, "row {row}, look {look_x} {look_y}, {sampling:?}, {fill:?}");
+                                        skipped += 160 - range.len();
+                                        seen += range.len();
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // the test covers both kinds of pixel
+        assert!(skipped > 100_000 && seen > 100_000, "{skipped} skipped, {seen} cast");
+        assert!(views[0] >= 10 && views[1] >= 10, "{views:?} views unseen and seen");
     }
 
     #[test]

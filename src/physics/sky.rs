@@ -319,6 +319,29 @@ impl Dome {
         if len > 0.0 { self.radiance(d.z / len) } else { self.horizon_sky as f32 }
     }
 
+    /// [`Dome::radiance_toward`] `base + step·i` into `out[i]` (with `only_nan`, only where `out[i]` is NaN):
+    /// the same values, with the elevations of a block of pixels worked out together so that the square roots
+    /// and divisions can go in vector registers.
+    #[inline(always)]
+    pub fn radiance_along(&self, base: DVec3, step: DVec3, out: &mut [f32], only_nan: bool) {
+        const BLOCK: usize = 16;
+        let mut sin_e = [0.0f64; BLOCK];
+        for (b, block) in out.chunks_mut(BLOCK).enumerate() {
+            for (k, s) in sin_e.iter_mut().enumerate() {
+                let d = base + step * (b * BLOCK + k) as f64;
+                let len = d.length();
+                // NaN marks a zero ray (the horizon's sky)
+                *s = if len > 0.0 { d.z / len } else { f64::NAN };
+            }
+            for (o, &s) in block.iter_mut().zip(&sin_e) {
+                if only_nan && !o.is_nan() {
+                    continue;
+                }
+                *o = if s.is_nan() { self.horizon_sky as f32 } else { self.radiance(s) };
+            }
+        }
+    }
+
     /// Largest `|d²L/de²|` over the sky and ground, radiance per rad² (for the PSF's skip bound).
     pub fn max_curvature_per_rad2(&self) -> f64 {
         self.max_curvature_per_rad2
@@ -366,6 +389,32 @@ mod tests {
             clear_sky: None,
         })
         .unwrap()
+    }
+
+    #[test]
+    fn a_row_of_rays_gives_each_ray_s_radiance() {
+        let d = dome(1500.0, Band::LWIR_8_12);
+        // rows across the sky, the limb and the ground; one passes through the zero ray
+        for (base, step) in [
+            (DVec3::new(-0.3, 1.0, 0.2), DVec3::new(0.003, 0.0, -0.0007)),
+            (DVec3::new(-0.5, 1.0, -0.9), DVec3::new(0.01, 0.0, 0.011)),
+            (DVec3::new(-0.05, 0.0, 0.0), DVec3::new(0.001, 0.0, 0.0)),
+        ] {
+            for n in [1, 15, 16, 17, 100] {
+                let mut row: Vec<f32> = (0..n).map(|i| if i % 3 == 0 { f32::NAN } else { -1.0 }).collect();
+                let before = row.clone();
+                d.radiance_along(base, step, &mut row, true);
+                for (i, (&v, &was)) in row.iter().zip(&before).enumerate() {
+                    let want = if was.is_nan() { d.radiance_toward(base + step * i as f64) } else { was };
+                    assert_eq!(v.to_bits(), want.to_bits(), "pixel {i} of {n}");
+                }
+                d.radiance_along(base, step, &mut row, false);
+                for (i, &v) in row.iter().enumerate() {
+                    assert_eq!(v.to_bits(), d.radiance_toward(base + step * i as f64).to_bits(), "pixel {i} of {n}");
+                }
+            }
+        }
+        assert_eq!(d.radiance_toward(DVec3::ZERO), d.horizon_sky() as f32);
     }
 
     #[test]

@@ -166,6 +166,9 @@ pub struct Sensor {
     pub psf: Option<Arc<Psf>>,
     /// Blur the frame (false when the blur would change no pixel by more than the set DN).
     pub blur_frame: bool,
+    /// Blur a frame that sees only the dome (false when the dome's curvature bounds the blur's change below
+    /// the set DN).
+    pub blur_dome: bool,
     /// How the blur reaches the sky image this run (`prefilter` or `frame`, `auto` resolved).
     pub sky_blur: SkyBlur,
     /// The plan that resolved `auto`, if one was made.

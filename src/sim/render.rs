@@ -38,6 +38,7 @@ pub fn render_sky(
                 skip_below: (cfg.skip_below_dn / sensor.dn_per_radiance) as f32,
                 sky_blur: sensor.sky_blur,
                 tolerance: cfg.prefilter_tolerance,
+                dome: sensor.blur_dome,
             }),
             _ => None,
         };

@@ -320,10 +320,12 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
         )),
         None => None,
     };
-    let blur_frame = match (&psf, resolved.psf) {
-        (Some(psf), Some(cfg)) => frame_needs_blur(psf, &cfg, sky, resolved, dn_per_radiance),
+    let blur_dome = match (&psf, resolved.psf) {
+        (Some(psf), Some(cfg)) => dome_needs_blur(psf, &cfg, sky, resolved, dn_per_radiance),
         _ => false,
     };
+    // an image layer may be seen in any frame
+    let blur_frame = psf.is_some() && (blur_dome || sky.plane.is_some());
     let report = model.report(300.0);
     let nonideal = if resolved.nonideal.is_ideal() {
         None
@@ -342,17 +344,18 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
         dn_per_radiance,
         psf,
         blur_frame,
+        blur_dome,
         sky_blur: resolved.psf.map_or(SkyBlur::Frame, |p| p.sky_blur),
         sky_blur_plan: None,
         nonideal,
     })
 }
 
-/// Whether blurring the background can change a pixel by more than `skip_below_dn`: always for an image
-/// layer; for the dome alone, the blur of a smooth field changes it by `½·M₂·|L''|` (M₂ the kernel's second
-/// moment in px², L'' the largest curvature per px²), which is compared with the threshold.
-fn frame_needs_blur(psf: &Psf, cfg: &PsfSettings, sky: &Sky, sensor: &ResolvedSensor, dn_per_radiance: f64) -> bool {
-    if sky.plane.is_some() || cfg.skip_below_dn <= 0.0 {
+/// Whether blurring a view of the dome alone can change a pixel by more than `skip_below_dn`: the blur of a
+/// smooth field changes it by `½·M₂·|L''|` (M₂ the kernel's second moment in px², L'' the largest curvature per
+/// px²), which is compared with the threshold.
+fn dome_needs_blur(psf: &Psf, cfg: &PsfSettings, sky: &Sky, sensor: &ResolvedSensor, dn_per_radiance: f64) -> bool {
+    if cfg.skip_below_dn <= 0.0 {
         return true;
     }
     let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
