@@ -136,7 +136,13 @@ fn bench_report_writes_finite_tables_and_plots() {
     let (code, stdout, err) = irsim(&args);
     assert_eq!(code, 0, "{stdout}{err}");
     let md = std::fs::read_to_string(out.join("speed_vs_error.md")).unwrap();
-    for png in ["presets_scenarios.png", "presets_pipeline.png", "switches.png", "scaling.png"] {
+    for png in [
+        "presets_scenarios.png",
+        "presets_pipeline.png",
+        "presets_pipeline_centroid.png",
+        "switches.png",
+        "scaling.png",
+    ] {
         let image = image::open(out.join(png)).unwrap_or_else(|e| panic!("{png}: {e}"));
         assert_eq!((image.width(), image.height()), (900, 600), "{png}");
         assert!(md.contains(&format!("({png})")), "{png} is linked");

@@ -270,6 +270,95 @@ pub(super) fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
 }
 
+/// Ticks at 1, 2 and 5 times the powers of ten in `[lo, hi]`: a log axis spanning little more than a decade
+/// otherwise has one or two labels.
+fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
+        return Vec::new();
+    }
+    let mut ticks = Vec::new();
+    for k in lo.log10().floor() as i32..=hi.log10().ceil() as i32 {
+        for m in [1, 2, 5] {
+            // parsed from decimal text, so that a tick prints as "0.005", not "0.005000000000000001"
+            let v: f64 = format!("{m}e{k}").parse().unwrap_or(f64::NAN);
+            if v >= lo && v <= hi {
+                ticks.push(v);
+            }
+        }
+    }
+    ticks
+}
+
+/// A text box: left, top, right, bottom, px.
+type TextBox = (i32, i32, i32, i32);
+
+/// Where each point's label goes, as the offset of the text's top-left corner from the point (px): the first of
+/// eight places around the point whose box stays inside `area` and clears the labels placed before and every
+/// point's marker; where none does, the place that overlaps least. `points` are pixel positions, `widths` the
+/// labels' estimated widths, `height` their height.
+fn place_labels(
+    points: &[(i32, i32)],
+    widths: &[i32],
+    height: i32,
+    area: TextBox,
+    blocked: &[TextBox],
+) -> Vec<(i32, i32)> {
+    let overlap = |a: TextBox, b: TextBox| {
+        let w = (a.2.min(b.2) - a.0.max(b.0)).max(0);
+        let h = (a.3.min(b.3) - a.1.max(b.1)).max(0);
+        i64::from(w) * i64::from(h)
+    };
+    const R: i32 = 6; // a marker's radius and a gap
+    let markers: Vec<TextBox> = points.iter().map(|&(x, y)| (x - R, y - R, x + R, y + R)).collect();
+    let mut placed: Vec<TextBox> = blocked.to_vec();
+    let mut offsets = Vec::new();
+    for (&(x, y), &w) in points.iter().zip(widths) {
+        let candidates = [
+            (R, -height - 2),
+            (R, 2),
+            (-R - w, -height - 2),
+            (-R - w, 2),
+            (-w / 2, -height - R - 2),
+            (-w / 2, R + 2),
+            (R, -2 * height - 4),
+            (R, height + 4),
+        ];
+        let cost = |&(dx, dy): &(i32, i32)| {
+            let b = (x + dx, y + dy, x + dx + w, y + dy + height);
+            let outside = i64::from(w) * i64::from(height) - overlap(b, area);
+            let hits: i64 = placed.iter().chain(&markers).map(|&o| overlap(b, o)).sum();
+            // leaving the plot is worse than covering another label
+            4 * outside + hits
+        };
+        let best = candidates.iter().copied().min_by_key(cost).unwrap_or((R, -height - 2));
+        placed.push((x + best.0, y + best.1, x + best.0 + w, y + best.1 + height));
+        offsets.push(best);
+    }
+    offsets
+}
+
+/// The corner of `area` for a legend box of `size` (px) that covers the fewest `points`, and that box.
+fn legend_corner(points: &[(i32, i32)], size: (i32, i32), area: TextBox) -> (SeriesLabelPosition, TextBox) {
+    const GAP: i32 = 12; // the legend's distance from the corner, and room around the markers
+    let (w, h) = size;
+    let corners = [
+        (SeriesLabelPosition::UpperLeft, (area.0, area.1, area.0 + w + GAP, area.1 + h + GAP)),
+        (SeriesLabelPosition::UpperRight, (area.2 - w - GAP, area.1, area.2, area.1 + h + GAP)),
+        (SeriesLabelPosition::LowerLeft, (area.0, area.3 - h - GAP, area.0 + w + GAP, area.3)),
+        (SeriesLabelPosition::LowerRight, (area.2 - w - GAP, area.3 - h - GAP, area.2, area.3)),
+    ];
+    let covered = |b: &TextBox| {
+        points.iter().filter(|&&(x, y)| x + GAP > b.0 && x - GAP < b.2 && y + GAP > b.1 && y - GAP < b.3).count()
+    };
+    let mut best = corners[0].clone();
+    for c in corners {
+        if covered(&c.1) < covered(&best.1) {
+            best = c;
+        }
+    }
+    best
+}
+
 /// A log–log plot of labelled points (`lines`: joined in order) written as a PNG.
 fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series], lines: bool) -> Result<(), CliError> {
     let (w, h) = (900u32, 600u32);
@@ -296,36 +385,60 @@ fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
             .margin(16)
             .x_label_area_size(50)
             .y_label_area_size(80)
-            .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+            .build_cartesian_2d(
+                (x0..x1).log_scale().with_key_points(log_ticks(x0, x1)),
+                (y0..y1).log_scale().with_key_points(log_ticks(y0, y1)),
+            )
             .map_err(failed)?;
         chart
             .configure_mesh()
             .x_desc(x_desc)
             .y_desc(y_desc)
-            // plain numbers, fewer of them: a log axis within one decade otherwise labels every digit
-            .x_labels(8)
-            .y_labels(8)
             .x_label_formatter(&|v| format!("{v}"))
             .y_label_formatter(&|v| format!("{v}"))
             .label_style(("sans-serif", 15))
             .axis_desc_style(("sans-serif", 17))
             .draw()
             .map_err(failed)?;
-        for (i, (name, points)) in series.iter().enumerate() {
+        // every label placed together, clear of the others and of every marker
+        let shown: Vec<Vec<(f64, f64, String)>> = series
+            .iter()
+            .map(|(_, points)| {
+                points
+                    .iter()
+                    .filter(|p| p.0 > 0.0 && p.1 > 0.0)
+                    .map(|(x, y, label)| {
+                        // points on the error floor crowd together: their names are in the report's table
+                        let label = if !lines && *y <= floor && floor <= FLOOR { String::new() } else { label.clone() };
+                        (*x, *y, label)
+                    })
+                    .collect()
+            })
+            .collect();
+        let flat: Vec<&(f64, f64, String)> = shown.iter().flatten().collect();
+        let pixels: Vec<(i32, i32)> = flat.iter().map(|p| chart.backend_coord(&(p.0, p.1))).collect();
+        let widths: Vec<i32> = flat.iter().map(|p| (7 * p.2.chars().count()) as i32).collect();
+        let (xr, yr) = chart.plotting_area().get_pixel_range();
+        let area = (xr.start, yr.start, xr.end, yr.end);
+        let legend_size = (
+            10 + 7 * series.iter().map(|s| s.0.chars().count()).max().unwrap_or(0) as i32 + 40,
+            20 * series.len() as i32 + 12,
+        );
+        let (legend_at, legend_box) = legend_corner(&pixels, legend_size, area);
+        let mut offsets = place_labels(&pixels, &widths, 14, area, &[legend_box]).into_iter();
+        for (i, ((name, _), points)) in series.iter().zip(&shown).enumerate() {
             let color = SERIES_COLORS[i % SERIES_COLORS.len()];
-            let points: Vec<_> = points.iter().filter(|p| p.0 > 0.0 && p.1 > 0.0).cloned().collect();
+            let placed: Vec<(i32, i32)> = offsets.by_ref().take(points.len()).collect();
             if lines {
                 chart
                     .draw_series(LineSeries::new(points.iter().map(|p| (p.0, p.1)), color.stroke_width(2)))
                     .map_err(failed)?;
             }
             chart
-                .draw_series(points.iter().map(|(x, y, label)| {
-                    // points on the error floor crowd together: their names are in the report's table
-                    let label = if !lines && *y <= floor && floor <= FLOOR { String::new() } else { label.clone() };
+                .draw_series(points.iter().zip(placed).map(|((x, y, label), offset)| {
                     EmptyElement::at((*x, *y))
                         + Circle::new((0, 0), 5, color.filled())
-                        + Text::new(label, (7, -16), ("sans-serif", 13))
+                        + Text::new(label.clone(), offset, ("sans-serif", 13))
                 }))
                 .map_err(failed)?
                 .label(name.as_str())
@@ -336,7 +449,7 @@ fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .label_font(("sans-serif", 15))
-            .position(SeriesLabelPosition::UpperLeft)
+            .position(legend_at)
             .draw()
             .map_err(failed)?;
         root.present().map_err(failed)?;
@@ -630,6 +743,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
          circling in view (the cases of `irsim bench`).\n\n| case | preset | frames/s | rms / max DN | centroid px |\n|---|---|---|---|---|"
     );
     let mut pipeline_points: Vec<Series> = vec![("standard".into(), Vec::new()), ("draft".into(), Vec::new())];
+    let mut centroid_points: Vec<Series> = pipeline_points.clone();
     for &(w, h, n) in &plan.cases {
         progress(&format!("  {w}x{h}, {n} targets"));
         let s = synthetic(w, h, n)?;
@@ -648,6 +762,9 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
                 centroid_cell(&e)
             );
             pipeline_points[k].1.push((1e3 / m.ms_per_frame, e.rms_dn.max(FLOOR), format!("{w}×{h}, {n}")));
+            if let Some(c) = e.centroid_px {
+                centroid_points[k].1.push((1e3 / m.ms_per_frame, c.max(FLOOR), format!("{w}×{h}, {n}")));
+            }
         }
     }
     plot(
@@ -658,7 +775,18 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         &pipeline_points,
         false,
     )?;
-    let _ = writeln!(md, "\n![the whole pipeline](presets_pipeline.png)\n");
+    plot(
+        &a.out.join("presets_pipeline_centroid.png"),
+        "The whole pipeline: where the targets are",
+        "frames per second",
+        "largest centroid error against reference, px",
+        &centroid_points,
+        false,
+    )?;
+    let _ = writeln!(
+        md,
+        "\n![the whole pipeline](presets_pipeline.png)\n\n![the whole pipeline, centroid error](presets_pipeline_centroid.png)\n"
+    );
 
     // 3. every switch against the reference, one at a time
     let base = scenarios
@@ -943,6 +1071,46 @@ mod tests {
         }
         let c = centroid(&f, w, [6.0, 8.0, 8.0, 10.0]).unwrap();
         assert!((c[0] - 7.0).abs() < 1e-12 && (c[1] - 9.0).abs() < 1e-12, "{c:?}");
+    }
+
+    #[test]
+    fn labels_of_crowded_points_do_not_overlap() {
+        // three names at nearly one spot, as crossing_pair, paper_clear_sky and sense_and_avoid sit in the
+        // scenarios' plot, and one far off
+        let points = [(400, 300), (404, 302), (410, 300), (100, 100)];
+        let widths = [84, 105, 105, 60];
+        let offsets = place_labels(&points, &widths, 14, (0, 0, 800, 600), &[]);
+        let boxes: Vec<TextBox> = points
+            .iter()
+            .zip(&offsets)
+            .zip(&widths)
+            .map(|((p, o), w)| (p.0 + o.0, p.1 + o.1, p.0 + o.0 + w, p.1 + o.1 + 14))
+            .collect();
+        for (i, a) in boxes.iter().enumerate() {
+            assert!(a.0 >= 0 && a.1 >= 0 && a.2 <= 800 && a.3 <= 600, "label {i} leaves the plot: {a:?}");
+            for b in &boxes[i + 1..] {
+                let apart = a.2 <= b.0 || b.2 <= a.0 || a.3 <= b.1 || b.3 <= a.1;
+                assert!(apart, "{a:?} and {b:?} overlap");
+            }
+        }
+        // a label at the plot's right edge goes to the left of its point
+        let o = place_labels(&[(790, 300)], &[80], 14, (0, 0, 800, 600), &[]);
+        assert!(o[0].0 < 0, "{o:?}");
+    }
+
+    #[test]
+    fn the_legend_goes_where_no_point_is() {
+        let area = (0, 0, 800, 600);
+        // points in the upper left and lower right: the legend takes an empty corner
+        let (at, b) = legend_corner(&[(30, 20), (60, 40), (780, 590)], (120, 50), area);
+        assert!(matches!(at, SeriesLabelPosition::UpperRight | SeriesLabelPosition::LowerLeft), "{at:?}");
+        assert!(b.0 >= 0 && b.2 <= 800 && b.1 >= 0 && b.3 <= 600);
+    }
+
+    #[test]
+    fn log_ticks_one_two_five() {
+        assert_eq!(log_ticks(70.0, 3000.0), vec![100.0, 200.0, 500.0, 1000.0, 2000.0]);
+        assert_eq!(log_ticks(0.003, 0.02), vec![0.005, 0.01, 0.02]);
     }
 
     #[test]
