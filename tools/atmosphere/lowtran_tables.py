@@ -51,6 +51,7 @@ length, u32 CRC-32 of the uncompressed payload, u64 uncompressed length, then th
 from __future__ import annotations
 
 import argparse
+import atexit
 import hashlib
 import io
 import json
@@ -324,12 +325,30 @@ def aerosol_settings() -> list[tuple[str, float]]:
 
 
 _LOWTRAN: Lowtran | None = None
+_SCRATCH_ENV = "IRSIM_LOWTRAN_SCRATCH"
+
+
+def _scratch_root() -> str:
+    """This run's scratch directory: made by the main process (before any worker starts), named to the workers
+    through the environment, removed when the main process exits."""
+    parent = os.environ.get(_SCRATCH_ENV)
+    if parent is None:
+        parent = tempfile.mkdtemp(prefix="irsim-lowtran-")
+        os.environ[_SCRATCH_ENV] = parent
+        main_pid = os.getpid()
+        atexit.register(lambda: os.getpid() == main_pid and shutil.rmtree(parent, ignore_errors=True))
+    return parent
+
+
+def _scratch() -> Path:
+    """A new working directory for one LOWTRAN process, inside this run's scratch directory."""
+    return Path(tempfile.mkdtemp(dir=_scratch_root()))
 
 
 def _lowtran(exe: str) -> Lowtran:
     global _LOWTRAN
     if _LOWTRAN is None:
-        _LOWTRAN = Lowtran(Path(exe), Path(tempfile.mkdtemp(prefix="irsim-lowtran-")))
+        _LOWTRAN = Lowtran(Path(exe), _scratch())
     return _LOWTRAN
 
 
@@ -410,7 +429,7 @@ def header(profiles: dict) -> dict:
 def generate(out_dir: Path, jobs: int) -> None:
     exe = build()
     nbins = len(BIN_EDGES_UM) - 1
-    lt = Lowtran(exe, Path(tempfile.mkdtemp(prefix="irsim-lowtran-")))
+    lt = Lowtran(exe, _scratch())
     profiles = {m: lt.profile(m) for m in MODELS}
     tasks = [(str(exe), m, lo, hi) for m in MODELS for lo, hi in pairs()]
     od, flags, traced = [], [], []
@@ -591,7 +610,7 @@ def check(jobs: int) -> int:
 
 def point(a) -> None:
     exe = build()
-    lt = Lowtran(exe, Path(tempfile.mkdtemp(prefix="irsim-lowtran-")))
+    lt = Lowtran(exe, _scratch())
     ihaze = 0 if a.aerosol == "none" else AEROSOLS[a.aerosol][0]
     res = lt.path(a.model, ihaze, a.visibility_km, a.observer_alt_km, a.target_alt_km, a.range_km)
     if res is None:
@@ -605,6 +624,7 @@ def point(a) -> None:
 
 
 def main() -> int:
+    _scratch_root()
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--check", action="store_true", help="regenerate into a temporary directory and compare")
     p.add_argument("--out", type=Path, default=ASSETS, help="directory for the table and the off-grid runs")
