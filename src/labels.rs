@@ -73,13 +73,15 @@ pub struct TargetLabel {
 }
 
 impl FrameLabels {
-    /// Appends this frame's MOTChallenge lines (`frame (1-based), id, left, top, width, height, conf, class,
-    /// visibility`) for the targets in the frame.
+    /// Appends this frame's MOTChallenge lines (`frame, id, left, top, width, height, conf, class, visibility`)
+    /// for the targets in the frame. MOTChallenge counts frames and pixels from 1 (its tools subtract 1 from
+    /// `left` and `top` on loading), so `left, top` are `bbox_px`'s 0-based edges plus 1.
     pub fn push_mot_lines(&self, out: &mut String) {
         use std::fmt::Write as _;
         for t in self.targets.iter().filter(|t| t.in_frame) {
             let [x0, y0, x1, y1] = t.bbox_px;
-            writeln!(out, "{},{},{:.3},{:.3},{:.3},{:.3},1,1,1", self.frame + 1, t.id, x0, y0, x1 - x0, y1 - y0)
+            let (left, top) = (x0 + 1.0, y0 + 1.0);
+            writeln!(out, "{},{},{:.3},{:.3},{:.3},{:.3},1,1,1", self.frame + 1, t.id, left, top, x1 - x0, y1 - y0)
                 .expect("writing to a String");
         }
     }

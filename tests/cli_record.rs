@@ -42,6 +42,18 @@ fn record_writes_frames_labels_mot_and_manifest() {
     let mot = std::fs::read_to_string(out.join("gt_mot.txt")).unwrap();
     assert_eq!(mot.lines().count(), 6);
     assert!(mot.starts_with("1,1,"));
+    // MOTChallenge counts pixels from 1: its tools (py-motmetrics) subtract 1 from left and top to get the
+    // 0-based box of labels.jsonl
+    for (row, label) in mot.lines().zip(&lines) {
+        let f: Vec<f64> = row.split(',').map(|x| x.parse().unwrap()).collect();
+        let b: Vec<f64> =
+            label["targets"][0]["bbox_px"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        for (mot, zero_based) in
+            [(f[2] - 1.0, b[0]), (f[3] - 1.0, b[1]), (f[2] - 1.0 + f[4], b[2]), (f[3] - 1.0 + f[5], b[3])]
+        {
+            assert!((mot - zero_based).abs() < 2e-3, "{row} against {b:?}");
+        }
+    }
     let manifest: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(manifest["status"], "complete");

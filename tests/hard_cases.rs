@@ -351,7 +351,8 @@ fn mot_file_holds_only_targets_with_pixels_in_the_image() {
     assert_eq!(mot.lines().count(), in_frame);
     for line in mot.lines() {
         let f: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
-        assert!(f[2] >= 0.0 && f[3] >= 0.0 && f[2] + f[4] <= 640.0 + 1e-3 && f[3] + f[5] <= 512.0 + 1e-3, "{line}");
+        // MOTChallenge pixels count from 1
+        assert!(f[2] >= 1.0 && f[3] >= 1.0 && f[2] + f[4] <= 641.0 + 1e-3 && f[3] + f[5] <= 513.0 + 1e-3, "{line}");
         assert!(f[4] > 0.0 && f[5] > 0.0, "{line}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
