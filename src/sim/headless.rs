@@ -91,7 +91,17 @@ pub struct LatestFrame(pub Option<FrameReady>);
 /// # Panics
 /// If the step produced no frame (the scenario's entities are missing).
 pub fn step(app: &mut App) -> FrameLabels {
-    app.update();
+    // the frame's systems run on a thread of rayon's pool, so that each parallel stage forks from a worker
+    // (the other workers steal its halves) instead of handing the whole stage over to the pool and sleeping
+    // until it is done
+    let sub_apps = app.sub_apps_mut();
+    if sub_apps.sub_apps.is_empty() && rayon::current_thread_index().is_none() {
+        // what `App::update` does for an app without sub-apps
+        let main = &mut sub_apps.main;
+        rayon::scope(|_| main.update());
+    } else {
+        app.update();
+    }
     let ready = drain_frames(app).pop().expect("each step completes one frame");
     let labels = ready.labels.clone();
     let world = app.world_mut();
