@@ -17,6 +17,7 @@
 //! - [`cli`]: the `irsim` command line.
 
 pub mod cli;
+pub mod dataset;
 pub mod imaging;
 pub mod labels;
 pub mod physics;

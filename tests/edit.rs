@@ -173,6 +173,7 @@ fn a_recorded_part_of_the_run_is_reproduced_from_its_manifest() {
         vibration: true,
         format: irsim::record::FrameFormat::Png16,
         masks: false,
+        reproducible: false,
     };
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     record_scenario(&s, &plan, &stop, &mut |_, _| {}).expect("recorded");

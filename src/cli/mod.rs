@@ -4,6 +4,7 @@
 
 pub mod atmosphere;
 pub mod calc;
+pub mod dataset;
 pub mod opencv;
 pub mod report;
 pub mod run;
@@ -57,6 +58,8 @@ pub enum Command {
     Calc(calc::CalcCommand),
     /// Simulate a scenario and write frames, labels, MOT ground truth and a manifest.
     Record(run::RecordArgs),
+    /// Draw the sequences of a dataset spec and record them (all, or one shard's).
+    Dataset(dataset::DatasetArgs),
     /// Check a scenario file and report the first error with file, line, column and field.
     Validate(run::ValidateArgs),
     /// Generate an infrared sky image (16-bit PNG).
@@ -95,6 +98,7 @@ where
     let result = match &cli.command {
         Command::Calc(cmd) => calc::run(cmd).and_then(|value| say(&value.to_string())),
         Command::Record(a) => run::record(a),
+        Command::Dataset(a) => dataset::dataset(a),
         Command::Validate(a) => run::validate(a),
         Command::Sky(a) => run::sky(a),
         Command::Bench(a) => run::bench(a),

@@ -258,6 +258,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         vibration: !a.no_vibration,
         format: a.format,
         masks: a.masks,
+        reproducible: false,
     };
     let stop = Arc::new(AtomicBool::new(false));
     {
@@ -307,6 +308,9 @@ pub struct RecordPlan {
     pub format: FrameFormat,
     /// Per-frame target masks.
     pub masks: bool,
+    /// A manifest with nothing that depends on the machine or the moment (no timings), so that the same
+    /// scenario gives the same bytes anywhere: what a dataset's sequences are recorded with.
+    pub reproducible: bool,
 }
 
 /// How a recording ended.
@@ -415,7 +419,7 @@ pub fn record_scenario(
         progress(rec.frames_sent(), frames);
     }
     let elapsed = started.elapsed().as_secs_f64();
-    if let Some(t) = app.world().get_resource::<StageTimings>() {
+    if let Some(t) = app.world().get_resource::<StageTimings>().filter(|_| !plan.reproducible) {
         let stages: serde_json::Map<String, serde_json::Value> =
             t.mean_ms().into_iter().map(|(k, v)| (k.to_owned(), json!(v))).collect();
         rec.set_manifest("timings", json!({ "wall_s": elapsed, "stage_ms_per_frame": stages }));

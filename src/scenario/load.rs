@@ -191,7 +191,7 @@ pub fn located(path: &Path, field: &str, message: &str) -> ScenarioError {
 }
 
 /// 1-based line and column of byte `offset`.
-fn line_col(text: &str, offset: usize) -> (usize, usize) {
+pub(crate) fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let mut offset = offset.min(text.len());
     while !text.is_char_boundary(offset) {
         offset -= 1;

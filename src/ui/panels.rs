@@ -59,6 +59,7 @@ fn start_recording(r: &mut RecordUi, scenario: &crate::scenario::CheckedScenario
         vibration: true,
         format: r.format,
         masks: false,
+        reproducible: false,
     };
     let job = RecordJob {
         written: Arc::new(AtomicU64::new(0)),

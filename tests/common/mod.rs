@@ -4,6 +4,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 /// The crate's root.
+#[allow(dead_code)] // not every test binary uses it
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }

@@ -1,0 +1,455 @@
+//! Datasets: a spec of distributions (sensors, skies, weather, target classes, trajectory families, ranges),
+//! drawn into one complete scenario per sequence.
+//!
+//! Sequence `k` is drawn from its own random stream, keyed by the dataset's seed and `k` alone, so that it is
+//! the same whatever the number of shards and the order they run in.
+
+pub mod classes;
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use glam::DVec3;
+use serde::Deserialize;
+
+use crate::physics::detector::Preset;
+use crate::physics::random::{SplitMix64, mix64};
+use crate::scenario::load::{ScenarioError, line_col};
+use crate::scenario::locate::Nodes;
+use crate::scenario::{Quality, QualityPreset, SensorSpec};
+pub use classes::TargetClass;
+
+/// A closed range `[min, max]` to draw from uniformly.
+pub type Range = [f64; 2];
+
+/// What a dataset is drawn from (`irsim dataset SPEC`; fields in docs/datasets.md).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetSpec {
+    /// The dataset's name.
+    pub name: String,
+    /// Every sequence's random stream derives from this.
+    pub seed: u64,
+    /// How many sequences.
+    pub sequences: u64,
+    /// Frames per sequence.
+    pub frames: u64,
+    /// Frame rate, Hz.
+    #[serde(default = "default_frame_rate")]
+    pub frame_rate_hz: f64,
+    /// The quality preset every sequence is recorded with.
+    #[serde(default)]
+    pub quality: Option<String>,
+    /// Cameras to draw from (preset names).
+    pub sensors: Vec<String>,
+    /// NETD to draw, mK (the preset's when absent).
+    #[serde(default)]
+    pub netd_mk: Option<Range>,
+    /// Targets per sequence.
+    pub targets_per_sequence: [u64; 2],
+    /// Target classes to draw from.
+    pub classes: Vec<String>,
+    /// Trajectory families to draw from.
+    pub trajectories: Vec<String>,
+    /// Range from the observer at the sequence's middle, m.
+    pub range_m: Range,
+    /// The observer.
+    #[serde(default)]
+    pub observer: ObserverSpec,
+    /// The sky layer.
+    #[serde(default)]
+    pub sky: SkySpec,
+    /// The atmosphere.
+    #[serde(default)]
+    pub atmosphere: AtmosphereSpec,
+}
+
+fn default_frame_rate() -> f64 {
+    30.0
+}
+
+/// How the observer is drawn.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObserverSpec {
+    /// Altitude, m.
+    pub altitude_m: Range,
+    /// Elevation of the line of sight, degrees.
+    pub look_elevation_deg: Range,
+    /// Line-of-sight jitter amplitude, degrees.
+    pub vibration_deg: Range,
+}
+
+impl Default for ObserverSpec {
+    fn default() -> Self {
+        Self { altitude_m: [100.0, 1000.0], look_elevation_deg: [2.0, 15.0], vibration_deg: [0.0, 0.02] }
+    }
+}
+
+/// How the sky layer is drawn.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SkySpec {
+    /// Kinds to draw from: `clear`, `cumulus`, `none` (the dome alone).
+    pub kinds: Vec<String>,
+    /// Cumulus cover fraction.
+    pub cover: Range,
+    /// Distance of the layer, m (at least twice the largest target range).
+    pub distance_m: Range,
+}
+
+impl Default for SkySpec {
+    fn default() -> Self {
+        Self { kinds: vec!["clear".into(), "cumulus".into()], cover: [0.2, 0.6], distance_m: [8000.0, 20000.0] }
+    }
+}
+
+/// How the weather is drawn.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AtmosphereSpec {
+    /// LOWTRAN7 model atmospheres to draw from.
+    pub models: Vec<String>,
+    /// Aerosol models to draw from.
+    pub aerosols: Vec<String>,
+    /// Visibility, km.
+    pub visibility_km: Range,
+}
+
+impl Default for AtmosphereSpec {
+    fn default() -> Self {
+        Self { models: vec!["us_standard_1976".into()], aerosols: vec!["rural".into()], visibility_km: [10.0, 50.0] }
+    }
+}
+
+/// The trajectory families a target's path is drawn from.
+pub const TRAJECTORIES: [&str; 5] = ["straight", "crossing", "approach", "coordinated_turn", "weave"];
+/// The sky kinds.
+pub const SKY_KINDS: [&str; 3] = ["clear", "cumulus", "none"];
+/// The model atmospheres of the LOWTRAN table.
+pub const MODELS: [&str; 6] = [
+    "tropical",
+    "midlatitude_summer",
+    "midlatitude_winter",
+    "subarctic_summer",
+    "subarctic_winter",
+    "us_standard_1976",
+];
+/// The aerosol models, each with the visibilities its table holds, km.
+pub const AEROSOLS: [&str; 4] = ["none", "rural", "maritime", "urban"];
+
+/// The visibilities LOWTRAN's table holds for `aerosol`, km: a drawn one is brought within them.
+fn visibility_range_km(aerosol: &str) -> Range {
+    match aerosol {
+        "maritime" => [5.0, 50.0],
+        "urban" => [2.0, 23.0],
+        _ => [2.0, 50.0],
+    }
+}
+
+/// A spec that cannot be used: where and why (file, line, column, field).
+pub type SpecError = ScenarioError;
+
+impl DatasetSpec {
+    /// Reads and checks a spec file.
+    ///
+    /// # Errors
+    /// A [`SpecError`] naming file, line, column and field for unreadable text, an unknown field or name, a
+    /// range whose ends are not finite or out of order, and counts out of bounds.
+    pub fn load(path: &Path) -> Result<Self, SpecError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| SpecError {
+            file: file.clone(),
+            line: 0,
+            column: 0,
+            field: String::new(),
+            message: format!("cannot read: {e}"),
+        })?;
+        Self::from_str(&text, &file)
+    }
+
+    /// As [`DatasetSpec::load`], from text; `file` names it in errors.
+    ///
+    /// # Errors
+    /// See [`DatasetSpec::load`].
+    pub fn from_str(text: &str, file: &str) -> Result<Self, SpecError> {
+        let nodes = Nodes::toml(text);
+        let at = |field: &str, message: String, offset: Option<usize>| {
+            let offset = offset.or_else(|| nodes.nearest(field).map(|n| n.key_start)).unwrap_or(0);
+            let (line, column) = line_col(text, offset);
+            SpecError { file: file.to_owned(), line, column, field: field.to_owned(), message }
+        };
+        let spec: Self = toml::from_str(text).map_err(|e| {
+            let span = e.span().map(|s| (s.start, s.end));
+            let node = span.and_then(|s| nodes.at_span(s));
+            let message = e.message().trim().to_owned();
+            let (field, located) = match node {
+                Some(n) => nodes.refine(n, &message),
+                None => (String::new(), None),
+            };
+            let offset = located.map(|n| n.key_start).or(span.map(|s| s.0));
+            at(&field, message, offset)
+        })?;
+        spec.check().map_err(|(field, message)| at(&field, message, None))?;
+        Ok(spec)
+    }
+
+    /// `(field, message)` for the first value out of bounds.
+    fn check(&self) -> Result<(), (String, String)> {
+        let err = |f: &str, m: String| Err((f.to_owned(), m));
+        let range = |f: &str, r: Range, lo: f64, hi: f64| -> Result<(), (String, String)> {
+            if !(r[0].is_finite() && r[1].is_finite()) {
+                return err(f, format!("both ends must be finite numbers, not [{}, {}]", r[0], r[1]));
+            }
+            if r[0] > r[1] {
+                return err(f, format!("min {} is above max {}", r[0], r[1]));
+            }
+            if r[0] < lo || r[1] > hi {
+                return err(f, format!("[{}, {}] must lie within [{lo}, {hi}]", r[0], r[1]));
+            }
+            Ok(())
+        };
+        let names = |f: &str, given: &[String], allowed: &[&str]| -> Result<(), (String, String)> {
+            if given.is_empty() {
+                return err(f, format!("give at least one of {}", allowed.join(", ")));
+            }
+            for (i, g) in given.iter().enumerate() {
+                if !allowed.contains(&g.as_str()) {
+                    return err(&format!("{f}[{i}]"), format!("`{g}` is not one of {}", allowed.join(", ")));
+                }
+            }
+            Ok(())
+        };
+        if self.name.trim().is_empty() || self.name.contains(['/', '\\']) {
+            return err("name", "a non-empty name without path separators".into());
+        }
+        if !(1..=10_000_000).contains(&self.sequences) {
+            return err("sequences", format!("{} must be in 1 … 10000000", self.sequences));
+        }
+        if !(1..=1_000_000).contains(&self.frames) {
+            return err("frames", format!("{} must be in 1 … 1000000", self.frames));
+        }
+        range("frame_rate_hz", [self.frame_rate_hz; 2], 0.1, 10_000.0)?;
+        if let Some(q) = &self.quality {
+            q.parse::<QualityPreset>().map_err(|e| ("quality".to_owned(), e.to_string()))?;
+        }
+        let presets: Vec<&str> = Preset::ALL.iter().map(|p| p.name()).collect();
+        names("sensors", &self.sensors, &presets)?;
+        if let Some(n) = self.netd_mk {
+            range("netd_mk", n, 1.0, 10_000.0)?;
+        }
+        let [t0, t1] = self.targets_per_sequence;
+        if t0 > t1 {
+            return err("targets_per_sequence", format!("min {t0} is above max {t1}"));
+        }
+        if t1 > 64 {
+            return err("targets_per_sequence", format!("at most 64 targets, not {t1}"));
+        }
+        let class_names: Vec<&str> = TargetClass::ALL.iter().map(|c| c.name).collect();
+        names("classes", &self.classes, &class_names)?;
+        names("trajectories", &self.trajectories, &TRAJECTORIES)?;
+        range("range_m", self.range_m, 10.0, 200_000.0)?;
+        range("observer.altitude_m", self.observer.altitude_m, 0.0, 20_000.0)?;
+        range("observer.look_elevation_deg", self.observer.look_elevation_deg, -30.0, 89.0)?;
+        range("observer.vibration_deg", self.observer.vibration_deg, 0.0, 5.0)?;
+        names("sky.kinds", &self.sky.kinds, &SKY_KINDS)?;
+        range("sky.cover", self.sky.cover, 0.0, 1.0)?;
+        range("sky.distance_m", self.sky.distance_m, 100.0, 1e6)?;
+        names("atmosphere.models", &self.atmosphere.models, &MODELS)?;
+        names("atmosphere.aerosols", &self.atmosphere.aerosols, &AEROSOLS)?;
+        range("atmosphere.visibility_km", self.atmosphere.visibility_km, 2.0, 200.0)?;
+        Ok(())
+    }
+
+    /// The scenario of sequence `k` as TOML text: everything drawn from the sequence's own stream.
+    ///
+    /// # Errors
+    /// A message when the drawn camera cannot be resolved (a preset the crate no longer knows).
+    pub fn sequence_scenario(&self, k: u64) -> Result<String, String> {
+        let mut rng = Draw(SplitMix64::substream(mix64(self.seed ^ 0x6461_7461_7365_7473), k));
+        let duration_s = self.frames as f64 / self.frame_rate_hz;
+        let mut s = String::new();
+        let _ = writeln!(s, "# sequence {k} of dataset `{}` (seed {}), drawn by irsim dataset", self.name, self.seed);
+        let _ = writeln!(s, "name = \"{}_{k:06}\"\n", self.name);
+        let seed = rng.bits() >> 11;
+        let _ = writeln!(s, "[run]\nframe_rate_hz = {}\nframes = {}\nseed = {seed}\n", self.frame_rate_hz, self.frames);
+
+        // the camera
+        let sensor_name = rng.pick(&self.sensors);
+        let preset = Preset::ALL.iter().copied().find(|p| p.name() == sensor_name).ok_or("unknown sensor")?;
+        let resolved = SensorSpec { preset: Some(preset), ..Default::default() }
+            .resolve(&Quality::default())
+            .map_err(|e| format!("sensor `{sensor_name}`: {}", e.message))?;
+        let ifov = resolved.intrinsics.pixel_pitch_m / resolved.intrinsics.focal_length_m;
+        let half_w = (0.5 * f64::from(resolved.intrinsics.width) * ifov).atan();
+        let half_h = (0.5 * f64::from(resolved.intrinsics.height) * ifov).atan();
+        let _ = writeln!(s, "[sensor]\npreset = \"{sensor_name}\"");
+        if let Some(n) = self.netd_mk {
+            let _ = writeln!(s, "detector = {{ netd_mk = {} }}", num(rng.uniform(n)));
+        }
+        s.push('\n');
+
+        // the observer: where it looks
+        let alt = rng.uniform(self.observer.altitude_m);
+        let yaw = rng.uniform([0.0, 360.0]).to_radians();
+        let elevation = rng.uniform(self.observer.look_elevation_deg).to_radians();
+        let eye = DVec3::new(0.0, 0.0, alt);
+        let dir = |yaw: f64, el: f64| DVec3::new(yaw.sin() * el.cos(), yaw.cos() * el.cos(), el.sin());
+        let look = eye + dir(yaw, elevation) * 10_000.0;
+        let vibration = rng.uniform(self.observer.vibration_deg);
+        let _ = writeln!(
+            s,
+            "[observer]\ntrajectory = {{ kind = \"constant_velocity\", position_m = [0, 0, {}] }}\npointing = {{ mode = \"look_at\", target_m = {} }}\nvibration = {{ amplitude_deg = {}, cutoff_hz = 10 }}\n",
+            num(alt),
+            vec3(look),
+            num(vibration)
+        );
+
+        // the sky layer, far behind every target, wide enough for the view and its jitter
+        let sky_kind = rng.pick(&self.sky.kinds);
+        let cover = rng.uniform(self.sky.cover);
+        let distance = rng.uniform(self.sky.distance_m).max(2.0 * self.range_m[1]);
+        let sky_seed = rng.bits() >> 11;
+        if sky_kind != "none" {
+            let margin = 1.3 + vibration.to_radians() * 4.0;
+            let width = 2.0 * distance * (half_w * margin).tan();
+            let height = 2.0 * distance * (half_h * margin).tan();
+            let anchor = eye + DVec3::new(yaw.sin(), yaw.cos(), elevation.tan()) * distance;
+            let generate = if sky_kind == "cumulus" {
+                format!("{{ kind = \"cumulus\", cover = {}, seed = {sky_seed} }}", num(cover))
+            } else {
+                format!("{{ kind = \"clear\", haze = 0.3, seed = {sky_seed} }}")
+            };
+            let _ = writeln!(
+                s,
+                "[sky]\ngenerate = {generate}\nanchor_m = {}\nwidth_m = {}\nheight_m = {}\nmax_texels = 2048\n",
+                vec3(anchor),
+                num(width),
+                num(height)
+            );
+        }
+
+        // the weather
+        let model = rng.pick(&self.atmosphere.models);
+        let aerosol = rng.pick(&self.atmosphere.aerosols);
+        let visibility = rng.uniform(self.atmosphere.visibility_km);
+        let _ = write!(s, "[atmosphere]\nmodel = \"{model}\"\naerosol = \"{aerosol}\"\n");
+        if aerosol != "none" {
+            let [lo, hi] = visibility_range_km(aerosol);
+            let _ = writeln!(s, "visibility_km = {}", num(visibility.clamp(lo, hi)));
+        }
+        s.push('\n');
+
+        // the targets, each in view at the sequence's middle
+        let [n0, n1] = self.targets_per_sequence;
+        let n = n0 + rng.bits() % (n1 - n0 + 1);
+        for i in 0..n {
+            let class = TargetClass::named(rng.pick(&self.classes)).ok_or("unknown class")?;
+            let family = rng.pick(&self.trajectories);
+            let range = rng.uniform(self.range_m);
+            let az = yaw + rng.uniform([-0.7, 0.7]) * half_w;
+            let el = elevation + rng.uniform([-0.7, 0.7]) * half_h;
+            let mut mid = eye + dir(az, el) * range;
+            // above the ground by at least 20 m
+            mid.z = mid.z.max(20.0);
+            let speed = rng.uniform(class.speed_m_s);
+            let scale = rng.uniform([0.8, 1.2]);
+            let heading = rng.uniform([0.0, std::f64::consts::TAU]);
+            let climb = rng.uniform([-0.05, 0.05]) * speed;
+            let los = DVec3::new(mid.x - eye.x, mid.y - eye.y, 0.0).normalize_or(DVec3::Y);
+            let side = if rng.bits() & 1 == 0 { 1.0 } else { -1.0 };
+            let horizontal = |h: f64| DVec3::new(h.sin(), h.cos(), 0.0);
+            let velocity = match family {
+                "crossing" => DVec3::new(los.y, -los.x, 0.0) * speed * side + DVec3::Z * climb,
+                "approach" => -los * speed + DVec3::Z * climb,
+                _ => horizontal(heading) * speed + DVec3::Z * climb,
+            };
+            let trajectory = match family {
+                "coordinated_turn" => {
+                    // a turn at 3–12 °/s through the middle point
+                    let rate = rng.uniform([3.0, 12.0]).to_radians();
+                    let radius = (speed / rate).max(1.0);
+                    let bearing = rng.uniform([0.0, 360.0]);
+                    let b = bearing.to_radians();
+                    let centre = DVec3::new(mid.x - radius * b.sin(), mid.y - radius * b.cos(), mid.z);
+                    format!(
+                        "{{ kind = \"coordinated_turn\", center_m = {}, radius_m = {}, speed_m_s = {}, start_bearing_deg = {}, clockwise = {} }}",
+                        vec3(centre),
+                        num(radius),
+                        num(speed),
+                        num(bearing),
+                        side > 0.0
+                    )
+                }
+                "weave" => {
+                    // a sine across the heading, period 4–10 s, amplitude up to a tenth of the distance flown in it
+                    let period = rng.uniform([4.0, 10.0]);
+                    let amplitude = rng.uniform([0.02, 0.1]) * speed * period;
+                    let across = DVec3::new(velocity.y, -velocity.x, 0.0).normalize_or(DVec3::X);
+                    let steps = ((duration_s / 0.5).ceil() as usize).max(1);
+                    let mut points = Vec::new();
+                    for j in 0..=steps + 2 {
+                        let t = j as f64 * 0.5 - 0.5;
+                        let p = mid
+                            + velocity * (t - 0.5 * duration_s)
+                            + across * amplitude * (std::f64::consts::TAU * t / period).sin();
+                        points.push(format!("[{}, {}, {}, {}]", num(t), num(p.x), num(p.y), num(p.z)));
+                    }
+                    format!("{{ kind = \"waypoints\", points = [{}] }}", points.join(", "))
+                }
+                _ => format!(
+                    "{{ kind = \"constant_velocity\", position_m = {}, velocity_m_s = {} }}",
+                    vec3(mid - velocity * 0.5 * duration_s),
+                    vec3(velocity)
+                ),
+            };
+            let [a, b, c] = class.semi_axes_m.map(|v| v * scale);
+            let _ = writeln!(
+                s,
+                "[[targets]]\nname = \"{}_{i}\"\n# class {}, {family}, {} m away at the middle\ntrajectory = {trajectory}\nsemi_axes_m = [{}, {}, {}]\nemissivity = {}\nheating_k = {}\n",
+                class.name,
+                class.name,
+                num(range),
+                num(a),
+                num(b),
+                num(c),
+                num(class.emissivity),
+                num(rng.uniform(class.heating_k)),
+            );
+        }
+        if let Some(q) = &self.quality {
+            let _ = writeln!(s, "[quality]\npreset = \"{q}\"");
+        }
+        Ok(s)
+    }
+}
+
+/// A number as TOML writes it, rounded to 1e-6 (the scenario is the record; a sequence is its file).
+fn num(v: f64) -> String {
+    let r = (v * 1e6).round() / 1e6;
+    let r = if r == 0.0 { 0.0 } else { r };
+    format!("{r}")
+}
+
+fn vec3(v: DVec3) -> String {
+    format!("[{}, {}, {}]", num(v.x), num(v.y), num(v.z))
+}
+
+/// Draws from one sequence's stream.
+struct Draw(SplitMix64);
+
+impl Draw {
+    fn bits(&mut self) -> u64 {
+        self.0.next_bits()
+    }
+
+    /// Uniform on `[r[0], r[1]]`.
+    fn uniform(&mut self, r: Range) -> f64 {
+        let u = (self.bits() >> 11) as f64 / (1u64 << 53) as f64;
+        r[0] + (r[1] - r[0]) * u
+    }
+
+    fn pick<'a>(&mut self, from: &'a [String]) -> &'a str {
+        &from[(self.bits() % from.len() as u64) as usize]
+    }
+}

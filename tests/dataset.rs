@@ -1,0 +1,157 @@
+//! `irsim dataset` as a user runs it: sequences drawn from a spec, recorded whole, the same bytes for any shard
+//! count, resumed after an interruption; bad specs refused with their place.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use common::{irsim, temp_dir};
+
+/// Four short sequences with the paper's 256×256 camera.
+const SPEC: &str = r#"
+name = "tiny"
+seed = 11
+sequences = 4
+frames = 3
+quality = "draft"
+sensors = ["paper_lwir_256"]
+targets_per_sequence = [1, 2]
+classes = ["small_multirotor", "fixed_wing_uav", "bird"]
+trajectories = ["straight", "crossing", "approach", "coordinated_turn", "weave"]
+range_m = [300, 1500]
+
+[sky]
+kinds = ["clear", "cumulus", "none"]
+"#;
+
+/// Every file under `dir` (relative path → bytes).
+fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.insert(p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    out
+}
+
+fn run(spec: &Path, out: &Path, shard: &str) -> (i32, String) {
+    let (code, _, err) =
+        irsim(&["dataset", spec.to_str().unwrap(), "--out", out.to_str().unwrap(), "--shard", shard, "--quiet"]);
+    (code, err)
+}
+
+#[test]
+fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
+    let dir = temp_dir("dataset_shards");
+    std::fs::create_dir_all(&dir).unwrap();
+    let spec = dir.join("tiny.toml");
+    std::fs::write(&spec, SPEC).unwrap();
+    let mut by_count = Vec::new();
+    for count in 1..=3 {
+        let out = dir.join(format!("out{count}"));
+        // shards in reverse order: a sequence does not depend on what ran before it
+        for index in (1..=count).rev() {
+            let (code, err) = run(&spec, &out, &format!("{index}/{count}"));
+            assert_eq!(code, 0, "{err}");
+        }
+        let all = files(&out.join("sequences"));
+        assert!(all.keys().any(|k| k.ends_with("scenario.toml")), "{:?}", all.keys());
+        for k in 0..4 {
+            let seq = format!("seq_{k:06}");
+            for f in [
+                "scenario.toml",
+                "labels.jsonl",
+                "gt_mot.txt",
+                "manifest.json",
+                "frames/000002.png",
+                "masks/000000.png",
+            ] {
+                assert!(all.contains_key(&format!("{seq}/{f}")), "{seq}/{f} missing");
+            }
+        }
+        assert!(!all.keys().any(|k| k.contains(".partial") || k.ends_with(".tmp")), "{:?}", all.keys());
+        by_count.push(all);
+    }
+    assert!(by_count[0] == by_count[1] && by_count[0] == by_count[2], "the sequences differ between shard counts");
+
+    // every drawn scenario is a scenario `irsim validate` accepts, and re-records to the same frames
+    let seq = dir.join("out1/sequences/seq_000001");
+    let (code, _, err) = irsim(&["validate", seq.join("scenario.toml").to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let again = dir.join("again");
+    let (code, _, err) = irsim(&[
+        "record",
+        seq.join("scenario.toml").to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+        "--masks",
+        "--quiet",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        std::fs::read(again.join("frames/000002.png")).unwrap(),
+        std::fs::read(seq.join("frames/000002.png")).unwrap()
+    );
+    assert_eq!(std::fs::read(again.join("labels.jsonl")).unwrap(), std::fs::read(seq.join("labels.jsonl")).unwrap());
+
+    // a rerun finds everything complete; a left-over partial sequence (a pre-empted run) is made again
+    let out = dir.join("out1");
+    let (code, err) = run(&spec, &out, "1/1");
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("0 sequences recorded, 4 already complete"), "{err}");
+    std::fs::rename(out.join("sequences/seq_000002"), out.join("sequences/.seq_000002.partial")).unwrap();
+    std::fs::remove_file(out.join("sequences/.seq_000002.partial/manifest.json")).unwrap();
+    let (code, err) = run(&spec, &out, "1/1");
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("1 sequences recorded, 3 already complete"), "{err}");
+    assert!(files(&out.join("sequences")) == by_count[0]);
+
+    // another spec in the same directory is refused, nothing touched
+    let other = dir.join("other.toml");
+    std::fs::write(&other, SPEC.replace("seed = 11", "seed = 12")).unwrap();
+    let (code, err) = run(&other, &out, "1/1");
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("another spec"), "{err}");
+    assert!(files(&out.join("sequences")) == by_count[0]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_specs_are_refused_with_file_line_column_and_field() {
+    let dir = temp_dir("dataset_bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    for (change, field, line) in [
+        (("range_m = [300, 1500]", "range_m = [1500, 300]"), "range_m", 11),
+        (("range_m = [300, 1500]", "range_m = [nan, 300]"), "range_m", 11),
+        (("sequences = 4", "sequences = -4"), "sequences", 4),
+        (("targets_per_sequence = [1, 2]", "targets_per_sequence = [3, 2]"), "targets_per_sequence", 8),
+        (("\"bird\"]", "\"dragon\"]"), "classes[2]", 9),
+        (("quality = \"draft\"", "quality = \"best\""), "quality", 6),
+        (("kinds = [", "kind = ["), "sky.kind", 14),
+    ] {
+        let spec = dir.join("bad.toml");
+        let text = SPEC.replace(change.0, change.1);
+        assert_ne!(text, SPEC, "{change:?}");
+        std::fs::write(&spec, &text).unwrap();
+        let (code, err) = run(&spec, &dir.join("out"), "1/1");
+        assert_eq!(code, 2, "{change:?}: {err}");
+        let place = format!("bad.toml:{line}:");
+        assert!(err.contains(&place) && err.contains(&format!("`{field}`")), "{change:?}: {err}");
+        assert!(!dir.join("out").exists(), "{change:?}: output made for a refused spec");
+    }
+    let spec = dir.join("good.toml");
+    std::fs::write(&spec, SPEC).unwrap();
+    for shard in ["0/2", "3/2", "1/0", "two"] {
+        let (code, err) = run(&spec, &dir.join("out"), shard);
+        assert_eq!(code, 2, "{shard}: {err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
