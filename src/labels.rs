@@ -171,7 +171,8 @@ mod tests {
         let labels = FrameLabels { frame: 6, t_s: 0.2, targets: vec![target(1, true), target(2, false)] };
         let mut text = String::new();
         labels.push_mot_lines(&mut text);
-        assert_eq!(text, "7,1,1.000,2.000,3.500,6.000,1,1,1\n");
+        // frames and pixels counted from 1: the 0-based box [1, 2, 4.5, 8] starts at MOT's (2, 3)
+        assert_eq!(text, "7,1,2.000,3.000,3.500,6.000,1,1,1\n");
     }
 
     #[test]
