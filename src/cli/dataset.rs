@@ -17,7 +17,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::CliError;
-use super::run::{RecordPlan, record_scenario};
+use super::run::{RecordPlan, record_scenario, stop_flag_and_bar};
 use crate::dataset::DatasetSpec;
 use crate::record::{FrameFormat, write_atomic};
 use crate::scenario::load::{Format, load_str};
@@ -96,21 +96,7 @@ pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
     prepare_out(&a.out, &spec_text)?;
     let mine: Vec<u64> = (0..spec.sequences).filter(|&k| a.shard.owns(k)).collect();
     let todo: Vec<u64> = mine.iter().copied().filter(|&k| a.force || !complete(&sequence_dir(&a.out, k))).collect();
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = Arc::clone(&stop);
-        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
-    }
-    let bar = if a.quiet {
-        indicatif::ProgressBar::hidden()
-    } else {
-        let b = indicatif::ProgressBar::new(todo.len() as u64 * spec.frames);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {per_sec}, eta {eta} {msg}")
-                .expect("valid template"),
-        );
-        b
-    };
+    let (stop, bar) = stop_flag_and_bar(a.quiet, todo.len() as u64 * spec.frames);
     let started = Instant::now();
     let mut recorded = 0u64;
     for (n, &k) in todo.iter().enumerate() {

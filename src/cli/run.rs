@@ -260,22 +260,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         masks: a.masks,
         reproducible: false,
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = Arc::clone(&stop);
-        // a second handler cannot be installed in the same process (tests run record twice); ignore that
-        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
-    }
-    let bar = if a.quiet {
-        indicatif::ProgressBar::hidden()
-    } else {
-        let b = indicatif::ProgressBar::new(plan.frames);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {per_sec}, eta {eta}")
-                .expect("valid template"),
-        );
-        b
-    };
+    let (stop, bar) = stop_flag_and_bar(a.quiet, plan.frames);
     let done = record_scenario(&scenario, &plan, &stop, &mut |written, _| bar.set_position(written));
     bar.finish_and_clear();
     let done = done?;
@@ -284,6 +269,28 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         return Err(CliError::Interrupted);
     }
     Ok(())
+}
+
+/// A flag that Ctrl-C sets, and a progress bar over `frames` frames (hidden with `quiet`; it shows its message
+/// after the rate).
+pub(super) fn stop_flag_and_bar(quiet: bool, frames: u64) -> (Arc<AtomicBool>, indicatif::ProgressBar) {
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        // a second handler cannot be installed in the same process (tests run record twice); ignore that
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
+    }
+    let bar = if quiet {
+        indicatif::ProgressBar::hidden()
+    } else {
+        let b = indicatif::ProgressBar::new(frames);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {per_sec}, eta {eta} {msg}")
+                .expect("valid template"),
+        );
+        b
+    };
+    (stop, bar)
 }
 
 /// What [`record_scenario`] writes: the flags of `irsim record`, and the frames `first_frame ..
