@@ -91,9 +91,11 @@ fn io(what: &Path, e: std::io::Error) -> CliError {
 /// [`CliError::Invalid`] (exit 2) for a bad spec or an output directory holding something else;
 /// [`CliError::Failed`] for a write error; [`CliError::Interrupted`] on Ctrl-C.
 pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
-    let spec = DatasetSpec::load(&a.spec).map_err(|e| CliError::Invalid(e.to_string()))?;
-    let spec_text = std::fs::read(&a.spec).map_err(|e| io(&a.spec, e))?;
-    prepare_out(&a.out, &spec_text)?;
+    let spec_text = std::fs::read_to_string(&a.spec)
+        .map_err(|e| CliError::Invalid(format!("{}: cannot read: {e}", a.spec.display())))?;
+    let spec = DatasetSpec::from_str(&spec_text, &a.spec.display().to_string())
+        .map_err(|e| CliError::Invalid(e.to_string()))?;
+    prepare_out(&a.out, spec_text.as_bytes())?;
     let mine: Vec<u64> = (0..spec.sequences).filter(|&k| a.shard.owns(k)).collect();
     let todo: Vec<u64> = mine.iter().copied().filter(|&k| a.force || !complete(&sequence_dir(&a.out, k))).collect();
     let (stop, bar) = stop_flag_and_bar(a.quiet, todo.len() as u64 * spec.frames);

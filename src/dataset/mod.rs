@@ -7,7 +7,6 @@
 pub mod classes;
 
 use std::fmt::Write as _;
-use std::path::Path;
 
 use glam::DVec3;
 use serde::Deserialize;
@@ -151,27 +150,11 @@ fn visibility_range_km(aerosol: &str) -> Range {
 pub type SpecError = ScenarioError;
 
 impl DatasetSpec {
-    /// Reads and checks a spec file.
+    /// Reads and checks a spec's text; `file` names it in errors.
     ///
     /// # Errors
     /// A [`SpecError`] naming file, line, column and field for unreadable text, an unknown field or name, a
     /// range whose ends are not finite or out of order, and counts out of bounds.
-    pub fn load(path: &Path) -> Result<Self, SpecError> {
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| SpecError {
-            file: file.clone(),
-            line: 0,
-            column: 0,
-            field: String::new(),
-            message: format!("cannot read: {e}"),
-        })?;
-        Self::from_str(&text, &file)
-    }
-
-    /// As [`DatasetSpec::load`], from text; `file` names it in errors.
-    ///
-    /// # Errors
-    /// See [`DatasetSpec::load`].
     pub fn from_str(text: &str, file: &str) -> Result<Self, SpecError> {
         let nodes = Nodes::toml(text);
         let at = |field: &str, message: String, offset: Option<usize>| {

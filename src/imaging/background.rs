@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use super::camera::Camera;
 use super::frame::Frame;
 use super::prefilter::{JacobianKey, PrefilterCache};
-use super::psf::{BLUR_TILE_PX, BlurStats, ConvolutionMethod, Convolver, Psf};
+use super::psf::{BLUR_TILE_PX, BlurStats, ConvolutionMethod, Convolver, Psf, tiles_within_reach};
 use super::sky_field::render_dome;
 use super::sky_plane::{MissFill, Sampling, SkyPlane};
 use crate::physics::sky::Dome;
@@ -224,16 +224,10 @@ impl BackgroundRenderer {
         // the reference on the other tiles, from the raw sky on them and on the tiles their blur reaches; then
         // the prefiltered tiles over everything else
         let t = BLUR_TILE_PX;
-        let (tw, th) = (frame.width().div_ceil(t), frame.height().div_ceil(t));
         let reach = kernel.radius().div_ceil(t);
         self.rest.clear();
         self.rest.extend(self.clean.iter().map(|c| !c));
-        self.near.clear();
-        self.near.extend((0..tw * th).map(|i| {
-            let (tx, ty) = (i % tw, i / tw);
-            (ty.saturating_sub(reach)..=(ty + reach).min(th - 1))
-                .any(|y| (tx.saturating_sub(reach)..=(tx + reach).min(tw - 1)).any(|x| self.rest[y * tw + x]))
-        }));
+        tiles_within_reach(&self.rest, frame.width().div_ceil(t), reach, &mut self.near);
         if area_sampled {
             plane.render(camera, sky.sampling, sky.miss, frame);
         } else {

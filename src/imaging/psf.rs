@@ -627,18 +627,8 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
             let wanted = &wanted[ty * tw..(ty + 1) * tw];
             for y in ty * t..((ty + 1) * t).min(h) {
                 let (up, mid, down) = (&px[y.saturating_sub(1) * w..], &px[y * w..], &px[(y + 1).min(h - 1) * w..]);
-                // runs of wanted tiles
-                let mut tx = 0;
-                while tx < tw {
-                    if !wanted[tx] {
-                        tx += 1;
-                        continue;
-                    }
-                    let start = tx;
-                    while tx < tw && wanted[tx] {
-                        tx += 1;
-                    }
-                    let (x0, x1) = (start * t, (tx * t).min(w));
+                for run in true_runs(wanted) {
+                    let (x0, x1) = (run.start * t, (run.end * t).min(w));
                     for (x, c) in line.iter_mut().enumerate().take(x1).skip(x0) {
                         let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
                         let fxx = mid[l] - 2.0 * mid[x] + mid[r];
@@ -646,7 +636,7 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                         let fxy = down[r] - down[x] - mid[r] + mid[x];
                         *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
                     }
-                    for (k, tile) in tiles.iter_mut().enumerate().take(tx).skip(start) {
+                    for (k, tile) in tiles.iter_mut().enumerate().take(run.end).skip(run.start) {
                         for &c in &line[k * t..((k + 1) * t).min(w)] {
                             // NaN sticks
                             *tile = if c.is_nan() || tile.is_nan() { f32::NAN } else { tile.max(c) };
@@ -668,6 +658,35 @@ pub struct Convolver {
     /// Per tile: the curvature measure, then whether the tile is blurred.
     rough: Vec<f32>,
     needed: Vec<bool>,
+    /// Per tile: whether its curvature is needed (a candidate tile reaches it).
+    wanted: Vec<bool>,
+}
+
+/// Per tile of a row-major grid `tiles_x` wide (`flags`): whether a tile within `reach` tiles of it (on either
+/// axis) is flagged, into `out`.
+pub fn tiles_within_reach(flags: &[bool], tiles_x: usize, reach: usize, out: &mut Vec<bool>) {
+    let tiles_y = flags.len().div_ceil(tiles_x.max(1));
+    out.clear();
+    out.extend((0..flags.len()).map(|i| {
+        let (tx, ty) = (i % tiles_x, i / tiles_x);
+        (ty.saturating_sub(reach)..=(ty + reach).min(tiles_y - 1))
+            .any(|y| (tx.saturating_sub(reach)..=(tx + reach).min(tiles_x - 1)).any(|x| flags[y * tiles_x + x]))
+    }));
+}
+
+/// The runs of consecutive `true` entries of `flags`, as index ranges, in order.
+pub fn true_runs(flags: &[bool]) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+    let mut i = 0;
+    std::iter::from_fn(move || {
+        while i < flags.len() && !flags[i] {
+            i += 1;
+        }
+        let start = i;
+        while i < flags.len() && flags[i] {
+            i += 1;
+        }
+        (start < i).then_some(start..i)
+    })
 }
 
 /// Side of the tiles a selective blur ([`Convolver::apply_where_needed`]) decides on, px.
@@ -857,15 +876,14 @@ impl Convolver {
         }
         let reach = kernel.radius.div_ceil(t) as isize;
         // curvature only on the tiles a candidate's reach covers
-        let near = |i: usize| {
-            let (tx, ty) = ((i % tw) as isize, (i / tw) as isize);
-            ((ty - reach).max(0)..=(ty + reach).min(th as isize - 1)).any(|y| {
-                ((tx - reach).max(0)..=(tx + reach).min(tw as isize - 1))
-                    .any(|x| candidate(y as usize * tw + x as usize))
-            })
-        };
-        let wanted: Vec<bool> = (0..tiles).map(near).collect();
-        tile_curvature(frame, &wanted, &mut self.rough);
+        match candidates {
+            Some(c) => tiles_within_reach(c, tw, reach as usize, &mut self.wanted),
+            None => {
+                self.wanted.clear();
+                self.wanted.resize(tiles, true);
+            }
+        }
+        tile_curvature(frame, &self.wanted, &mut self.rough);
         let factor = (0.25 * kernel.second_moment_px2) as f32;
         self.needed.clear();
         self.needed.extend((0..tiles).map(|i| {
@@ -1063,6 +1081,20 @@ fn fft2_rect(data: &mut [Complex<f32>], w: usize, h: usize, direction: rustfft::
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn runs_and_reach_of_flagged_tiles() {
+        let f = [false, true, true, false, true, false, false, true];
+        assert_eq!(true_runs(&f).collect::<Vec<_>>(), vec![1..3, 4..5, 7..8]);
+        assert_eq!(true_runs(&[]).count(), 0);
+        // a 4 × 2 grid with one flagged tile: reach 1 covers its neighbours on either axis and diagonally
+        let grid = [false, false, false, false, false, false, true, false];
+        let mut out = Vec::new();
+        tiles_within_reach(&grid, 4, 1, &mut out);
+        assert_eq!(out, vec![false, true, true, true, false, true, true, true]);
+        tiles_within_reach(&grid, 4, 0, &mut out);
+        assert_eq!(out, grid.to_vec());
+    }
 
     fn optics(f_number: f64, band: Band) -> PsfOptics {
         PsfOptics {

@@ -18,6 +18,7 @@ use thiserror::Error;
 
 use super::camera::Camera;
 use super::frame::Frame;
+use super::psf::true_runs;
 use crate::physics::simd::widest;
 
 /// An error loading or placing a sky image.
@@ -392,18 +393,9 @@ impl SkyPlane {
         let geometry = RowGeometry::new(self, camera);
         frame.pixels_mut().par_chunks_mut(width).enumerate().for_each(|(j, row)| {
             let flags = &tiles[(j / tile_px) * tiles_x..(j / tile_px + 1) * tiles_x];
-            let mut tx = 0;
-            while tx < tiles_x {
-                if !flags[tx] {
-                    tx += 1;
-                    continue;
-                }
-                // one cast per run of consecutive tiles
-                let start = tx;
-                while tx < tiles_x && flags[tx] {
-                    tx += 1;
-                }
-                let (x0, x1) = (start * tile_px, (tx * tile_px).min(width));
+            // one cast per run of consecutive tiles
+            for run in true_runs(flags) {
+                let (x0, x1) = (run.start * tile_px, (run.end * tile_px).min(width));
                 widest(
                     #[inline(always)]
                     || {
@@ -425,7 +417,7 @@ impl SkyPlane {
     /// Whether any ray of `camera`'s render may see the image (false: every pixel is a miss).
     pub fn seen_by(&self, camera: &Camera) -> bool {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-        RowGeometry::new(self, camera).sees_image(self, f64::from(w), f64::from(h))
+        RowGeometry::new(self, camera).sees_image(f64::from(w), f64::from(h))
     }
 
     /// Unit normal, toward the camera side.
@@ -586,6 +578,8 @@ struct RowGeometry {
     base: DVec3,
     du: DVec3,
     dv: DVec3,
+    /// The linear forms that bound where a ray may see the image ([`RowGeometry::seen_forms`]).
+    seen: Option<[DVec3; 5]>,
     /// Whether a row's ray cast skips the pixels that cannot see the image (off only to test that skipping
     /// changes nothing).
     clip: bool,
@@ -603,12 +597,16 @@ impl RowGeometry {
         let d0 = r.z_axis - d_u * c.x - d_v * c.y;
         let dot = |d: DVec3| DVec3::new(d.dot(axes[0]), d.dot(axes[1]), d.dot(axes[2]));
         let rel = camera.position_m - plane.anchor_m;
+        let numerator = -rel.dot(plane.normal);
+        let origin_px = plane.anchor_px + DVec2::new(rel.dot(axes[1]), rel.dot(axes[2]));
+        let size = DVec2::new(plane.image.width as f64, plane.image.height as f64);
         Self {
-            numerator: -rel.dot(plane.normal),
-            origin_px: plane.anchor_px + DVec2::new(rel.dot(axes[1]), rel.dot(axes[2])),
+            numerator,
+            origin_px,
             base: dot(d0),
             du: dot(d_u),
             dv: dot(d_v),
+            seen: Self::seen_forms(numerator, origin_px, size),
             clip: true,
         }
     }
@@ -639,7 +637,7 @@ impl RowGeometry {
         let sample = |p: DVec2| plane.sample(p, sampling, fill);
         let span = self.span_length(d0, out.len(), plane.span_tolerance_px);
         // pixels outside `seen` miss the image (an edge fill samples every pixel)
-        let seen = if matches!(fill, MissFill::Edge) { 0..out.len() } else { self.seen_pixels(plane, d0, out.len()) };
+        let seen = if matches!(fill, MissFill::Edge) { 0..out.len() } else { self.seen_pixels(d0, out.len()) };
         let put_miss = |block: &mut [f32]| {
             for o in block {
                 *o = if accumulate { *o + miss } else { miss };
@@ -691,14 +689,14 @@ impl RowGeometry {
     /// the plane). The ray parameter is `t = n / D` and the image coordinates `o + n·N/D`; where `t > 0`, `D` has
     /// the sign `s` of `n`, so each bound of the image widened by one pixel, multiplied by `s·D`, is linear in
     /// `d = (D, Nx, Ny)`.
-    fn seen_forms(&self, plane: &SkyPlane) -> Option<[DVec3; 5]> {
-        let n = self.numerator;
+    fn seen_forms(numerator: f64, origin_px: DVec2, image_size: DVec2) -> Option<[DVec3; 5]> {
+        let n = numerator;
         if n == 0.0 || !n.is_finite() {
             return None;
         }
         let s = n.signum();
-        let (w, h) = (plane.image.width as f64, plane.image.height as f64);
-        let o = self.origin_px;
+        let (w, h) = (image_size.x, image_size.y);
+        let o = origin_px;
         Some([
             DVec3::new(s, 0.0, 0.0),                // in front of the camera
             s * DVec3::new(o.x + 1.0, n, 0.0),      // x ≥ −1
@@ -713,11 +711,11 @@ impl RowGeometry {
     /// the plane, so neither its exact sample nor an interpolated one (within the span tolerance, at most ½ px,
     /// of the exact coordinates) lies inside. Along the row each of [`RowGeometry::seen_forms`] is `a + b·i`;
     /// the range is where all are ≥ 0, widened by one pixel for rounding.
-    fn seen_pixels(&self, plane: &SkyPlane, d0: DVec3, pixels: usize) -> std::ops::Range<usize> {
+    fn seen_pixels(&self, d0: DVec3, pixels: usize) -> std::ops::Range<usize> {
         if !self.clip {
             return 0..pixels;
         }
-        let Some(forms) = self.seen_forms(plane) else {
+        let Some(forms) = self.seen else {
             return 0..0;
         };
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
@@ -748,8 +746,8 @@ impl RowGeometry {
     /// Whether some ray through the sensor `width × height` px (widened by a pixel all round) may see the image:
     /// the sensor rectangle clipped by each of [`RowGeometry::seen_forms`], affine in the sensor point `(u, v)`,
     /// is not empty. False only when every pixel of a render misses the image.
-    fn sees_image(&self, plane: &SkyPlane, width: f64, height: f64) -> bool {
-        let Some(forms) = self.seen_forms(plane) else {
+    fn sees_image(&self, width: f64, height: f64) -> bool {
+        let Some(forms) = self.seen else {
             return false;
         };
         let mut poly = vec![
@@ -1039,7 +1037,7 @@ mod tests {
                                         let (mut a, mut b) = (vec![1.0f32; 160], vec![1.0f32; 160]);
                                         g.clip = true;
                                         g.cast_row(&p, v, 0.5, sampling, fill, &mut a, true);
-                                        let range = g.seen_pixels(&p, g.base + g.dv * v + g.du * 0.5, 160);
+                                        let range = g.seen_pixels(g.base + g.dv * v + g.du * 0.5, 160);
                                         g.clip = false;
                                         g.cast_row(&p, v, 0.5, sampling, fill, &mut b, true);
                                         let same = a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits());
