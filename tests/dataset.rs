@@ -131,6 +131,11 @@ fn bad_specs_are_refused_with_file_line_column_and_field() {
     for (change, field, line) in [
         (("range_m = [300, 1500]", "range_m = [1500, 300]"), "range_m", 11),
         (("range_m = [300, 1500]", "range_m = [nan, 300]"), "range_m", 11),
+        (("range_m = [300, 1500]", "range_m = [300, 1500, 2000]"), "range_m", 11),
+        (("range_m = [300, 1500]", "range_m = [300, inf]"), "range_m", 11),
+        (("range_m = [300, 1500]", "range_m = \"far\""), "range_m", 11),
+        (("targets_per_sequence = [1, 2]", "targets_per_sequence = [1]"), "targets_per_sequence", 8),
+        (("frames = 3", "frames = 3\nframe_rate_hz = nan"), "frame_rate_hz", 6),
         (("sequences = 4", "sequences = -4"), "sequences", 4),
         (("targets_per_sequence = [1, 2]", "targets_per_sequence = [3, 2]"), "targets_per_sequence", 8),
         (("\"bird\"]", "\"dragon\"]"), "classes[2]", 9),

@@ -21,6 +21,28 @@ pub use classes::TargetClass;
 /// A closed range `[min, max]` to draw from uniformly.
 pub type Range = [f64; 2];
 
+/// `[min, max]`: exactly two values (serde's fixed-size arrays let TOML's longer lists through).
+fn pair<'de, D, T>(d: D) -> Result<[T; 2], D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de> + Copy,
+{
+    let v = Vec::<T>::deserialize(d)?;
+    match v[..] {
+        [a, b] => Ok([a, b]),
+        _ => Err(serde::de::Error::invalid_length(v.len(), &"exactly 2 values, [min, max]")),
+    }
+}
+
+/// [`pair`] for an optional field.
+fn optional_pair<'de, D, T>(d: D) -> Result<Option<[T; 2]>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de> + Copy,
+{
+    pair(d).map(Some)
+}
+
 /// What a dataset is drawn from (`irsim dataset SPEC`; fields in docs/datasets.md).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -42,15 +64,17 @@ pub struct DatasetSpec {
     /// Cameras to draw from (preset names).
     pub sensors: Vec<String>,
     /// NETD to draw, mK (the preset's when absent).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "optional_pair")]
     pub netd_mk: Option<Range>,
     /// Targets per sequence.
+    #[serde(deserialize_with = "pair")]
     pub targets_per_sequence: [u64; 2],
     /// Target classes to draw from.
     pub classes: Vec<String>,
     /// Trajectory families to draw from.
     pub trajectories: Vec<String>,
     /// Range from the observer at the sequence's middle, m.
+    #[serde(deserialize_with = "pair")]
     pub range_m: Range,
     /// The observer.
     #[serde(default)]
@@ -72,10 +96,13 @@ fn default_frame_rate() -> f64 {
 #[serde(deny_unknown_fields, default)]
 pub struct ObserverSpec {
     /// Altitude, m.
+    #[serde(deserialize_with = "pair")]
     pub altitude_m: Range,
     /// Elevation of the line of sight, degrees.
+    #[serde(deserialize_with = "pair")]
     pub look_elevation_deg: Range,
     /// Line-of-sight jitter amplitude, degrees.
+    #[serde(deserialize_with = "pair")]
     pub vibration_deg: Range,
 }
 
@@ -92,8 +119,10 @@ pub struct SkySpec {
     /// Kinds to draw from: `clear`, `cumulus`, `none` (the dome alone).
     pub kinds: Vec<String>,
     /// Cumulus cover fraction.
+    #[serde(deserialize_with = "pair")]
     pub cover: Range,
     /// Distance of the layer, m (at least twice the largest target range).
+    #[serde(deserialize_with = "pair")]
     pub distance_m: Range,
 }
 
@@ -112,6 +141,7 @@ pub struct AtmosphereSpec {
     /// Aerosol models to draw from.
     pub aerosols: Vec<String>,
     /// Visibility, km.
+    #[serde(deserialize_with = "pair")]
     pub visibility_km: Range,
 }
 
@@ -212,7 +242,9 @@ impl DatasetSpec {
         if !(1..=1_000_000).contains(&self.frames) {
             return err("frames", format!("{} must be in 1 … 1000000", self.frames));
         }
-        range("frame_rate_hz", [self.frame_rate_hz; 2], 0.1, 10_000.0)?;
+        if !(0.1..=10_000.0).contains(&self.frame_rate_hz) {
+            return err("frame_rate_hz", format!("{} must be a number in [0.1, 10000]", self.frame_rate_hz));
+        }
         if let Some(q) = &self.quality {
             q.parse::<QualityPreset>().map_err(|e| ("quality".to_owned(), e.to_string()))?;
         }
@@ -294,9 +326,10 @@ impl DatasetSpec {
         let distance = rng.uniform(self.sky.distance_m).max(2.0 * self.range_m[1]);
         let sky_seed = rng.bits() >> 11;
         if sky_kind != "none" {
-            let margin = 1.3 + vibration.to_radians() * 4.0;
-            let width = 2.0 * distance * (half_w * margin).tan();
-            let height = 2.0 * distance * (half_h * margin).tan();
+            // 30 % beyond the field of view, and twice the jitter's amplitude more
+            let reach = 2.0 * vibration.to_radians();
+            let width = 2.0 * distance * (1.3 * half_w + reach).tan();
+            let height = 2.0 * distance * (1.3 * half_h + reach).tan();
             let anchor = eye + DVec3::new(yaw.sin(), yaw.cos(), elevation.tan()) * distance;
             let generate = if sky_kind == "cumulus" {
                 format!("{{ kind = \"cumulus\", cover = {}, seed = {sky_seed} }}", num(cover))
