@@ -1,13 +1,13 @@
 //! Ground truth of a frame, as recorded: per-target labels, the MOTChallenge lines, the clutter window and the
 //! target mask. Plain data and pure functions (no Bevy), shared by every front end.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::imaging::frame::Frame;
 use crate::imaging::target_blob::PixelRect;
 
 /// Ground truth of one frame.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FrameLabels {
     /// Frame index, from 0.
     pub frame: u64,
@@ -18,7 +18,7 @@ pub struct FrameLabels {
 }
 
 /// The image ellipse of a target's outline, px.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct EllipseLabel {
     /// Semi-major axis, px.
     pub a: f64,
@@ -32,7 +32,7 @@ pub struct EllipseLabel {
 ///
 /// Signals are in DN above the target's background (on axis, before non-uniformity); `snr`, `scr` and
 /// `local_contrast` are 0 for a target not in the frame.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct TargetLabel {
     /// 1-based id.
     pub id: u32,

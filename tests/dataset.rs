@@ -61,8 +61,31 @@ fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
         for index in (1..=count).rev() {
             let (code, err) = run(&spec, &out, &format!("{index}/{count}"));
             assert_eq!(code, 0, "{err}");
+            if count > 1 {
+                assert!(err.contains("irsim dataset merge"), "{err}");
+            }
         }
-        let all = files(&out.join("sequences"));
+        if count > 1 {
+            let (code, _, err) = irsim(&["dataset", "merge", out.to_str().unwrap(), "--quiet"]);
+            assert_eq!(code, 0, "{err}");
+        }
+        // the exports, the card and the checksums, and no shard records left to tell the runs apart
+        for f in [
+            "README.md",
+            "manifest.json",
+            "checksums.sha256",
+            "coco/all.json",
+            "coco/train.json",
+            "yolo/data.yaml",
+            "splits/test.txt",
+            "card/snr.png",
+            "sirst/train.txt",
+        ] {
+            assert!(out.join(f).is_file(), "{f} missing after {count} shards");
+        }
+        assert!(!out.join("shards").exists());
+        let all = files(&out);
+        let all_seq = files(&out.join("sequences"));
         assert!(all.keys().any(|k| k.ends_with("scenario.toml")), "{:?}", all.keys());
         for k in 0..4 {
             let seq = format!("seq_{k:06}");
@@ -74,13 +97,20 @@ fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
                 "frames/000002.png",
                 "masks/000000.png",
             ] {
-                assert!(all.contains_key(&format!("{seq}/{f}")), "{seq}/{f} missing");
+                assert!(all_seq.contains_key(&format!("{seq}/{f}")), "{seq}/{f} missing");
             }
         }
         assert!(!all.keys().any(|k| k.contains(".partial") || k.ends_with(".tmp")), "{:?}", all.keys());
+        assert!(all_seq.keys().all(|k| all.contains_key(&format!("sequences/{k}"))));
         by_count.push(all);
     }
-    assert!(by_count[0] == by_count[1] && by_count[0] == by_count[2], "the sequences differ between shard counts");
+    for (i, other) in by_count.iter().enumerate().skip(1) {
+        let differ: Vec<&String> = by_count[0].keys().filter(|k| by_count[0].get(*k) != other.get(*k)).collect();
+        assert!(by_count[0] == *other, "1 shard and {} shards differ: {differ:?}", i + 1);
+    }
+
+    // the formats' own tools read the exports (skipped, saying so, where they are not installed)
+    python_check(&dir.join("out1"));
 
     // every drawn scenario is a scenario `irsim validate` accepts, and re-records to the same frames
     let seq = dir.join("out1/sequences/seq_000001");
@@ -112,7 +142,7 @@ fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
     let (code, err) = run(&spec, &out, "1/1");
     assert_eq!(code, 0, "{err}");
     assert!(err.contains("1 sequences recorded, 3 already complete"), "{err}");
-    assert!(files(&out.join("sequences")) == by_count[0]);
+    assert!(files(&out) == by_count[0]);
 
     // another spec in the same directory is refused, nothing touched
     let other = dir.join("other.toml");
@@ -120,7 +150,88 @@ fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
     let (code, err) = run(&other, &out, "1/1");
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("another spec"), "{err}");
-    assert!(files(&out.join("sequences")) == by_count[0]);
+    assert!(files(&out) == by_count[0]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Runs tests/python/check_dataset.py on `dir` where python3 has pycocotools and motmetrics; with
+/// `IRSIM_REQUIRE_PYTHON_TOOLS` set (CI), their absence is a failure.
+fn python_check(dir: &Path) {
+    let have = std::process::Command::new("python3")
+        .args(["-c", "import pycocotools, motmetrics, numpy, PIL"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !have {
+        assert!(
+            std::env::var_os("IRSIM_REQUIRE_PYTHON_TOOLS").is_none(),
+            "python3 lacks pycocotools or motmetrics, but IRSIM_REQUIRE_PYTHON_TOOLS is set (pip install -r tests/python/requirements.txt)"
+        );
+        eprintln!(
+            "skipped: the COCO/MOT/YOLO checks need python3 with pycocotools and motmetrics (pip install -r tests/python/requirements.txt)"
+        );
+        return;
+    }
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/check_dataset.py");
+    let out = std::process::Command::new("python3").arg(script).arg(dir).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("AP = 1.000") && text.contains("all checks passed"), "{text}");
+}
+
+#[test]
+fn merge_names_the_shards_still_to_run_and_extra_frames_are_kept() {
+    let dir = temp_dir("dataset_merge");
+    std::fs::create_dir_all(&dir).unwrap();
+    let spec = dir.join("tiny.toml");
+    let text =
+        SPEC.replace("sequences = 4", "sequences = 3") + "\n[outputs]\nclean_background = true\nnoise_free = true\n";
+    std::fs::write(&spec, text).unwrap();
+    let out = dir.join("out");
+    let (code, err) = run(&spec, &out, "1/2");
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = irsim(&["dataset", "merge", out.to_str().unwrap()]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("1 of 3 sequences are not complete (seq_000001)"), "{err}");
+    assert!(err.contains("shard 2/2 has not reported") && err.contains("--shard 2/2"), "{err}");
+    assert!(!out.join("coco").exists() && out.join("shards").exists());
+    let (code, _, err) = irsim(&["dataset", "merge", dir.join("nowhere").to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("spec.toml"), "{err}");
+    let (code, err) = run(&spec, &out, "2/2");
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = irsim(&["dataset", "merge", out.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    // the extra frames: the background without targets or noise, and the frame without noise
+    let seq = out.join("sequences/seq_000000");
+    let labels = std::fs::read_to_string(seq.join("labels.jsonl")).unwrap();
+    let first: serde_json::Value = serde_json::from_str(labels.lines().next().unwrap()).unwrap();
+    let read = |p: &Path| image::open(p).unwrap().into_luma16();
+    let (frame, clean, quiet) = (
+        read(&seq.join("frames/000000.png")),
+        read(&seq.join("clean/000000.png")),
+        read(&seq.join("noise_free/000000.png")),
+    );
+    assert_eq!(frame.dimensions(), clean.dimensions());
+    assert!(seq.join("clean/000002.png").is_file() && seq.join("noise_free/000002.png").is_file());
+    // noise: the frame differs from the noise-free one nearly everywhere
+    let differ = frame.pixels().zip(quiet.pixels()).filter(|(a, b)| a != b).count();
+    assert!(differ > frame.len() / 2, "{differ}");
+    // the target: where the mask has it, the noise-free frame and the clean background differ
+    let mask = image::open(seq.join("masks/000000.png")).unwrap().into_luma8();
+    let on: Vec<(u32, u32)> = mask.enumerate_pixels().filter(|p| p.2[0] > 0).map(|p| (p.0, p.1)).collect();
+    assert!(!on.is_empty(), "{first}");
+    assert!(on.iter().any(|&(x, y)| quiet.get_pixel(x, y) != clean.get_pixel(x, y)), "{first}");
+    // far from every target they agree within a level (the same sky, camera path and weather)
+    let far = mask.enumerate_pixels().filter(|p| p.2[0] == 0).count();
+    let same = clean
+        .pixels()
+        .zip(quiet.pixels())
+        .zip(mask.pixels())
+        .filter(|((a, b), m)| m[0] == 0 && a[0].abs_diff(b[0]) <= 1)
+        .count();
+    assert!(same as f64 > 0.95 * far as f64, "{same} of {far}");
+    let sums = std::fs::read_to_string(out.join("checksums.sha256")).unwrap();
+    assert!(sums.contains("  sequences/seq_000000/clean/000000.png\n"), "{sums}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

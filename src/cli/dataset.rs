@@ -1,9 +1,10 @@
 //! `irsim dataset SPEC --out DIR [--shard I/N]`: the sequences a dataset spec draws, each recorded as `irsim
-//! record` records a scenario, next to the scenario it was drawn as.
+//! record` records a scenario, next to the scenario it was drawn as; `irsim dataset merge DIR`: the
+//! dataset-level exports (`crate::dataset::merge`), which a single-shard run also builds at its end.
 //!
 //! Layout: `DIR/spec.toml` (the spec, as given), `DIR/sequences/seq_000042/` (`scenario.toml`, `frames/`,
-//! `masks/`, `labels.jsonl`, `gt_mot.txt`, `manifest.json`) and `DIR/shards/shard-I-of-N.json` (what a shard
-//! did). Shard `I` of `N` records the sequences `k` with `k mod N = I − 1`. A sequence is recorded into
+//! `masks/`, `labels.jsonl`, `gt_mot.txt`, `manifest.json`) and, until the merge, `DIR/shards/shard-I-of-N.json`
+//! (what a shard did). Shard `I` of `N` records the sequences `k` with `k mod N = I − 1`. A sequence is recorded into
 //! `DIR/sequences/.seq_000042.partial/` and renamed into place when complete, so a sequence directory is
 //! always whole, shards never write the same files, and a shard run again (after pre-emption) skips the
 //! sequences already there. The recordings' manifests hold no timings, so a sequence is the same bytes on any
@@ -19,17 +20,23 @@ use serde_json::json;
 use super::CliError;
 use super::run::{RecordPlan, record_scenario, stop_flag_and_bar};
 use crate::dataset::DatasetSpec;
+use crate::dataset::merge::{MergeError, complete, merge, sequence_dir};
 use crate::record::{FrameFormat, write_atomic};
 use crate::scenario::load::{Format, load_str};
 
 /// `irsim dataset`.
 #[derive(Debug, clap::Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct DatasetArgs {
+    /// `merge DIR`: build the exports of a dataset whose shards are done.
+    #[command(subcommand)]
+    pub command: Option<DatasetCommand>,
     /// The dataset spec (TOML; docs/datasets.md).
-    pub spec: PathBuf,
+    #[arg(required = true)]
+    pub spec: Option<PathBuf>,
     /// Output directory (created). Shards of one dataset share it; a directory holding another spec is refused.
-    #[arg(long)]
-    pub out: PathBuf,
+    #[arg(long, required = true)]
+    pub out: Option<PathBuf>,
     /// Record only shard I of N (1-based): the sequences k with k mod N = I − 1.
     #[arg(long, default_value = "1/1", value_parser = parse_shard)]
     pub shard: Shard,
@@ -37,6 +44,27 @@ pub struct DatasetArgs {
     #[arg(long)]
     pub force: bool,
     /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+    /// With a single shard (1/1): record only, without building the exports (`irsim dataset merge` later).
+    #[arg(long)]
+    pub no_merge: bool,
+}
+
+/// `irsim dataset merge`.
+#[derive(Debug, clap::Subcommand)]
+pub enum DatasetCommand {
+    /// Build COCO, YOLO, SIRST masks, MOTChallenge, the split, the card and the checksums of a dataset whose
+    /// sequences are all recorded (by any number of shards); reports the shards still to run.
+    Merge(MergeArgs),
+}
+
+/// `irsim dataset merge DIR`.
+#[derive(Debug, clap::Args)]
+pub struct MergeArgs {
+    /// The dataset's directory (the `--out` its shards wrote to).
+    pub dir: PathBuf,
+    /// No progress messages.
     #[arg(long)]
     pub quiet: bool,
 }
@@ -67,20 +95,6 @@ fn parse_shard(s: &str) -> Result<Shard, String> {
     Ok(Shard { index, count })
 }
 
-/// The directory of sequence `k`.
-pub fn sequence_dir(out: &Path, k: u64) -> PathBuf {
-    out.join("sequences").join(format!("seq_{k:06}"))
-}
-
-/// Whether `dir` holds a complete recording (its manifest says so).
-fn complete(dir: &Path) -> bool {
-    std::fs::read_to_string(dir.join("manifest.json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|m| m["status"] == "complete")
-        && dir.join("scenario.toml").is_file()
-}
-
 fn io(what: &Path, e: std::io::Error) -> CliError {
     CliError::Failed(format!("{}: {e}", what.display()))
 }
@@ -91,13 +105,20 @@ fn io(what: &Path, e: std::io::Error) -> CliError {
 /// [`CliError::Invalid`] (exit 2) for a bad spec or an output directory holding something else;
 /// [`CliError::Failed`] for a write error; [`CliError::Interrupted`] on Ctrl-C.
 pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
-    let spec_text = std::fs::read_to_string(&a.spec)
-        .map_err(|e| CliError::Invalid(format!("{}: cannot read: {e}", a.spec.display())))?;
-    let spec = DatasetSpec::from_str(&spec_text, &a.spec.display().to_string())
+    if let Some(DatasetCommand::Merge(m)) = &a.command {
+        return merge_dir(&m.dir, m.quiet);
+    }
+    let (Some(spec_path), Some(out)) = (&a.spec, &a.out) else {
+        return Err(CliError::Invalid("irsim dataset SPEC --out DIR, or irsim dataset merge DIR".into()));
+    };
+    let spec_text = std::fs::read_to_string(spec_path)
+        .map_err(|e| CliError::Invalid(format!("{}: cannot read: {e}", spec_path.display())))?;
+    let spec = DatasetSpec::from_str(&spec_text, &spec_path.display().to_string())
         .map_err(|e| CliError::Invalid(e.to_string()))?;
-    prepare_out(&a.out, spec_text.as_bytes())?;
+    let out = out.as_path();
+    prepare_out(out, spec_text.as_bytes())?;
     let mine: Vec<u64> = (0..spec.sequences).filter(|&k| a.shard.owns(k)).collect();
-    let todo: Vec<u64> = mine.iter().copied().filter(|&k| a.force || !complete(&sequence_dir(&a.out, k))).collect();
+    let todo: Vec<u64> = mine.iter().copied().filter(|&k| a.force || !complete(&sequence_dir(out, k))).collect();
     let (stop, bar) = stop_flag_and_bar(a.quiet, todo.len() as u64 * spec.frames);
     let started = Instant::now();
     let mut recorded = 0u64;
@@ -107,8 +128,7 @@ pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
         }
         bar.set_message(format!("sequence {k} ({} of {})", n + 1, todo.len()));
         let done_before = n as u64 * spec.frames;
-        let finished =
-            record_sequence(&spec, &a.out, k, &stop, &mut |written| bar.set_position(done_before + written))?;
+        let finished = record_sequence(&spec, out, k, &stop, &mut |written| bar.set_position(done_before + written))?;
         if !finished {
             break;
         }
@@ -116,7 +136,7 @@ pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
     }
     bar.finish_and_clear();
     let interrupted = stop.load(Ordering::SeqCst) && recorded < todo.len() as u64;
-    let shard_file = a.out.join("shards").join(format!("shard-{}-of-{}.json", a.shard.index, a.shard.count));
+    let shard_file = out.join("shards").join(format!("shard-{}-of-{}.json", a.shard.index, a.shard.count));
     let status = if interrupted { "interrupted" } else { "complete" };
     let record = json!({
         "dataset": spec.name,
@@ -135,11 +155,50 @@ pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
         mine.len() - todo.len(),
         recorded * spec.frames,
         (recorded * spec.frames) as f64 / elapsed.max(1e-9),
-        a.out.display()
+        out.display()
     );
     if interrupted {
         return Err(CliError::Interrupted);
     }
+    if a.shard.count == 1 && !a.no_merge {
+        merge_dir(out, a.quiet)
+    } else {
+        eprintln!("when every shard is done: irsim dataset merge {}", out.display());
+        Ok(())
+    }
+}
+
+/// `irsim dataset merge DIR`.
+fn merge_dir(dir: &Path, quiet: bool) -> Result<(), CliError> {
+    let spec_path = dir.join("spec.toml");
+    let spec_text = std::fs::read_to_string(&spec_path).map_err(|e| {
+        CliError::Invalid(format!(
+            "{}: cannot read ({e}): is {} a dataset's directory?",
+            spec_path.display(),
+            dir.display()
+        ))
+    })?;
+    let spec = DatasetSpec::from_str(&spec_text, &spec_path.display().to_string())
+        .map_err(|e| CliError::Invalid(e.to_string()))?;
+    let started = Instant::now();
+    let say = |m: &str| {
+        if !quiet {
+            eprintln!("merge: {m}");
+        }
+    };
+    let done = merge(dir, &spec, &say).map_err(|e| match e {
+        MergeError::Corrupt(m) => CliError::Invalid(m),
+        MergeError::Incomplete(m) | MergeError::Io(m) => CliError::Failed(m),
+    })?;
+    eprintln!(
+        "merged `{}`: {} frames, {} annotations, {} files checksummed in {:.1} s; the card is {}",
+        spec.name,
+        done.frames,
+        done.annotations,
+        done.files,
+        started.elapsed().as_secs_f64(),
+        dir.join("README.md").display()
+    );
     Ok(())
 }
 
@@ -180,8 +239,8 @@ fn prepare_out(out: &Path, spec_text: &[u8]) -> Result<(), CliError> {
     Ok(())
 }
 
-/// Draws and records sequence `k` into its directory; false when `stop` ended it first (its partial directory
-/// is left for the next run to remove).
+/// Draws and records sequence `k` into its directory, with the extra frames the spec asks for; false when
+/// `stop` ended it first (its partial directory is left for the next run to remove).
 fn record_sequence(
     spec: &DatasetSpec,
     out: &Path,
@@ -190,9 +249,6 @@ fn record_sequence(
     progress: &mut dyn FnMut(u64),
 ) -> Result<bool, CliError> {
     let text = spec.sequence_scenario(k).map_err(|e| CliError::Failed(format!("sequence {k}: {e}")))?;
-    let scenario = load_str(&text, Format::Toml, Path::new("scenario.toml"), out).map_err(|e| {
-        CliError::Failed(format!("sequence {k}: the drawn scenario is refused: {e} (please report it)"))
-    })?;
     let fin = sequence_dir(out, k);
     let partial = out.join("sequences").join(format!(".seq_{k:06}.partial"));
     if partial.exists() {
@@ -210,9 +266,27 @@ fn record_sequence(
         masks: true,
         reproducible: true,
     };
-    let done = record_scenario(&scenario, &plan, stop, &mut |written, _| progress(written))?;
-    if done.interrupted {
+    if !record_drawn(&text, k, out, &plan, stop, progress)? {
         return Ok(false);
+    }
+    // the extra frames: recorded apart, their frames kept beside the sequence's
+    let extras = [(spec.outputs.noise_free, "noise_free", false), (spec.outputs.clean_background, "clean", true)];
+    for (wanted, name, background) in extras {
+        if !wanted {
+            continue;
+        }
+        let scenario = if background {
+            spec.sequence_background(k).map_err(|e| CliError::Failed(format!("sequence {k}: {e}")))?
+        } else {
+            text.clone()
+        };
+        let run_dir = partial.join(format!(".{name}"));
+        let extra = RecordPlan { out: run_dir.clone(), noise: false, masks: false, ..plan.clone() };
+        if !record_drawn(&scenario, k, out, &extra, stop, &mut |_| {})? {
+            return Ok(false);
+        }
+        std::fs::rename(run_dir.join("frames"), partial.join(name)).map_err(|e| io(&partial.join(name), e))?;
+        std::fs::remove_dir_all(&run_dir).map_err(|e| io(&run_dir, e))?;
     }
     write_atomic(&partial.join("scenario.toml"), text.as_bytes()).map_err(|e| CliError::Failed(e.to_string()))?;
     if fin.exists() {
@@ -220,6 +294,22 @@ fn record_sequence(
     }
     std::fs::rename(&partial, &fin).map_err(|e| io(&fin, e))?;
     Ok(true)
+}
+
+/// Records the drawn scenario `text` of sequence `k` as `plan` says; false when `stop` ended it first.
+fn record_drawn(
+    text: &str,
+    k: u64,
+    out: &Path,
+    plan: &RecordPlan,
+    stop: &Arc<AtomicBool>,
+    progress: &mut dyn FnMut(u64),
+) -> Result<bool, CliError> {
+    let scenario = load_str(text, Format::Toml, Path::new("scenario.toml"), out).map_err(|e| {
+        CliError::Failed(format!("sequence {k}: the drawn scenario is refused: {e} (please report it)"))
+    })?;
+    let done = record_scenario(&scenario, plan, stop, &mut |written, _| progress(written))?;
+    Ok(!done.interrupted)
 }
 
 #[cfg(test)]

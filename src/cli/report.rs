@@ -12,7 +12,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use plotters::prelude::*;
-use plotters::style::FontStyle;
 
 use super::CliError;
 use super::run::{bench_dir, bench_scenario, with_quality_spec};
@@ -606,11 +605,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     if md_path.exists() && !a.force {
         return Err(CliError::Invalid(format!("{}: holds a report already (--force replaces it)", a.out.display())));
     }
-    let _ = plotters::style::register_font(
-        "sans-serif",
-        FontStyle::Normal,
-        include_bytes!("../../assets/fonts/DejaVuSans.ttf"),
-    );
+    crate::dataset::card::register_plot_font();
     let started = Instant::now();
     let mut scenario_paths: Vec<PathBuf> = std::fs::read_dir(&a.scenarios)
         .map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenarios.display())))?

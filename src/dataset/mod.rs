@@ -4,7 +4,9 @@
 //! Sequence `k` is drawn from its own random stream, keyed by the dataset's seed and `k` alone, so that it is
 //! the same whatever the number of shards and the order they run in.
 
+pub mod card;
 pub mod classes;
+pub mod merge;
 
 use std::fmt::Write as _;
 
@@ -61,6 +63,9 @@ pub struct DatasetSpec {
     /// The quality preset every sequence is recorded with.
     #[serde(default)]
     pub quality: Option<String>,
+    /// How targets are fused into the sky (`additive` unless given; docs/datasets.md says why).
+    #[serde(default = "default_guidance")]
+    pub fusion_guidance: String,
     /// Cameras to draw from (preset names).
     pub sensors: Vec<String>,
     /// NETD to draw, mK (the preset's when absent).
@@ -85,11 +90,80 @@ pub struct DatasetSpec {
     /// The atmosphere.
     #[serde(default)]
     pub atmosphere: AtmosphereSpec,
+    /// Whole sequences to train, val and test.
+    #[serde(default)]
+    pub split: SplitSpec,
+    /// Optional extra frames per sequence.
+    #[serde(default)]
+    pub outputs: OutputSpec,
+}
+
+/// Fractions of the sequences in each set (whole sequences: a set never holds frames of another's sequence).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SplitSpec {
+    /// Training fraction.
+    pub train: f64,
+    /// Validation fraction.
+    pub val: f64,
+    /// Test fraction.
+    pub test: f64,
+}
+
+impl Default for SplitSpec {
+    fn default() -> Self {
+        Self { train: 0.8, val: 0.1, test: 0.1 }
+    }
+}
+
+/// Extra frames recorded beside each sequence's frames.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputSpec {
+    /// `clean/`: each frame without targets and without noise (the same camera path, sky and weather).
+    pub clean_background: bool,
+    /// `noise_free/`: each frame with its targets, without temporal noise.
+    pub noise_free: bool,
+}
+
+/// The set a sequence belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Set {
+    /// Training.
+    Train,
+    /// Validation.
+    Val,
+    /// Test.
+    Test,
+}
+
+impl Set {
+    /// The three, in order.
+    pub const ALL: [Set; 3] = [Set::Train, Set::Val, Set::Test];
+
+    /// `train`, `val` or `test`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Set::Train => "train",
+            Set::Val => "val",
+            Set::Test => "test",
+        }
+    }
 }
 
 fn default_frame_rate() -> f64 {
     30.0
 }
+
+/// A dataset's frames keep the sky's texture next to each target: the paper's Poisson guidance replaces it
+/// with a smooth fill over the target's whole region (tens of pixels for a PSF's reach), a square a detector
+/// learns to find instead of the target.
+fn default_guidance() -> String {
+    "additive".into()
+}
+
+/// The fusion guidances a spec may name.
+pub const GUIDANCES: [&str; 3] = ["additive", "mixed", "normal"];
 
 /// How the observer is drawn.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -248,6 +322,12 @@ impl DatasetSpec {
         if let Some(q) = &self.quality {
             q.parse::<QualityPreset>().map_err(|e| ("quality".to_owned(), e.to_string()))?;
         }
+        if !GUIDANCES.contains(&self.fusion_guidance.as_str()) {
+            return err(
+                "fusion_guidance",
+                format!("`{}` is not one of {}", self.fusion_guidance, GUIDANCES.join(", ")),
+            );
+        }
         let presets: Vec<&str> = Preset::ALL.iter().map(|p| p.name()).collect();
         names("sensors", &self.sensors, &presets)?;
         if let Some(n) = self.netd_mk {
@@ -273,7 +353,40 @@ impl DatasetSpec {
         names("atmosphere.models", &self.atmosphere.models, &MODELS)?;
         names("atmosphere.aerosols", &self.atmosphere.aerosols, &AEROSOLS)?;
         range("atmosphere.visibility_km", self.atmosphere.visibility_km, 2.0, 200.0)?;
+        let s = self.split;
+        for (f, v) in [("split.train", s.train), ("split.val", s.val), ("split.test", s.test)] {
+            if !(0.0..=1.0).contains(&v) {
+                return err(f, format!("{v} must be a fraction in [0, 1]"));
+            }
+        }
+        let sum = s.train + s.val + s.test;
+        if (sum - 1.0).abs() > 1e-6 {
+            return err("split", format!("train + val + test = {sum}, not 1"));
+        }
         Ok(())
+    }
+
+    /// The set of every sequence: the spec's fractions of the sequences, rounded (test and val first, train the
+    /// rest), dealt by a shuffle drawn from the dataset's seed, so that it depends on the seed and the count alone.
+    pub fn splits(&self) -> Vec<Set> {
+        let n = self.sequences as usize;
+        let n_test = ((self.split.test * n as f64).round() as usize).min(n);
+        let n_val = ((self.split.val * n as f64).round() as usize).min(n - n_test);
+        let mut order: Vec<usize> = (0..n).collect();
+        let mut rng = Draw(SplitMix64::substream(mix64(self.seed ^ 0x7370_6c69_7473), 0));
+        for i in (1..n).rev() {
+            let j = (rng.bits() % (i as u64 + 1)) as usize;
+            order.swap(i, j);
+        }
+        let mut sets = vec![Set::Train; n];
+        for (rank, &k) in order.iter().enumerate() {
+            if rank < n_test {
+                sets[k] = Set::Test;
+            } else if rank < n_test + n_val {
+                sets[k] = Set::Val;
+            }
+        }
+        sets
     }
 
     /// The scenario of sequence `k` as TOML text: everything drawn from the sequence's own stream.
@@ -281,6 +394,19 @@ impl DatasetSpec {
     /// # Errors
     /// A message when the drawn camera cannot be resolved (a preset the crate no longer knows).
     pub fn sequence_scenario(&self, k: u64) -> Result<String, String> {
+        self.sequence_scenario_parts(k).map(|(scene, targets, tail)| scene + &targets + &tail)
+    }
+
+    /// Sequence `k`'s scenario without its targets: the background its frames are drawn on.
+    ///
+    /// # Errors
+    /// As [`Self::sequence_scenario`].
+    pub fn sequence_background(&self, k: u64) -> Result<String, String> {
+        self.sequence_scenario_parts(k).map(|(scene, _, tail)| scene + &tail)
+    }
+
+    /// Sequence `k`'s scenario in three parts: the scene, the targets, and what follows them.
+    fn sequence_scenario_parts(&self, k: u64) -> Result<(String, String, String), String> {
         let mut rng = Draw(SplitMix64::substream(mix64(self.seed ^ 0x6461_7461_7365_7473), k));
         let duration_s = self.frames as f64 / self.frame_rate_hz;
         let mut s = String::new();
@@ -357,6 +483,7 @@ impl DatasetSpec {
         s.push('\n');
 
         // the targets, each in view at the sequence's middle
+        let scene = std::mem::take(&mut s);
         let [n0, n1] = self.targets_per_sequence;
         let n = n0 + rng.bits() % (n1 - n0 + 1);
         for i in 0..n {
@@ -433,10 +560,12 @@ impl DatasetSpec {
                 num(rng.uniform(class.heating_k)),
             );
         }
+        let mut tail = String::from("[quality]\n");
         if let Some(q) = &self.quality {
-            let _ = writeln!(s, "[quality]\npreset = \"{q}\"");
+            let _ = writeln!(tail, "preset = \"{q}\"");
         }
-        Ok(s)
+        let _ = writeln!(tail, "fusion_guidance = \"{}\"", self.fusion_guidance);
+        Ok((scene, s, tail))
     }
 }
 
@@ -467,5 +596,66 @@ impl Draw {
 
     fn pick<'a>(&mut self, from: &'a [String]) -> &'a str {
         &from[(self.bits() % from.len() as u64) as usize]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(sequences: u64, split: [f64; 3]) -> DatasetSpec {
+        let text = format!(
+            "name = \"t\"\nseed = 5\nsequences = {sequences}\nframes = 2\nsensors = [\"paper_lwir_256\"]\ntargets_per_sequence = [1, 1]\nclasses = [\"bird\"]\ntrajectories = [\"straight\"]\nrange_m = [300, 900]\n[split]\ntrain = {}\nval = {}\ntest = {}\n",
+            split[0], split[1], split[2]
+        );
+        DatasetSpec::from_str(&text, "t.toml").unwrap()
+    }
+
+    #[test]
+    fn the_split_deals_whole_sequences_in_the_asked_proportions() {
+        for (n, split) in [(1, [0.8, 0.1, 0.1]), (8, [0.8, 0.1, 0.1]), (97, [0.7, 0.2, 0.1]), (10, [0.0, 0.5, 0.5])] {
+            let s = spec(n, split);
+            let sets = s.splits();
+            // one set per sequence, by construction of the vector; the counts are the rounded fractions
+            assert_eq!(sets.len() as u64, n);
+            let count = |x: Set| sets.iter().filter(|&&v| v == x).count();
+            let n_test = (split[2] * n as f64).round() as usize;
+            assert_eq!(count(Set::Test), n_test.min(n as usize));
+            assert_eq!(count(Set::Val), ((split[1] * n as f64).round() as usize).min(n as usize - n_test));
+            assert_eq!(count(Set::Train) + count(Set::Val) + count(Set::Test), n as usize);
+            // the same for the same seed and count, whoever computes it
+            assert_eq!(sets, s.splits());
+        }
+        // another seed deals differently
+        let a = spec(50, [0.6, 0.2, 0.2]);
+        let mut b = a.clone();
+        b.seed = 6;
+        assert_ne!(a.splits(), b.splits());
+    }
+
+    #[test]
+    fn split_fractions_must_be_fractions_summing_to_one() {
+        for (split, field) in
+            [([0.8, 0.3, 0.1], "split"), ([1.2, -0.1, -0.1], "split.train"), ([0.5, f64::NAN, 0.5], "split.val")]
+        {
+            let text = format!(
+                "name = \"t\"\nseed = 5\nsequences = 3\nframes = 2\nsensors = [\"paper_lwir_256\"]\ntargets_per_sequence = [1, 1]\nclasses = [\"bird\"]\ntrajectories = [\"straight\"]\nrange_m = [300, 900]\n[split]\ntrain = {}\nval = {}\ntest = {}\n",
+                split[0], split[1], split[2]
+            )
+            .replace("NaN", "nan");
+            let e = DatasetSpec::from_str(&text, "t.toml").unwrap_err();
+            assert_eq!(e.field, field, "{e}");
+            assert!(e.line >= 10, "{e}");
+        }
+    }
+
+    #[test]
+    fn the_background_scenario_is_the_sequence_without_its_targets() {
+        let s = spec(3, [0.8, 0.1, 0.1]);
+        let full = s.sequence_scenario(2).unwrap();
+        let bg = s.sequence_background(2).unwrap();
+        assert!(full.contains("[[targets]]") && !bg.contains("[[targets]]"));
+        assert!(full.starts_with(&bg[..bg.find("[quality]").unwrap()]));
+        assert!(bg.contains("fusion_guidance = \"additive\""));
     }
 }
