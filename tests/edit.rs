@@ -172,6 +172,7 @@ fn a_recorded_part_of_the_run_is_reproduced_from_its_manifest() {
         noise: true,
         vibration: true,
         format: irsim::record::FrameFormat::Png16,
+        png: irsim::imaging::frame::PngCompression::Fast,
         masks: false,
         reproducible: false,
     };

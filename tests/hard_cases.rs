@@ -193,7 +193,16 @@ fn labels(frame: u64) -> FrameLabels {
 fn labels_that_cannot_be_written_take_their_frames_with_them() {
     let dir = temp_dir("nolabels");
     let _lock = prepare_dir(&dir, false).unwrap();
-    let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 20).unwrap();
+    let mut rec = Recorder::new(
+        &dir,
+        (FrameFormat::Png16, irsim::imaging::frame::PngCompression::Fast),
+        false,
+        65535,
+        2,
+        serde_json::json!({}),
+        20,
+    )
+    .unwrap();
     // the labels file's temporary name is taken: every write of the labels fails, as on a full disk
     std::fs::create_dir_all(dir.join("labels.jsonl.tmp")).unwrap();
     for k in 0..5 {

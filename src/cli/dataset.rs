@@ -263,6 +263,7 @@ fn record_sequence(
         noise: true,
         vibration: true,
         format: FrameFormat::Png16,
+        png: spec.png_compression,
         masks: true,
         reproducible: true,
     };

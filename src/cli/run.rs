@@ -9,7 +9,7 @@ use clap::{Args, ValueEnum};
 use serde_json::json;
 
 use super::CliError;
-use crate::imaging::frame::Frame;
+use crate::imaging::frame::{Frame, PngCompression};
 use crate::imaging::sky_gen::{SkyGenSpec, SkyKind, generate};
 use crate::record::{FrameFormat, Recorder, prepare_dir, write_atomic};
 use crate::scenario::load::{load_for_frames, located};
@@ -44,6 +44,10 @@ pub struct RecordArgs {
     /// Frame file format.
     #[arg(long, value_enum, default_value = "png16")]
     pub format: FrameFormat,
+    /// How hard 16-bit PNG frames are compressed: the same pixels at every level (the README measures size
+    /// against speed).
+    #[arg(long, value_enum, default_value = "fast")]
+    pub png_compression: PngCompression,
     /// Also write per-frame target masks (8-bit PNG, pixel = target id, 0 = sky).
     #[arg(long)]
     pub masks: bool,
@@ -257,6 +261,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
         noise: !a.no_noise,
         vibration: !a.no_vibration,
         format: a.format,
+        png: a.png_compression,
         masks: a.masks,
         reproducible: false,
     };
@@ -313,6 +318,8 @@ pub struct RecordPlan {
     pub vibration: bool,
     /// Frame file format.
     pub format: FrameFormat,
+    /// 16-bit PNG compression.
+    pub png: PngCompression,
     /// Per-frame target masks.
     pub masks: bool,
     /// A manifest with nothing that depends on the machine or the moment (no timings), so that the same
@@ -369,7 +376,13 @@ pub fn record_scenario(
         "scenario_file": scenario.source.display().to_string(),
         "scenario": spec_as_run,
         "seed": seed,
-        "options": { "noise": plan.noise, "vibration": plan.vibration, "format": plan.format, "masks": plan.masks },
+        "options": {
+            "noise": plan.noise,
+            "vibration": plan.vibration,
+            "format": plan.format,
+            "png_compression": plan.png,
+            "masks": plan.masks,
+        },
         "resolved": resolved_settings(&mut app, scenario),
     });
     if plan.first_frame > 0 || frames != scenario.spec.run.frames {
@@ -379,7 +392,7 @@ pub fn record_scenario(
     }
     let max_level = scenario.sensor.model.adc.max_level() as u16;
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
-    let mut rec = Recorder::new(&plan.out, plan.format, plan.masks, max_level, threads, manifest, frames)
+    let mut rec = Recorder::new(&plan.out, (plan.format, plan.png), plan.masks, max_level, threads, manifest, frames)
         .map_err(|e| CliError::Failed(e.to_string()))?;
     set_stop_flag(&mut app, Arc::clone(stop));
     let started = Instant::now();
@@ -698,6 +711,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
                 no_noise: false,
                 no_vibration: false,
                 format: FrameFormat::Png16,
+                png_compression: PngCompression::Fast,
                 masks: false,
                 quiet: true,
                 quality: a.quality,

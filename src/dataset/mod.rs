@@ -13,6 +13,7 @@ use std::fmt::Write as _;
 use glam::DVec3;
 use serde::Deserialize;
 
+use crate::imaging::frame::PngCompression;
 use crate::physics::detector::Preset;
 use crate::physics::random::{SplitMix64, mix64};
 use crate::scenario::load::{ScenarioError, line_col};
@@ -63,6 +64,9 @@ pub struct DatasetSpec {
     /// The quality preset every sequence is recorded with.
     #[serde(default)]
     pub quality: Option<String>,
+    /// How hard the 16-bit frames are compressed.
+    #[serde(default)]
+    pub png_compression: PngCompression,
     /// How targets are fused into the sky (`additive` unless given; docs/datasets.md says why).
     #[serde(default = "default_guidance")]
     pub fusion_guidance: String,

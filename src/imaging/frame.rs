@@ -83,21 +83,41 @@ impl Frame {
         ImageBuffer::from_raw(self.width as u32, self.height as u32, data).expect("size matches")
     }
 
-    /// Writes the frame as a 16-bit grayscale PNG to `out`.
+    /// Writes the frame as a 16-bit grayscale PNG to `out` ([`PngCompression::Fast`]).
     ///
     /// # Errors
     /// The encoder's error, e.g. on a failed write.
     pub fn write_png16<W: Write>(&self, max_level: u16, out: W) -> image::ImageResult<()> {
+        self.write_png16_with(max_level, PngCompression::Fast, out)
+    }
+
+    /// Writes the frame as a 16-bit grayscale PNG to `out`, compressed as `compression` says.
+    ///
+    /// # Errors
+    /// The encoder's error, e.g. on a failed write.
+    pub fn write_png16_with<W: Write>(
+        &self,
+        max_level: u16,
+        compression: PngCompression,
+        out: W,
+    ) -> image::ImageResult<()> {
         use image::ImageEncoder;
+        use image::codecs::png::{CompressionType, FilterType};
         let img = self.to_gray16(max_level);
         // the encoder takes native-endian samples and writes PNG's big-endian itself
         let bytes: Vec<u8> = img.as_raw().iter().flat_map(|v| v.to_ne_bytes()).collect();
-        image::codecs::png::PngEncoder::new_with_quality(
-            out,
-            image::codecs::png::CompressionType::Fast,
-            image::codecs::png::FilterType::Sub,
+        let (level, filter) = match compression {
+            PngCompression::None => (CompressionType::Uncompressed, FilterType::NoFilter),
+            PngCompression::Fast => (CompressionType::Fast, FilterType::Sub),
+            PngCompression::Default => (CompressionType::Default, FilterType::Adaptive),
+            PngCompression::Best => (CompressionType::Best, FilterType::Adaptive),
+        };
+        image::codecs::png::PngEncoder::new_with_quality(out, level, filter).write_image(
+            &bytes,
+            self.width as u32,
+            self.height as u32,
+            image::ExtendedColorType::L16,
         )
-        .write_image(&bytes, self.width as u32, self.height as u32, image::ExtendedColorType::L16)
     }
 
     /// Writes the frame as an 8-bit grayscale PNG to `out`, scaling `[0, max_level]` to `[0, 255]`.
@@ -114,6 +134,21 @@ impl Frame {
         )
         .write_image(img.as_raw(), self.width as u32, self.height as u32, image::ExtendedColorType::L8)
     }
+}
+
+/// How hard a 16-bit PNG frame is compressed: the files are the same pixels at every setting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum PngCompression {
+    /// Stored, no deflate (the largest files, the least CPU).
+    None,
+    /// A fast deflate with the `Sub` filter (the default).
+    #[default]
+    Fast,
+    /// zlib's default level with adaptive filters.
+    Default,
+    /// The strongest level with adaptive filters (the smallest files, the most CPU).
+    Best,
 }
 
 /// Nearest level in `[0, max]` (`max` whole); NaN → 0. `⌊x + 0.5⌋` of the clamped value is its rounding and
@@ -135,6 +170,26 @@ mod tests {
         f.write_png16(65535, &mut bytes).unwrap();
         let back = image::load_from_memory(&bytes).unwrap().into_luma16();
         assert_eq!(back.into_raw(), vec![0, 1, 65535, 65535, 0, 0]);
+    }
+
+    #[test]
+    fn every_png_compression_holds_the_same_pixels() {
+        // a smooth sky with noise: what frames are
+        let (w, h) = (96, 64);
+        let pixels: Vec<f32> = (0..w * h)
+            .map(|i| 3000.0 + (i / w) as f32 * 7.0 + ((i as u32).wrapping_mul(2_654_435_761) >> 28) as f32)
+            .collect();
+        let f = Frame::from_pixels(w, h, pixels);
+        let mut sizes = Vec::new();
+        for c in [PngCompression::None, PngCompression::Fast, PngCompression::Default, PngCompression::Best] {
+            let mut bytes = Vec::new();
+            f.write_png16_with(16383, c, &mut bytes).unwrap();
+            let back = image::load_from_memory(&bytes).unwrap().into_luma16();
+            assert_eq!(back.into_raw(), f.to_gray16(16383).into_raw(), "{c:?}");
+            sizes.push(bytes.len());
+        }
+        // stored is the largest; the strongest level no larger than the fast one
+        assert!(sizes[0] > sizes[1] && sizes[3] <= sizes[1], "{sizes:?}");
     }
 
     #[test]

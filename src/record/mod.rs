@@ -17,7 +17,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::imaging::agc::{Agc, AgcSpec};
-use crate::imaging::frame::Frame;
+use crate::imaging::frame::{Frame, PngCompression};
 use crate::labels::FrameLabels;
 
 /// How frames are written.
@@ -186,10 +186,10 @@ struct Done {
 }
 
 /// Encodes `frame` in `format` into bytes.
-pub fn encode(frame: &Frame, format: FrameFormat, max_level: u16) -> Vec<u8> {
+pub fn encode(frame: &Frame, format: FrameFormat, max_level: u16, png: PngCompression) -> Vec<u8> {
     let mut bytes = Vec::with_capacity(frame.width() * frame.height() * 2 + 1024);
     match format {
-        FrameFormat::Png16 => frame.write_png16(max_level, &mut bytes).expect("writing to memory"),
+        FrameFormat::Png16 => frame.write_png16_with(max_level, png, &mut bytes).expect("writing to memory"),
         FrameFormat::Png8 => frame.write_png8(f32::from(max_level), &mut bytes).expect("writing to memory"),
         // the AGC has already mapped the frame to 0–255
         FrameFormat::Png8Agc => frame.write_png8(255.0, &mut bytes).expect("writing to memory"),
@@ -258,7 +258,7 @@ impl Recorder {
     /// description; the recorder adds `status`, `frames_requested`, `frames_written` and `error`.
     pub fn new(
         dir: &Path,
-        format: FrameFormat,
+        (format, png): (FrameFormat, PngCompression),
         masks: bool,
         max_level: u16,
         threads: usize,
@@ -288,7 +288,7 @@ impl Recorder {
                         };
                         let name = format!("{:06}.{}", job.index, format.extension());
                         let mut result =
-                            write_atomic(&dir.join("frames").join(&name), &encode(&job.frame, format, max_level));
+                            write_atomic(&dir.join("frames").join(&name), &encode(&job.frame, format, max_level, png));
                         if let (Ok(()), Some(mask)) = (&result, &job.mask) {
                             let m = Frame::from_pixels(
                                 job.frame.width(),
@@ -545,7 +545,9 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("irsim-rec-int-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let _lock = prepare_dir(&dir, false).unwrap();
-        let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
+        let mut rec =
+            Recorder::new(&dir, (FrameFormat::Png16, PngCompression::Fast), false, 65535, 2, serde_json::json!({}), 10)
+                .unwrap();
         for k in 0..3 {
             rec.push(Frame::new(8, 8), None, labels(k));
         }
@@ -565,7 +567,9 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("irsim-rec-err-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let _lock = prepare_dir(&dir, false).unwrap();
-        let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
+        let mut rec =
+            Recorder::new(&dir, (FrameFormat::Png16, PngCompression::Fast), false, 65535, 2, serde_json::json!({}), 10)
+                .unwrap();
         rec.push(Frame::new(8, 8), None, labels(0));
         // make every later frame write fail, as a full disk would
         std::fs::remove_dir_all(dir.join("frames")).unwrap();
@@ -589,7 +593,9 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("irsim-rec-fail-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let _lock = prepare_dir(&dir, false).unwrap();
-        let mut rec = Recorder::new(&dir, FrameFormat::Png16, false, 65535, 2, serde_json::json!({}), 10).unwrap();
+        let mut rec =
+            Recorder::new(&dir, (FrameFormat::Png16, PngCompression::Fast), false, 65535, 2, serde_json::json!({}), 10)
+                .unwrap();
         rec.push(Frame::new(8, 8), None, labels(0));
         rec.fail("internal error computing frame 1".into());
         assert!(rec.failed());

@@ -58,6 +58,7 @@ fn start_recording(r: &mut RecordUi, scenario: &crate::scenario::CheckedScenario
         noise: true,
         vibration: true,
         format: r.format,
+        png: crate::imaging::frame::PngCompression::Fast,
         masks: false,
         reproducible: false,
     };
