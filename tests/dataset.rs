@@ -6,7 +6,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use common::{irsim, temp_dir};
+use common::{irsim, python_tool, temp_dir};
 
 /// Four short sequences with the paper's 256×256 camera.
 const SPEC: &str = r#"
@@ -157,18 +157,10 @@ fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
 /// Runs tests/python/check_dataset.py on `dir` where python3 has pycocotools and motmetrics; with
 /// `IRSIM_REQUIRE_PYTHON_TOOLS` set (CI), their absence is a failure.
 fn python_check(dir: &Path) {
-    let have = std::process::Command::new("python3")
-        .args(["-c", "import pycocotools, motmetrics, numpy, PIL"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !have {
-        assert!(
-            std::env::var_os("IRSIM_REQUIRE_PYTHON_TOOLS").is_none(),
-            "python3 lacks pycocotools or motmetrics, but IRSIM_REQUIRE_PYTHON_TOOLS is set (pip install -r tests/python/requirements.txt)"
-        );
-        eprintln!(
-            "skipped: the COCO/MOT/YOLO checks need python3 with pycocotools and motmetrics (pip install -r tests/python/requirements.txt)"
-        );
+    if !python_tool(
+        &["python3", "-c", "import pycocotools, motmetrics, numpy, PIL"],
+        "python3 with pycocotools and motmetrics",
+    ) {
         return;
     }
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/check_dataset.py");

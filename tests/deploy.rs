@@ -6,7 +6,7 @@ mod common;
 
 use std::process::Command;
 
-use common::{irsim, root, temp_dir};
+use common::{irsim, python_tool, root, temp_dir};
 
 #[test]
 fn the_kubernetes_manifest_is_valid_and_its_spec_is_one_irsim_accepts() {
@@ -35,15 +35,7 @@ fn the_kubernetes_manifest_is_valid_and_its_spec_is_one_irsim_accepts() {
     assert!(text.contains(&format!("value: \"{completions}\"  # EDIT: the same N as completions")), "{completions}");
     assert!(text.contains("JOB_COMPLETION_INDEX + 1"));
 
-    let have = Command::new("kubernetes-validate").arg("--version").output().is_ok_and(|o| o.status.success());
-    if !have {
-        assert!(
-            std::env::var_os("IRSIM_REQUIRE_PYTHON_TOOLS").is_none(),
-            "kubernetes-validate is missing, but IRSIM_REQUIRE_PYTHON_TOOLS is set (pip install -r tests/python/requirements.txt)"
-        );
-        eprintln!(
-            "skipped: validating the manifest needs kubernetes-validate (pip install -r tests/python/requirements.txt)"
-        );
+    if !python_tool(&["kubernetes-validate", "--version"], "kubernetes-validate") {
         return;
     }
     for version in ["1.33.0", "1.37.0"] {

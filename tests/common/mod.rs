@@ -19,6 +19,22 @@ pub fn irsim(args: &[&str]) -> (i32, String, String) {
     )
 }
 
+/// Whether the Python test tool `what` answers `command` (a program and its arguments). Where it does not, the
+/// caller skips its check, saying so; with `IRSIM_REQUIRE_PYTHON_TOOLS` set (CI), its absence is a failure.
+#[allow(dead_code)] // not every test binary uses it
+pub fn python_tool(command: &[&str], what: &str) -> bool {
+    let have = Command::new(command[0]).args(&command[1..]).output().is_ok_and(|o| o.status.success());
+    if !have {
+        let install = "pip install -r tests/python/requirements.txt";
+        assert!(
+            std::env::var_os("IRSIM_REQUIRE_PYTHON_TOOLS").is_none(),
+            "{what} is missing, but IRSIM_REQUIRE_PYTHON_TOOLS is set ({install})"
+        );
+        eprintln!("skipped: this check needs {what} ({install})");
+    }
+    have
+}
+
 /// A fresh (absent) directory under the system's temporary directory, unique to this process.
 pub fn temp_dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("irsim-test-{name}-{}", std::process::id()));
