@@ -458,9 +458,7 @@ fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
 
 /// An RGB buffer written as a PNG, atomically.
 fn write_png(path: &Path, w: u32, h: u32, buf: Vec<u8>) -> Result<(), CliError> {
-    let image = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| failed("plot buffer size"))?;
-    let mut png = Vec::new();
-    image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(failed)?;
+    let png = crate::dataset::card::rgb_png(w, h, buf).map_err(failed)?;
     write_atomic(path, &png).map_err(failed)
 }
 

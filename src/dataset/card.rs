@@ -280,10 +280,17 @@ fn draw(
         f(&root)?;
         root.present().map_err(|e| e.to_string())?;
     }
+    let png = rgb_png(w, h, buf).map_err(|e| format!("{}: {e}", path.display()))?;
+    std::fs::write(path, png).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// A plot's RGB buffer (`w × h × 3` bytes) as PNG bytes.
+///
+/// # Errors
+/// A message when the buffer is not `w × h × 3` bytes or the encoder fails.
+pub fn rgb_png(w: u32, h: u32, buf: Vec<u8>) -> Result<Vec<u8>, String> {
     let image = image::RgbImage::from_raw(w, h, buf).ok_or("plot buffer size")?;
     let mut png = Vec::new();
-    image
-        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    std::fs::write(path, png).map_err(|e| format!("{}: {e}", path.display()))
+    image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| e.to_string())?;
+    Ok(png)
 }

@@ -138,8 +138,9 @@ fn rle(idx: &[u64], len: u64) -> Vec<u64> {
     counts
 }
 
-/// Reads a sequence: its labels, its masks (each target's pixels) and its camera.
-fn read_sequence(out: &Path, spec: &DatasetSpec, k: u64, set: Set) -> Result<SequenceEntry, MergeError> {
+/// Reads a sequence: its labels, its masks (each target's pixels) and its camera; writes each frame's SIRST
+/// binary mask into `stage` while its mask is decoded.
+fn read_sequence(out: &Path, stage: &Path, spec: &DatasetSpec, k: u64, set: Set) -> Result<SequenceEntry, MergeError> {
     let dir = sequence_dir(out, k);
     let labels_path = dir.join("labels.jsonl");
     let text = std::fs::read_to_string(&labels_path).map_err(|e| io(&labels_path, e))?;
@@ -176,6 +177,9 @@ fn read_sequence(out: &Path, spec: &DatasetSpec, k: u64, set: Set) -> Result<Seq
             .map_err(|e| io(&mask_path, e))?
             .into_luma8();
         (width, height) = mask.dimensions();
+        let binary: Vec<u8> = mask.as_raw().iter().map(|&v| if v > 0 { 255 } else { 0 }).collect();
+        let stem = format!("{}_{f:06}", sequence_name(k));
+        put(stage, &format!("sirst/masks/{stem}.png"), &gray8_png(&binary, width, height)?)?;
         let (w, h) = (u64::from(width), u64::from(height));
         // each target's pixels as column-major indices, sorted
         let mut pixels: BTreeMap<u8, Vec<u64>> = BTreeMap::new();
@@ -235,13 +239,12 @@ struct Staged {
     links: Vec<(String, String)>,
 }
 
-/// The per-frame exports of one sequence: YOLO labels, SIRST masks, the MOT folder, and the links to its frames.
+/// The per-frame exports of one sequence: YOLO labels, the MOT folder, and the links to its frames.
 fn stage_sequence(out: &Path, spec: &DatasetSpec, s: &SequenceEntry) -> Result<Staged, MergeError> {
     let mut st = Staged::default();
     let name = sequence_name(s.k);
     let set = s.set.name();
     let (w, h) = (f64::from(s.width), f64::from(s.height));
-    let mask_dir = sequence_dir(out, s.k).join("masks");
     for fe in &s.frames {
         let frame_file = format!("sequences/{name}/frames/{:06}.png", fe.frame);
         let stem = format!("{name}_{:06}", fe.frame);
@@ -261,15 +264,7 @@ fn stage_sequence(out: &Path, spec: &DatasetSpec, s: &SequenceEntry) -> Result<S
         }
         st.files.push((format!("yolo/labels/{set}/{stem}.txt"), yolo.into_bytes()));
         st.links.push((format!("yolo/images/{set}/{stem}.png"), frame_file.clone()));
-        // SIRST: a binary mask (0 or 255) beside the image
-        let mask_path = mask_dir.join(format!("{:06}.png", fe.frame));
-        let mask = image::ImageReader::open(&mask_path)
-            .map_err(|e| io(&mask_path, e))?
-            .decode()
-            .map_err(|e| io(&mask_path, e))?
-            .into_luma8();
-        let binary: Vec<u8> = mask.as_raw().iter().map(|&v| if v > 0 { 255 } else { 0 }).collect();
-        st.files.push((format!("sirst/masks/{stem}.png"), gray8_png(&binary, s.width, s.height)?));
+        // SIRST: the binary mask (written while reading) beside the image
         st.links.push((format!("sirst/images/{stem}.png"), frame_file.clone()));
         // MOTChallenge: img1/ counts from 1
         st.links.push((format!("mot/{set}/{name}/img1/{:06}.png", fe.frame + 1), frame_file));
@@ -527,7 +522,6 @@ fn missing_report(out: &Path, spec: &DatasetSpec, missing: &[u64]) -> String {
     }
     if let Some((&n, _)) = counts.iter().max_by_key(|(n, c)| (**c, std::cmp::Reverse(**n))) {
         let mut shards: Vec<u64> = missing.iter().map(|k| k % n + 1).collect();
-        shards.dedup();
         shards.sort_unstable();
         shards.dedup();
         for i in shards {
@@ -561,17 +555,17 @@ pub fn merge(out: &Path, spec: &DatasetSpec, progress: &dyn Fn(&str)) -> Result<
         return Err(MergeError::Incomplete(missing_report(out, spec, &missing)));
     }
     let sets = spec.splits();
-    progress("reading the sequences' labels and masks");
-    let seqs: Vec<SequenceEntry> = (0..spec.sequences)
-        .into_par_iter()
-        .map(|k| read_sequence(out, spec, k, sets[k as usize]))
-        .collect::<Result<_, _>>()?;
     let stage = out.join(".merge.partial");
     if stage.exists() {
         std::fs::remove_dir_all(&stage).map_err(|e| io(&stage, e))?;
     }
     std::fs::create_dir_all(&stage).map_err(|e| io(&stage, e))?;
-    progress("writing the YOLO, SIRST and MOTChallenge exports");
+    progress("reading the sequences' labels and masks; the SIRST masks");
+    let seqs: Vec<SequenceEntry> = (0..spec.sequences)
+        .into_par_iter()
+        .map(|k| read_sequence(out, &stage, spec, k, sets[k as usize]))
+        .collect::<Result<_, _>>()?;
+    progress("writing the YOLO and MOTChallenge exports");
     seqs.par_iter().try_for_each(|s| -> Result<(), MergeError> {
         let st = stage_sequence(out, spec, s)?;
         for (rel, bytes) in &st.files {
