@@ -222,6 +222,24 @@ fn merge_names_the_shards_still_to_run_and_extra_frames_are_kept() {
         .filter(|((a, b), m)| m[0] == 0 && a[0].abs_diff(b[0]) <= 1)
         .count();
     assert!(same as f64 > 0.95 * far as f64, "{same} of {far}");
+    // a sequence's files broken after recording: refused with the place, the last merge's exports kept
+    let coco = std::fs::read(out.join("coco/all.json")).unwrap();
+    let labels_path = seq.join("labels.jsonl");
+    let good = std::fs::read_to_string(&labels_path).unwrap();
+    std::fs::write(&labels_path, good.replacen("{\"frame\":1,", "{\"frame\":nan,", 1)).unwrap();
+    let (code, _, err) = irsim(&["dataset", "merge", out.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("seq_000000/labels.jsonl:2:"), "{err}");
+    std::fs::write(&labels_path, &good).unwrap();
+    let mask = seq.join("masks/000001.png");
+    let good_mask = std::fs::read(&mask).unwrap();
+    std::fs::write(&mask, b"not a png").unwrap();
+    let (code, _, err) = irsim(&["dataset", "merge", out.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("masks/000001.png: not a mask a recording writes"), "{err}");
+    assert!(!out.join(".merge.partial").exists());
+    assert_eq!(std::fs::read(out.join("coco/all.json")).unwrap(), coco);
+    std::fs::write(&mask, good_mask).unwrap();
     let sums = std::fs::read_to_string(out.join("checksums.sha256")).unwrap();
     assert!(sums.contains("  sequences/seq_000000/clean/000000.png\n"), "{sums}");
     let _ = std::fs::remove_dir_all(&dir);

@@ -148,8 +148,11 @@ fn read_sequence(out: &Path, stage: &Path, spec: &DatasetSpec, k: u64, set: Set)
         .lines()
         .enumerate()
         .map(|(i, l)| {
-            serde_json::from_str(l)
-                .map_err(|e| MergeError::Corrupt(format!("{}:{}: {e}", labels_path.display(), i + 1)))
+            serde_json::from_str(l).map_err(|e| {
+                let what = e.to_string();
+                let what = what.split(" at line ").next().unwrap_or(&what);
+                MergeError::Corrupt(format!("{}:{}:{}: {what}", labels_path.display(), i + 1, e.column()))
+            })
         })
         .collect::<Result<_, _>>()?;
     if labels.len() as u64 != spec.frames {
@@ -174,7 +177,7 @@ fn read_sequence(out: &Path, stage: &Path, spec: &DatasetSpec, k: u64, set: Set)
         let mask = image::ImageReader::open(&mask_path)
             .map_err(|e| io(&mask_path, e))?
             .decode()
-            .map_err(|e| io(&mask_path, e))?
+            .map_err(|e| MergeError::Corrupt(format!("{}: not a mask a recording writes: {e}", mask_path.display())))?
             .into_luma8();
         (width, height) = mask.dimensions();
         let binary: Vec<u8> = mask.as_raw().iter().map(|&v| if v > 0 { 255 } else { 0 }).collect();
@@ -560,19 +563,35 @@ pub fn merge(out: &Path, spec: &DatasetSpec, progress: &dyn Fn(&str)) -> Result<
         std::fs::remove_dir_all(&stage).map_err(|e| io(&stage, e))?;
     }
     std::fs::create_dir_all(&stage).map_err(|e| io(&stage, e))?;
+    let merged = merge_staged(out, spec, &stage, &sets, progress);
+    if merged.is_err() {
+        // a failed merge leaves the exports of the last good one, and nothing half made
+        let _ = std::fs::remove_dir_all(&stage);
+    }
+    merged
+}
+
+/// The merge's work after the check for missing sequences: everything built in `stage`, then moved into place.
+fn merge_staged(
+    out: &Path,
+    spec: &DatasetSpec,
+    stage: &Path,
+    sets: &[Set],
+    progress: &dyn Fn(&str),
+) -> Result<MergeSummary, MergeError> {
     progress("reading the sequences' labels and masks; the SIRST masks");
     let seqs: Vec<SequenceEntry> = (0..spec.sequences)
         .into_par_iter()
-        .map(|k| read_sequence(out, &stage, spec, k, sets[k as usize]))
+        .map(|k| read_sequence(out, stage, spec, k, sets[k as usize]))
         .collect::<Result<_, _>>()?;
     progress("writing the YOLO and MOTChallenge exports");
     seqs.par_iter().try_for_each(|s| -> Result<(), MergeError> {
         let st = stage_sequence(out, spec, s)?;
         for (rel, bytes) in &st.files {
-            put(&stage, rel, bytes)?;
+            put(stage, rel, bytes)?;
         }
         for (rel, source) in &st.links {
-            link(out, &stage, rel, source)?;
+            link(out, stage, rel, source)?;
         }
         Ok(())
     })?;
@@ -585,9 +604,9 @@ pub fn merge(out: &Path, spec: &DatasetSpec, progress: &dyn Fn(&str)) -> Result<
     progress("writing COCO, the split and the card");
     let all: Vec<&SequenceEntry> = seqs.iter().collect();
     let pretty = |v: &Value| serde_json::to_vec(v).expect("JSON serializes");
-    put(&stage, "coco/all.json", &pretty(&coco(spec, &all, None)))?;
+    put(stage, "coco/all.json", &pretty(&coco(spec, &all, None)))?;
     for set in Set::ALL {
-        put(&stage, &format!("coco/{}.json", set.name()), &pretty(&coco(spec, &all, Some(set))))?;
+        put(stage, &format!("coco/{}.json", set.name()), &pretty(&coco(spec, &all, Some(set))))?;
         let mut list = String::new();
         let mut stems = String::new();
         for s in seqs.iter().filter(|s| s.set == set) {
@@ -596,10 +615,10 @@ pub fn merge(out: &Path, spec: &DatasetSpec, progress: &dyn Fn(&str)) -> Result<
                 let _ = writeln!(stems, "{}_{:06}", sequence_name(s.k), fe.frame);
             }
         }
-        put(&stage, &format!("splits/{}.txt", set.name()), list.as_bytes())?;
-        put(&stage, &format!("sirst/{}.txt", set.name()), stems.as_bytes())?;
+        put(stage, &format!("splits/{}.txt", set.name()), list.as_bytes())?;
+        put(stage, &format!("sirst/{}.txt", set.name()), stems.as_bytes())?;
     }
-    put(&stage, "yolo/data.yaml", yolo_yaml(spec).as_bytes())?;
+    put(stage, "yolo/data.yaml", yolo_yaml(spec).as_bytes())?;
     let stats = super::card::Stats::gather(seqs.iter().map(|s| {
         (
             s.set,
@@ -611,10 +630,10 @@ pub fn merge(out: &Path, spec: &DatasetSpec, progress: &dyn Fn(&str)) -> Result<
             s.frames.len() as u64,
         )
     }));
-    super::card::write(&stage, spec, &stats).map_err(MergeError::Io)?;
+    super::card::write(stage, spec, &stats).map_err(MergeError::Io)?;
     // into place: each export replaces the one of an earlier merge
-    let entries: Vec<String> = std::fs::read_dir(&stage)
-        .map_err(|e| io(&stage, e))?
+    let entries: Vec<String> = std::fs::read_dir(stage)
+        .map_err(|e| io(stage, e))?
         .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
         .collect();
     for name in entries {
@@ -626,7 +645,7 @@ pub fn merge(out: &Path, spec: &DatasetSpec, progress: &dyn Fn(&str)) -> Result<
         }
         std::fs::rename(stage.join(&name), &dest).map_err(|e| io(&dest, e))?;
     }
-    std::fs::remove_dir_all(&stage).map_err(|e| io(&stage, e))?;
+    std::fs::remove_dir_all(stage).map_err(|e| io(stage, e))?;
     progress("checksums of every file");
     let (sums, files) = checksums(out)?;
     crate::record::write_atomic(&out.join("checksums.sha256"), sums.as_bytes())
