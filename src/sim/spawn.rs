@@ -14,7 +14,7 @@ use super::{
 use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, plan_sky_blur};
 use crate::imaging::camera::{Camera, Jitter};
 use crate::imaging::frame::Frame;
-use crate::imaging::psf::{Psf, PsfOptics};
+use crate::imaging::psf::{Psf, PsfOptics, PsfSpec};
 use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air};
 use crate::imaging::sky_gen::{SkyGenSpec, generate};
 use crate::imaging::sky_plane::{SkyImage, SkyPlane};
@@ -297,6 +297,25 @@ fn layer_size(
     (side(placement.width_m), side(placement.height_m))
 }
 
+/// The PSF of `spec` and `optics`, built once per process for each (the last few kept): a dataset's sequences
+/// draw their cameras from a few presets, and building a PSF (its OTF sampled on fine grids) takes a good part
+/// of a scenario's set-up. `Psf::new` is a pure function of its inputs, so a kept one is the one a build gives.
+fn shared_psf(spec: &PsfSpec, optics: &PsfOptics) -> Result<Arc<Psf>, crate::physics::ParamError> {
+    type Kept = Vec<(PsfSpec, PsfOptics, Arc<Psf>)>;
+    static KEPT: std::sync::Mutex<Kept> = std::sync::Mutex::new(Vec::new());
+    let lock = || KEPT.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some((_, _, psf)) = lock().iter().find(|(s, o, _)| s == spec && o == optics) {
+        return Ok(Arc::clone(psf));
+    }
+    let psf = Arc::new(Psf::new(spec, optics)?);
+    let mut kept = lock();
+    if kept.len() >= 8 {
+        kept.remove(0);
+    }
+    kept.push((*spec, *optics, Arc::clone(&psf)));
+    Ok(psf)
+}
+
 /// The sensor component: readout, PSF (and whether the frame needs it), non-idealities.
 fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Sensor, SetupError> {
     let model = &resolved.model;
@@ -304,8 +323,8 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
     let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
     let dn_per_radiance = k / model.adc.gain;
     let psf = match resolved.psf {
-        Some(p) => Some(Arc::new(
-            Psf::new(
+        Some(p) => Some(
+            shared_psf(
                 &p.spec,
                 &PsfOptics {
                     f_number: model.optics.f_number(),
@@ -317,7 +336,7 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
                 },
             )
             .map_err(|e| SetupError { field: format!("sensor.psf.{}", e.name), message: e.to_string() })?,
-        )),
+        ),
         None => None,
     };
     let blur_dome = match (&psf, resolved.psf) {
