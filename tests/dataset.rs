@@ -6,7 +6,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use common::{irsim, python_tool, temp_dir};
+use common::{irsim, python_tool, root, temp_dir};
 
 /// Four short sequences with the paper's 256×256 camera.
 const SPEC: &str = r#"
@@ -154,6 +154,138 @@ fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// [`SPEC`] with targets placed by SNR, a camera flying straight or turning, and the shipped sky images among
+/// the skies (`FOLDER` is replaced by their folder).
+const SPEC_MOVING: &str = r#"
+name = "moving"
+seed = 4
+sequences = 4
+frames = 4
+quality = "draft"
+sensors = ["paper_lwir_256"]
+targets_per_sequence = [1, 2]
+classes = ["small_multirotor", "fixed_wing_uav", "light_aircraft"]
+trajectories = ["straight", "crossing", "coordinated_turn", "weave"]
+snr = [4, 40]
+range_m = [100, 20000]
+
+[observer]
+speed_m_s = [10, 50]
+turn_rate_deg_s = [-8, 8]
+
+[sky]
+kinds = ["image", "image", "cumulus"]
+
+[sky.images]
+folder = "FOLDER"
+calibration = { mode = "temperature", value_range = [0, 65535], temp_range_k = [205, 265] }
+roll_deg = [-20, 20]
+"#;
+
+#[test]
+fn snr_solves_moving_cameras_and_user_skies_are_the_same_bytes_for_any_shard_count() {
+    let dir = temp_dir("dataset_moving");
+    let skies = dir.join("my skies");
+    std::fs::create_dir_all(&skies).unwrap();
+    for name in ["clear.png", "cumulus.png"] {
+        std::fs::copy(root().join("assets/skies").join(name), skies.join(name)).unwrap();
+    }
+    // not an image: left out
+    std::fs::write(skies.join("notes.txt"), "from the roof, 2026-06-01").unwrap();
+    let spec = dir.join("moving.toml");
+    std::fs::write(&spec, SPEC_MOVING.replace("FOLDER", "my skies")).unwrap();
+    let mut trees = Vec::new();
+    for count in [1, 2] {
+        let out = dir.join(format!("out{count}"));
+        for index in 1..=count {
+            let (code, err) = run(&spec, &out, &format!("{index}/{count}"));
+            assert_eq!(code, 0, "{err}");
+        }
+        if count > 1 {
+            let (code, _, err) = irsim(&["dataset", "merge", out.to_str().unwrap(), "--quiet"]);
+            assert_eq!(code, 0, "{err}");
+        }
+        trees.push(files(&out));
+    }
+    let differ: Vec<&String> = trees[0].keys().filter(|k| trees[0].get(*k) != trees[1].get(*k)).collect();
+    assert!(trees[0] == trees[1], "1 and 2 shards differ: {differ:?}");
+    let out = dir.join("out1");
+    // the images are in the dataset, checksummed, and named by the scenarios that drew them
+    assert_eq!(
+        std::fs::read(out.join("skies/cumulus.png")).unwrap(),
+        std::fs::read(skies.join("cumulus.png")).unwrap()
+    );
+    assert!(!out.join("skies/notes.txt").exists());
+    let sums = std::fs::read_to_string(out.join("checksums.sha256")).unwrap();
+    assert!(sums.contains("  skies/clear.png\n"), "{sums}");
+    let scenarios: Vec<String> = (0..4)
+        .map(|k| std::fs::read_to_string(out.join(format!("sequences/seq_{k:06}/scenario.toml"))).unwrap())
+        .collect();
+    assert!(scenarios.iter().any(|s| s.contains("image = \"../../skies/")), "no sequence drew an image");
+    assert!(scenarios.iter().all(|s| s.contains("mode = \"along_velocity\"")), "a camera stood still");
+    // each target's SNR at the middle frame is the one asked, where range_m allowed it
+    let mut solved = 0;
+    for k in 0..4 {
+        let seq = out.join(format!("sequences/seq_{k:06}"));
+        let solve: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(seq.join("snr_solve.json")).unwrap()).unwrap();
+        let middle = solve["frame"].as_u64().unwrap();
+        let labels = std::fs::read_to_string(seq.join("labels.jsonl")).unwrap();
+        let line: serde_json::Value = serde_json::from_str(labels.lines().nth(middle as usize).unwrap()).unwrap();
+        for t in solve["targets"].as_array().unwrap() {
+            let asked = t["asked"].as_f64().unwrap();
+            assert!((4.0..=40.0).contains(&asked), "{t}");
+            let id = t["id"].as_u64().unwrap();
+            let label = line["targets"].as_array().unwrap().iter().find(|l| l["id"].as_u64() == Some(id)).unwrap();
+            let snr = label["snr"].as_f64().unwrap();
+            if t["limit"].is_null() {
+                solved += 1;
+                assert!((snr / asked - 1.0).abs() < 0.02, "sequence {k}: asked {asked}, the frame has {snr}");
+            }
+        }
+    }
+    assert!(solved >= 3, "{solved} targets solved");
+    let card = std::fs::read_to_string(out.join("README.md")).unwrap();
+    assert!(card.contains("| SNR at the middle frames | 4 – 40 (uniform);"), "{card}");
+    python_check(&out);
+
+    // a sequence that drew an image records again from its own folder
+    let k = scenarios.iter().position(|s| s.contains("../../skies/")).unwrap();
+    let seq = out.join(format!("sequences/seq_{k:06}"));
+    let again = dir.join("again");
+    let (code, _, err) = irsim(&[
+        "record",
+        seq.join("scenario.toml").to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+        "--masks",
+        "--quiet",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(std::fs::read(again.join("labels.jsonl")).unwrap(), std::fs::read(seq.join("labels.jsonl")).unwrap());
+    assert_eq!(
+        std::fs::read(again.join("frames/000003.png")).unwrap(),
+        std::fs::read(seq.join("frames/000003.png")).unwrap()
+    );
+
+    // the same dataset with another image under the same name is refused, nothing touched
+    std::fs::copy(skies.join("clear.png"), skies.join("cumulus.png")).unwrap();
+    let (code, err) = run(&spec, &out, "1/1");
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("not the same image"), "{err}");
+    assert!(files(&out) == trees[0]);
+    // an image that does not decode is refused with the spec's place, before anything is written
+    std::fs::write(skies.join("broken.png"), b"\x89PNG not really").unwrap();
+    let (code, err) = run(&spec, &dir.join("out3"), "1/1");
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("moving.toml:22:") && err.contains("`sky.images.folder`") && err.contains("broken.png"),
+        "{err}"
+    );
+    assert!(!dir.join("out3").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Runs tests/python/check_dataset.py on `dir` where python3 has pycocotools and motmetrics; with
 /// `IRSIM_REQUIRE_PYTHON_TOOLS` set (CI), their absence is a failure.
 fn python_check(dir: &Path) {
@@ -262,6 +394,42 @@ fn bad_specs_are_refused_with_file_line_column_and_field() {
         (("\"bird\"]", "\"dragon\"]"), "classes[2]", 9),
         (("quality = \"draft\"", "quality = \"best\""), "quality", 6),
         (("kinds = [", "kind = ["), "sky.kind", 14),
+        (("range_m = [300, 1500]", "snr = [5, nan]"), "snr", 11),
+        (("range_m = [300, 1500]", "snr = [50, 5]"), "snr", 11),
+        (("range_m = [300, 1500]", "snr = [5, 50]\nsnr_draw = \"gaussian\""), "snr_draw", 12),
+        (("range_m = [300, 1500]", "# no range"), "range_m", 1),
+        (("\"none\"]", "\"none\", \"image\"]"), "sky.kinds", 14),
+        (("[sky]", "[observer]\nheading_deg = [0, 90]\n[sky]"), "observer.heading_deg", 14),
+        (("[sky]", "[observer]\nspeed_m_s = [10, 5]\n[sky]"), "observer.speed_m_s", 14),
+        (
+            ("[sky]", "[observer]\nspeed_m_s = [10, 50]\nturn_rate_deg_s = [0, 90]\n[sky]"),
+            "observer.turn_rate_deg_s",
+            15,
+        ),
+        (
+            (
+                "\"none\"]",
+                "\"image\"]\n[sky.images]\nfolder = \"nowhere\"\ncalibration = { mode = \"temperature\", value_range = [0, 65535], temp_range_k = [205, 265] }",
+            ),
+            "sky.images.folder",
+            16,
+        ),
+        (
+            (
+                "\"none\"]",
+                "\"image\"]\n[sky.images]\nfolder = \".\"\ncalibration = { mode = \"temperature\", value_range = [1, 1], temp_range_k = [205, 265] }",
+            ),
+            "sky.images.calibration.value_range",
+            17,
+        ),
+        (
+            (
+                "\"none\"]",
+                "\"none\"]\n[sky.images]\nfolder = \".\"\ncalibration = { mode = \"kelvin\", scale_k = 0.01 }",
+            ),
+            "sky.images",
+            15,
+        ),
     ] {
         let spec = dir.join("bad.toml");
         let text = SPEC.replace(change.0, change.1);

@@ -19,9 +19,10 @@ use serde_json::json;
 
 use super::CliError;
 use super::run::{RecordPlan, record_scenario, stop_flag_and_bar};
-use crate::dataset::DatasetSpec;
 use crate::dataset::merge::{MergeError, complete, merge, sequence_dir};
-use crate::record::{FrameFormat, write_atomic};
+use crate::dataset::solve::solve;
+use crate::dataset::{DatasetSpec, SKY_IMAGE_EXTENSIONS, SkyFile};
+use crate::record::{FrameFormat, write_atomic, write_shared};
 use crate::scenario::load::{Format, load_str};
 
 /// `irsim dataset`.
@@ -116,7 +117,9 @@ pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
     let spec = DatasetSpec::from_str(&spec_text, &spec_path.display().to_string())
         .map_err(|e| CliError::Invalid(e.to_string()))?;
     let out = out.as_path();
+    let found = find_skies(&spec, &spec_text, spec_path)?;
     prepare_out(out, spec_text.as_bytes())?;
+    let skies = copy_skies(found, out)?;
     let mine: Vec<u64> = (0..spec.sequences).filter(|&k| a.shard.owns(k)).collect();
     let todo: Vec<u64> = mine.iter().copied().filter(|&k| a.force || !complete(&sequence_dir(out, k))).collect();
     let (stop, bar) = stop_flag_and_bar(a.quiet, todo.len() as u64 * spec.frames);
@@ -128,7 +131,8 @@ pub fn dataset(a: &DatasetArgs) -> Result<(), CliError> {
         }
         bar.set_message(format!("sequence {k} ({} of {})", n + 1, todo.len()));
         let done_before = n as u64 * spec.frames;
-        let finished = record_sequence(&spec, out, k, &stop, &mut |written| bar.set_position(done_before + written))?;
+        let finished =
+            record_sequence(&spec, out, k, &skies, &stop, &mut |written| bar.set_position(done_before + written))?;
         if !finished {
             break;
         }
@@ -234,9 +238,76 @@ fn prepare_out(out: &Path, spec_text: &[u8]) -> Result<(), CliError> {
         std::fs::create_dir_all(&dir).map_err(|e| io(&dir, e))?;
     }
     if !spec_file.exists() {
-        write_atomic(&spec_file, spec_text).map_err(|e| CliError::Failed(e.to_string()))?;
+        write_shared(&spec_file, spec_text).map_err(|e| CliError::Failed(e.to_string()))?;
     }
     Ok(())
+}
+
+/// The images of the spec's sky folder (`sky.images.folder`, relative to the spec) with their paths, in name
+/// order, each decoded once to check it.
+fn find_skies(spec: &DatasetSpec, text: &str, spec_path: &Path) -> Result<Vec<(SkyFile, PathBuf)>, CliError> {
+    let Some(images) = &spec.sky.images else { return Ok(Vec::new()) };
+    let file = spec_path.display().to_string();
+    let bad = |m: String| CliError::Invalid(DatasetSpec::error_at(text, &file, "sky.images.folder", m).to_string());
+    let folder = spec_path.parent().unwrap_or(Path::new(".")).join(&images.folder);
+    let listing = std::fs::read_dir(&folder).map_err(|e| bad(format!("{}: cannot read: {e}", folder.display())))?;
+    let mut names = Vec::new();
+    for entry in listing {
+        let entry = entry.map_err(|e| bad(format!("{}: {e}", folder.display())))?;
+        let path = entry.path();
+        let known = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| SKY_IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
+        if known && path.is_file() {
+            let name = entry.file_name().into_string().map_err(|n| bad(format!("{n:?}: not a UTF-8 file name")))?;
+            if name.starts_with('.') || name.contains(['"', '\\']) || name.chars().any(char::is_control) {
+                return Err(bad(format!("{}: rename it without quotes, backslashes or a leading dot", path.display())));
+            }
+            names.push(name);
+        }
+    }
+    names.sort();
+    if names.is_empty() {
+        return Err(bad(format!(
+            "{} holds no image ({})",
+            folder.display(),
+            SKY_IMAGE_EXTENSIONS.map(|e| format!(".{e}")).join(", ")
+        )));
+    }
+    let mut found = Vec::new();
+    for name in names {
+        let path = folder.join(&name);
+        let image = crate::imaging::sky_plane::SkyImage::load(&path).map_err(|e| bad(e.to_string()))?;
+        found.push((SkyFile { name, width: image.width(), height: image.height() }, path));
+    }
+    Ok(found)
+}
+
+/// Copies the sky images into `out/skies/`, which the sequences' scenarios name; a copy already there must be
+/// the same bytes (a dataset is made from one set of images).
+fn copy_skies(found: Vec<(SkyFile, PathBuf)>, out: &Path) -> Result<Vec<SkyFile>, CliError> {
+    let mut skies = Vec::new();
+    for (sky, source) in found {
+        let dir = out.join("skies");
+        std::fs::create_dir_all(&dir).map_err(|e| io(&dir, e))?;
+        let bytes = std::fs::read(&source).map_err(|e| io(&source, e))?;
+        let copy = dir.join(&sky.name);
+        match std::fs::read(&copy) {
+            Ok(there) if there == bytes => {}
+            Ok(_) => {
+                return Err(CliError::Invalid(format!(
+                    "{} is not the same image as {}: {} was made with other sky images; give another --out",
+                    copy.display(),
+                    source.display(),
+                    out.display()
+                )));
+            }
+            Err(_) => write_shared(&copy, &bytes).map_err(|e| CliError::Failed(e.to_string()))?,
+        }
+        skies.push(sky);
+    }
+    Ok(skies)
 }
 
 /// Draws and records sequence `k` into its directory, with the extra frames the spec asks for; false when
@@ -245,15 +316,20 @@ fn record_sequence(
     spec: &DatasetSpec,
     out: &Path,
     k: u64,
+    skies: &[SkyFile],
     stop: &Arc<AtomicBool>,
     progress: &mut dyn FnMut(u64),
 ) -> Result<bool, CliError> {
-    let text = spec.sequence_scenario(k).map_err(|e| CliError::Failed(format!("sequence {k}: {e}")))?;
     let fin = sequence_dir(out, k);
+    // the partial directory is as deep as the final one: the scenario's relative paths (`../../skies/…`) hold
+    // in both
     let partial = out.join("sequences").join(format!(".seq_{k:06}.partial"));
     if partial.exists() {
         std::fs::remove_dir_all(&partial).map_err(|e| io(&partial, e))?;
     }
+    std::fs::create_dir_all(&partial).map_err(|e| io(&partial, e))?;
+    let solved = solve(spec, k, skies, &partial).map_err(|e| CliError::Failed(format!("sequence {k}: {e}")))?;
+    let text = solved.drawn.scenario();
     let plan = RecordPlan {
         out: partial.clone(),
         first_frame: 0,
@@ -267,7 +343,7 @@ fn record_sequence(
         masks: true,
         reproducible: true,
     };
-    if !record_drawn(&text, k, out, &plan, stop, progress)? {
+    if !record_drawn(&text, k, &partial, &plan, stop, progress)? {
         return Ok(false);
     }
     // the extra frames: recorded apart, their frames kept beside the sequence's
@@ -276,18 +352,27 @@ fn record_sequence(
         if !wanted {
             continue;
         }
-        let scenario = if background {
-            spec.sequence_background(k).map_err(|e| CliError::Failed(format!("sequence {k}: {e}")))?
-        } else {
-            text.clone()
-        };
+        let scenario = if background { solved.drawn.background() } else { text.clone() };
         let run_dir = partial.join(format!(".{name}"));
         let extra = RecordPlan { out: run_dir.clone(), noise: false, masks: false, ..plan.clone() };
-        if !record_drawn(&scenario, k, out, &extra, stop, &mut |_| {})? {
+        if !record_drawn(&scenario, k, &partial, &extra, stop, &mut |_| {})? {
             return Ok(false);
         }
         std::fs::rename(run_dir.join("frames"), partial.join(name)).map_err(|e| io(&partial.join(name), e))?;
         std::fs::remove_dir_all(&run_dir).map_err(|e| io(&run_dir, e))?;
+    }
+    if !solved.targets.is_empty() {
+        let targets: Vec<_> = solved
+            .targets
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                json!({ "id": i + 1, "asked": t.asked, "reached": t.reached, "range_m": t.range_m, "limit": t.limit })
+            })
+            .collect();
+        let record = json!({ "frame": solved.drawn.middle_frame, "iterations": solved.iterations, "targets": targets });
+        write_atomic(&partial.join("snr_solve.json"), format!("{record:#}\n").as_bytes())
+            .map_err(|e| CliError::Failed(e.to_string()))?;
     }
     write_atomic(&partial.join("scenario.toml"), text.as_bytes()).map_err(|e| CliError::Failed(e.to_string()))?;
     if fin.exists() {
@@ -297,16 +382,17 @@ fn record_sequence(
     Ok(true)
 }
 
-/// Records the drawn scenario `text` of sequence `k` as `plan` says; false when `stop` ended it first.
+/// Records the drawn scenario `text` of sequence `k` as `plan` says, its relative paths resolved in `base`;
+/// false when `stop` ended it first.
 fn record_drawn(
     text: &str,
     k: u64,
-    out: &Path,
+    base: &Path,
     plan: &RecordPlan,
     stop: &Arc<AtomicBool>,
     progress: &mut dyn FnMut(u64),
 ) -> Result<bool, CliError> {
-    let scenario = load_str(text, Format::Toml, Path::new("scenario.toml"), out).map_err(|e| {
+    let scenario = load_str(text, Format::Toml, Path::new("scenario.toml"), base).map_err(|e| {
         CliError::Failed(format!("sequence {k}: the drawn scenario is refused: {e} (please report it)"))
     })?;
     let done = record_scenario(&scenario, plan, stop, &mut |written, _| progress(written))?;

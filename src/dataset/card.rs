@@ -19,8 +19,9 @@ pub fn register_plot_font() {
     );
 }
 
-/// One annotation as the card counts it: class index, SNR, size (mask pixels), range (m), detectable.
-pub type Sample = (usize, f64, f64, f64, bool);
+/// One annotation as the card counts it: class index, SNR, size (mask pixels), range (m), detectable, and
+/// whether it is in its sequence's middle frame (where a spec's `snr` is asked).
+pub type Sample = (usize, f64, f64, f64, bool, bool);
 
 /// Counts and distributions of a dataset.
 #[derive(Debug, Default)]
@@ -32,6 +33,7 @@ pub struct Stats {
     /// Sequences per camera preset.
     sensors: BTreeMap<String, u64>,
     snr: Vec<f64>,
+    snr_middle: Vec<f64>,
     size_px: Vec<f64>,
     range_m: Vec<f64>,
     detectable: u64,
@@ -48,10 +50,13 @@ impl Stats {
             e.2 += samples.len() as u64;
             *s.sensors.entry(sensor.to_owned()).or_default() += 1;
             let mut seen = vec![false; TargetClass::ALL.len()];
-            for (class, snr, size, range, detectable) in samples {
+            for (class, snr, size, range, detectable, middle) in samples {
                 s.classes[class].0 += 1;
                 seen[class] = true;
                 s.snr.push(snr);
+                if middle {
+                    s.snr_middle.push(snr);
+                }
                 s.size_px.push(size);
                 s.range_m.push(range);
                 s.detectable += u64::from(detectable);
@@ -153,13 +158,24 @@ pub fn write(dir: &Path, spec: &DatasetSpec, st: &Stats) -> Result<(), String> {
         );
     };
     row(&mut md, "SNR", "–".into(), &st.snr);
+    if let Some([a, b]) = spec.snr {
+        // the solve reaches the asked SNR within 1 %, or stops at an end of range_m
+        let inside = st.snr_middle.iter().filter(|&&v| v >= a * 0.99 && v <= b * 1.01).count();
+        let draw = match spec.snr_draw {
+            super::SnrDraw::Uniform => "uniform",
+            super::SnrDraw::LogUniform => "log-uniform",
+        };
+        row(
+            &mut md,
+            "SNR at the middle frames",
+            format!("{a} – {b} ({draw}); {inside} of {} targets there within it", st.snr_middle.len()),
+            &st.snr_middle,
+        );
+    }
     row(&mut md, "size, mask pixels", "–".into(), &st.size_px);
-    row(
-        &mut md,
-        "range, m",
-        format!("{} – {} at each sequence's middle", spec.range_m[0], spec.range_m[1]),
-        &st.range_m,
-    );
+    let [r0, r1] = spec.range_m();
+    let placed = if spec.snr.is_some() { "solved for the SNR within" } else { "at each sequence's middle:" };
+    row(&mut md, "range, m", format!("{placed} {r0} – {r1}"), &st.range_m);
     md.push_str("\n![SNR](card/snr.png)\n\n![size](card/size.png)\n\n![range](card/range.png)\n\n");
     md.push_str(
         "## Files\n\n| path | format |\n|---|---|\n\

@@ -625,7 +625,10 @@ fn merge_staged(
             s.sensor.as_str(),
             s.frames
                 .iter()
-                .flat_map(|f| f.annotations.iter().map(|a| (a.class, a.snr, a.area, a.range_m, a.detectable)))
+                .flat_map(|f| {
+                    let middle = f.frame == spec.frames / 2;
+                    f.annotations.iter().map(move |a| (a.class, a.snr, a.area, a.range_m, a.detectable, middle))
+                })
                 .collect::<Vec<_>>(),
             s.frames.len() as u64,
         )

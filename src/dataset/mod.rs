@@ -7,6 +7,7 @@
 pub mod card;
 pub mod classes;
 pub mod merge;
+pub mod solve;
 
 use std::fmt::Write as _;
 
@@ -14,6 +15,7 @@ use glam::DVec3;
 use serde::Deserialize;
 
 use crate::imaging::frame::PngCompression;
+use crate::imaging::sky_field::SkyCalibration;
 use crate::physics::detector::Preset;
 use crate::physics::random::{SplitMix64, mix64};
 use crate::scenario::load::{ScenarioError, line_col};
@@ -82,9 +84,17 @@ pub struct DatasetSpec {
     pub classes: Vec<String>,
     /// Trajectory families to draw from.
     pub trajectories: Vec<String>,
-    /// Range from the observer at the sequence's middle, m.
-    #[serde(deserialize_with = "pair")]
-    pub range_m: Range,
+    /// Range from the observer at the sequence's middle, m; with `snr`, the ranges the solve may use
+    /// ([`DEFAULT_SNR_RANGE_M`] unless given).
+    #[serde(default, deserialize_with = "optional_pair")]
+    pub range_m: Option<Range>,
+    /// Each target's signal-to-noise ratio at the sequence's middle frame (the label's `snr`): its range is
+    /// solved for it (by simulating that frame) instead of drawn.
+    #[serde(default, deserialize_with = "optional_pair")]
+    pub snr: Option<Range>,
+    /// How `snr` is drawn.
+    #[serde(default)]
+    pub snr_draw: SnrDraw,
     /// The observer.
     #[serde(default)]
     pub observer: ObserverSpec,
@@ -101,6 +111,20 @@ pub struct DatasetSpec {
     #[serde(default)]
     pub outputs: OutputSpec,
 }
+
+/// How a target's SNR is drawn from `snr`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SnrDraw {
+    /// Uniform between the ends.
+    #[default]
+    Uniform,
+    /// Uniform in the logarithm: as many targets between 2 and 4 as between 20 and 40.
+    LogUniform,
+}
+
+/// The ranges an SNR solve may use when the spec gives `snr` without `range_m`, m.
+pub const DEFAULT_SNR_RANGE_M: Range = [50.0, 20_000.0];
 
 /// Fractions of the sequences in each set (whole sequences: a set never holds frames of another's sequence).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
@@ -182,11 +206,34 @@ pub struct ObserverSpec {
     /// Line-of-sight jitter amplitude, degrees.
     #[serde(deserialize_with = "pair")]
     pub vibration_deg: Range,
+    /// The platform's ground speed, m/s; absent, the observer stands still (and the fields below are refused).
+    /// A moving camera looks in a fixed direction relative to its velocity.
+    #[serde(deserialize_with = "optional_pair")]
+    pub speed_m_s: Option<Range>,
+    /// Flight heading relative to the line of sight's azimuth, degrees (0: looking ahead, 90: looking left of
+    /// the track); default all round, [−180, 180].
+    #[serde(deserialize_with = "optional_pair")]
+    pub heading_deg: Option<Range>,
+    /// Turn rate, degrees per second, positive to the right (clockwise seen from above): the view pans with the
+    /// platform; default straight, [0, 0].
+    #[serde(deserialize_with = "optional_pair")]
+    pub turn_rate_deg_s: Option<Range>,
+    /// Climb rate, m/s; default level, [0, 0].
+    #[serde(deserialize_with = "optional_pair")]
+    pub climb_m_s: Option<Range>,
 }
 
 impl Default for ObserverSpec {
     fn default() -> Self {
-        Self { altitude_m: [100.0, 1000.0], look_elevation_deg: [2.0, 15.0], vibration_deg: [0.0, 0.02] }
+        Self {
+            altitude_m: [100.0, 1000.0],
+            look_elevation_deg: [2.0, 15.0],
+            vibration_deg: [0.0, 0.02],
+            speed_m_s: None,
+            heading_deg: None,
+            turn_rate_deg_s: None,
+            climb_m_s: None,
+        }
     }
 }
 
@@ -202,13 +249,61 @@ pub struct SkySpec {
     /// Distance of the layer, m (at least twice the largest target range).
     #[serde(deserialize_with = "pair")]
     pub distance_m: Range,
+    /// The user's sky images the kind `image` draws from.
+    pub images: Option<SkyImagesSpec>,
 }
 
 impl Default for SkySpec {
     fn default() -> Self {
-        Self { kinds: vec!["clear".into(), "cumulus".into()], cover: [0.2, 0.6], distance_m: [8000.0, 20000.0] }
+        Self {
+            kinds: vec!["clear".into(), "cumulus".into()],
+            cover: [0.2, 0.6],
+            distance_m: [8000.0, 20000.0],
+            images: None,
+        }
     }
 }
+
+/// A folder of infrared sky images, and how they are placed in the world.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkyImagesSpec {
+    /// The folder, relative to the spec file: every PNG, TIFF and PNM in it (not its subfolders), in name order.
+    /// They are copied into the dataset's `skies/`, which the sequences' scenarios name.
+    pub folder: String,
+    /// How the images' values become radiance (as a scenario's `sky.calibration`), the same for every image.
+    pub calibration: SkyCalibration,
+    /// Width of the image over the width of the view at the layer's distance (1.3 or more keeps the view, its
+    /// jitter and its pan inside the image); the height follows the image's aspect.
+    #[serde(default = "default_span", deserialize_with = "pair")]
+    pub span: Range,
+    /// Rotation of the image in its plane, degrees (positive counter-clockwise as seen from the camera).
+    #[serde(default, deserialize_with = "pair")]
+    pub roll_deg: Range,
+    /// The images hold the radiance at their plane (a cloud's own), not at the camera: each texel is seen
+    /// through the air between (the scenario's `atmosphere.sky_path`). Default false: the image is what a camera
+    /// near the observer saw.
+    #[serde(default)]
+    pub at_plane: bool,
+}
+
+fn default_span() -> Range {
+    [1.5, 3.0]
+}
+
+/// One image of [`SkyImagesSpec::folder`], as the draw needs it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SkyFile {
+    /// File name (in the dataset's `skies/`).
+    pub name: String,
+    /// Width, px.
+    pub width: usize,
+    /// Height, px.
+    pub height: usize,
+}
+
+/// The file extensions a sky folder's images may have.
+pub const SKY_IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "pgm", "ppm", "pnm"];
 
 /// How the weather is drawn.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -232,7 +327,7 @@ impl Default for AtmosphereSpec {
 /// The trajectory families a target's path is drawn from.
 pub const TRAJECTORIES: [&str; 5] = ["straight", "crossing", "approach", "coordinated_turn", "weave"];
 /// The sky kinds.
-pub const SKY_KINDS: [&str; 3] = ["clear", "cumulus", "none"];
+pub const SKY_KINDS: [&str; 4] = ["clear", "cumulus", "image", "none"];
 /// The model atmospheres of the LOWTRAN table.
 pub const MODELS: [&str; 6] = [
     "tropical",
@@ -283,6 +378,13 @@ impl DatasetSpec {
         })?;
         spec.check().map_err(|(field, message)| at(&field, message, None))?;
         Ok(spec)
+    }
+
+    /// An error at `field` of the spec `text` (read from `file`): for what only the run can see (a sky folder).
+    pub fn error_at(text: &str, file: &str, field: &str, message: String) -> SpecError {
+        let offset = Nodes::toml(text).nearest(field).map_or(0, |n| n.key_start);
+        let (line, column) = line_col(text, offset);
+        SpecError { file: file.to_owned(), line, column, field: field.to_owned(), message }
     }
 
     /// `(field, message)` for the first value out of bounds.
@@ -347,13 +449,57 @@ impl DatasetSpec {
         let class_names: Vec<&str> = TargetClass::ALL.iter().map(|c| c.name).collect();
         names("classes", &self.classes, &class_names)?;
         names("trajectories", &self.trajectories, &TRAJECTORIES)?;
-        range("range_m", self.range_m, 10.0, 200_000.0)?;
-        range("observer.altitude_m", self.observer.altitude_m, 0.0, 20_000.0)?;
-        range("observer.look_elevation_deg", self.observer.look_elevation_deg, -30.0, 89.0)?;
-        range("observer.vibration_deg", self.observer.vibration_deg, 0.0, 5.0)?;
+        match (self.range_m, self.snr) {
+            (None, None) => return err("range_m", "give range_m ([min, max] m), or snr to solve ranges for".into()),
+            (Some(r), _) => range("range_m", r, 10.0, 200_000.0)?,
+            (None, Some(_)) => {}
+        }
+        if let Some(r) = self.snr {
+            range("snr", r, 0.01, 1e6)?;
+        }
+        let o = &self.observer;
+        range("observer.altitude_m", o.altitude_m, 0.0, 20_000.0)?;
+        range("observer.look_elevation_deg", o.look_elevation_deg, -30.0, 89.0)?;
+        range("observer.vibration_deg", o.vibration_deg, 0.0, 5.0)?;
+        if let Some(r) = o.speed_m_s {
+            range("observer.speed_m_s", r, 0.0, 1000.0)?;
+        }
+        let moving = [
+            ("observer.heading_deg", o.heading_deg, -360.0, 360.0),
+            ("observer.turn_rate_deg_s", o.turn_rate_deg_s, -30.0, 30.0),
+            ("observer.climb_m_s", o.climb_m_s, -100.0, 100.0),
+        ];
+        for (f, r, lo, hi) in moving {
+            if let Some(r) = r {
+                if o.speed_m_s.is_none() {
+                    return err(f, "the observer stands still without observer.speed_m_s: give it too".into());
+                }
+                range(f, r, lo, hi)?;
+            }
+        }
         names("sky.kinds", &self.sky.kinds, &SKY_KINDS)?;
         range("sky.cover", self.sky.cover, 0.0, 1.0)?;
         range("sky.distance_m", self.sky.distance_m, 100.0, 1e6)?;
+        let wants_images = self.sky.kinds.iter().any(|k| k == "image");
+        match &self.sky.images {
+            None if wants_images => {
+                return err("sky.kinds", "`image` needs a [sky.images] table (folder and calibration)".into());
+            }
+            Some(_) if !wants_images => {
+                return err("sky.images", "no `image` in sky.kinds: add it, or remove [sky.images]".into());
+            }
+            Some(images) => {
+                if images.folder.trim().is_empty() {
+                    return err("sky.images.folder", "give the folder of sky images".into());
+                }
+                images.calibration.validate().map_err(|e| {
+                    (format!("sky.images.calibration.{}", e.name), format!("{} is outside {}", e.value, e.range))
+                })?;
+                range("sky.images.span", images.span, 0.1, 100.0)?;
+                range("sky.images.roll_deg", images.roll_deg, -180.0, 180.0)?;
+            }
+            None => {}
+        }
         names("atmosphere.models", &self.atmosphere.models, &MODELS)?;
         names("atmosphere.aerosols", &self.atmosphere.aerosols, &AEROSOLS)?;
         range("atmosphere.visibility_km", self.atmosphere.visibility_km, 2.0, 200.0)?;
@@ -393,26 +539,31 @@ impl DatasetSpec {
         sets
     }
 
-    /// The scenario of sequence `k` as TOML text: everything drawn from the sequence's own stream.
-    ///
-    /// # Errors
-    /// A message when the drawn camera cannot be resolved (a preset the crate no longer knows).
-    pub fn sequence_scenario(&self, k: u64) -> Result<String, String> {
-        self.sequence_scenario_parts(k).map(|(scene, targets, tail)| scene + &targets + &tail)
+    /// The range `[min, max]` targets are placed at, m (`range_m`, or the SNR solve's default).
+    pub fn range_m(&self) -> Range {
+        self.range_m.unwrap_or(DEFAULT_SNR_RANGE_M)
     }
 
-    /// Sequence `k`'s scenario without its targets: the background its frames are drawn on.
+    /// The scenario of sequence `k` as TOML text: everything drawn from the sequence's own stream (without an
+    /// SNR solve: with `snr`, each target at its drawn range; [`Self::draw`] places them again).
+    ///
+    /// # Errors
+    /// A message when the drawn camera cannot be resolved (a preset the crate no longer knows), or the sky image
+    /// drawn is not among `skies`.
+    pub fn sequence_scenario(&self, k: u64, skies: &[SkyFile]) -> Result<String, String> {
+        self.draw(k, None, skies).map(|d| d.scenario())
+    }
+
+    /// Sequence `k`, drawn from its own stream; with `ranges`, target `i` placed at `ranges[i]` m along the same
+    /// line of sight instead of its drawn range (every other draw the same).
     ///
     /// # Errors
     /// As [`Self::sequence_scenario`].
-    pub fn sequence_background(&self, k: u64) -> Result<String, String> {
-        self.sequence_scenario_parts(k).map(|(scene, _, tail)| scene + &tail)
-    }
-
-    /// Sequence `k`'s scenario in three parts: the scene, the targets, and what follows them.
-    fn sequence_scenario_parts(&self, k: u64) -> Result<(String, String, String), String> {
+    pub fn draw(&self, k: u64, ranges: Option<&[f64]>, skies: &[SkyFile]) -> Result<Drawn, String> {
         let mut rng = Draw(SplitMix64::substream(mix64(self.seed ^ 0x6461_7461_7365_7473), k));
         let duration_s = self.frames as f64 / self.frame_rate_hz;
+        // the middle frame's time: every target is in view then, and the observer where it was drawn
+        let t_mid = (self.frames / 2) as f64 / self.frame_rate_hz;
         let mut s = String::new();
         let _ = writeln!(s, "# sequence {k} of dataset `{}` (seed {}), drawn by irsim dataset", self.name, self.seed);
         let _ = writeln!(s, "name = \"{}_{k:06}\"\n", self.name);
@@ -434,7 +585,7 @@ impl DatasetSpec {
         }
         s.push('\n');
 
-        // the observer: where it looks
+        // the observer: where it is and looks at the middle frame, and how it moves
         let alt = rng.uniform(self.observer.altitude_m);
         let yaw = rng.uniform([0.0, 360.0]).to_radians();
         let elevation = rng.uniform(self.observer.look_elevation_deg).to_radians();
@@ -442,37 +593,125 @@ impl DatasetSpec {
         let dir = |yaw: f64, el: f64| DVec3::new(yaw.sin() * el.cos(), yaw.cos() * el.cos(), el.sin());
         let look = eye + dir(yaw, elevation) * 10_000.0;
         let vibration = rng.uniform(self.observer.vibration_deg);
+        let motion = self.observer.speed_m_s.map(|speed| {
+            let speed = rng.uniform(speed);
+            let heading = yaw + rng.uniform(self.observer.heading_deg.unwrap_or([-180.0, 180.0])).to_radians();
+            let turn = rng.uniform(self.observer.turn_rate_deg_s.unwrap_or([0.0, 0.0]));
+            let climb = rng.uniform(self.observer.climb_m_s.unwrap_or([0.0, 0.0]));
+            (speed, heading, turn, climb)
+        });
+        // how far the view pans either side of the middle one, rad
+        let mut pan = 0.0;
+        let (trajectory, pointing) = match motion {
+            Some((speed, heading, turn, climb)) if speed >= 0.1 => {
+                // looking at a fixed angle from the velocity; at the middle frame, at (yaw, elevation) from `eye`
+                let path = climb.atan2(speed);
+                let pointing = format!(
+                    "{{ mode = \"along_velocity\", yaw_offset_deg = {}, pitch_offset_deg = {} }}",
+                    num(wrap_deg((yaw - heading).to_degrees())),
+                    num((elevation - path).to_degrees())
+                );
+                let trajectory = if turn.abs() >= 0.01 {
+                    let rate = turn.abs().to_radians();
+                    pan = rate * t_mid.max(duration_s - t_mid);
+                    let radius = speed / rate;
+                    let clockwise = turn > 0.0;
+                    // the centre lies on the turn's side of the track; the platform's bearing from it at the
+                    // middle is the heading ∓ 90°, and it turns by the rate times the time before that
+                    let right = DVec3::new(heading.cos(), -heading.sin(), 0.0);
+                    let side = if clockwise { 1.0 } else { -1.0 };
+                    let centre = eye + right * side * radius - DVec3::Z * climb * t_mid;
+                    let bearing_mid = heading.to_degrees() - side * 90.0;
+                    let bearing_0 = bearing_mid - side * turn.abs() * t_mid;
+                    format!(
+                        "{{ kind = \"coordinated_turn\", center_m = {}, radius_m = {}, speed_m_s = {}, start_bearing_deg = {}, clockwise = {clockwise}, climb_m_s = {} }}",
+                        vec3(centre),
+                        num(radius),
+                        num(speed),
+                        num(wrap_deg(bearing_0)),
+                        num(climb)
+                    )
+                } else {
+                    let velocity = DVec3::new(heading.sin() * speed, heading.cos() * speed, climb);
+                    format!(
+                        "{{ kind = \"constant_velocity\", position_m = {}, velocity_m_s = {} }}",
+                        vec3(eye - velocity * t_mid),
+                        vec3(velocity)
+                    )
+                };
+                (trajectory, pointing)
+            }
+            _ => (
+                format!("{{ kind = \"constant_velocity\", position_m = [0, 0, {}] }}", num(alt)),
+                format!("{{ mode = \"look_at\", target_m = {} }}", vec3(look)),
+            ),
+        };
         let _ = writeln!(
             s,
-            "[observer]\ntrajectory = {{ kind = \"constant_velocity\", position_m = [0, 0, {}] }}\npointing = {{ mode = \"look_at\", target_m = {} }}\nvibration = {{ amplitude_deg = {}, cutoff_hz = 10 }}\n",
-            num(alt),
-            vec3(look),
+            "[observer]\ntrajectory = {trajectory}\npointing = {pointing}\nvibration = {{ amplitude_deg = {}, cutoff_hz = 10 }}\n",
             num(vibration)
         );
 
-        // the sky layer, far behind every target, wide enough for the view and its jitter
+        // the sky layer, far behind every target, wide enough for the view, its jitter and its pan
         let sky_kind = rng.pick(&self.sky.kinds);
         let cover = rng.uniform(self.sky.cover);
-        let distance = rng.uniform(self.sky.distance_m).max(2.0 * self.range_m[1]);
+        let range_m = self.range_m();
+        let distance = rng.uniform(self.sky.distance_m).max(2.0 * range_m[1]);
         let sky_seed = rng.bits() >> 11;
         if sky_kind != "none" {
-            // 30 % beyond the field of view, and twice the jitter's amplitude more
+            // 30 % beyond the field of view, and twice the jitter's amplitude more (a plane covers up to ±80°)
             let reach = 2.0 * vibration.to_radians();
-            let width = 2.0 * distance * (1.3 * half_w + reach).tan();
-            let height = 2.0 * distance * (1.3 * half_h + reach).tan();
+            let limit = 80f64.to_radians();
+            let view_w = 2.0 * distance * (1.3 * half_w + reach + pan).min(limit).tan();
+            let view_h = 2.0 * distance * (1.3 * half_h + reach).min(limit).tan();
             let anchor = eye + DVec3::new(yaw.sin(), yaw.cos(), elevation.tan()) * distance;
-            let generate = if sky_kind == "cumulus" {
-                format!("{{ kind = \"cumulus\", cover = {}, seed = {sky_seed} }}", num(cover))
+            if sky_kind == "image" {
+                let images = self.sky.images.as_ref().ok_or("`image` without [sky.images]")?;
+                if skies.is_empty() {
+                    return Err(format!("no sky images in {}", images.folder));
+                }
+                let image = &skies[(rng.bits() % skies.len() as u64) as usize];
+                let span = rng.uniform(images.span);
+                let roll = rng.uniform(images.roll_deg).to_radians();
+                let (w_px, h_px) = (image.width as f64, image.height as f64);
+                let width = span * view_w;
+                let height = width * h_px / w_px;
+                // the view's middle on a point of the image that keeps the view inside it where it fits
+                let free = |view: f64, size: f64| (0.5 * (1.0 - view / size)).max(0.0);
+                let (fu, fv) = (free(view_w, width), free(view_h, height));
+                let u = w_px * (0.5 + rng.uniform([-fu, fu]));
+                let v = h_px * (0.5 + rng.uniform([-fv, fv]));
+                // the plane faces the camera; its up turned by the roll about the line of sight
+                let toward = DVec3::new(-yaw.sin(), -yaw.cos(), 0.0);
+                let right = DVec3::new(yaw.cos(), -yaw.sin(), 0.0);
+                let up = DVec3::Z * roll.cos() - right * roll.sin();
+                let _ = writeln!(
+                    s,
+                    "[sky]\nimage = \"../../skies/{}\"\ncalibration = {}\nanchor_m = {}\nanchor_px = [{}, {}]\nwidth_m = {}\nheight_m = {}\nnormal = {}\nup = {}\n",
+                    image.name,
+                    calibration_toml(&images.calibration),
+                    vec3(anchor),
+                    num(u),
+                    num(v),
+                    num(width),
+                    num(height),
+                    vec3(toward),
+                    vec3(up)
+                );
             } else {
-                format!("{{ kind = \"clear\", haze = 0.3, seed = {sky_seed} }}")
-            };
-            let _ = writeln!(
-                s,
-                "[sky]\ngenerate = {generate}\nanchor_m = {}\nwidth_m = {}\nheight_m = {}\nmax_texels = 2048\n",
-                vec3(anchor),
-                num(width),
-                num(height)
-            );
+                let generate = if sky_kind == "cumulus" {
+                    format!("{{ kind = \"cumulus\", cover = {}, seed = {sky_seed} }}", num(cover))
+                } else {
+                    format!("{{ kind = \"clear\", haze = 0.3, seed = {sky_seed} }}")
+                };
+                let _ = writeln!(
+                    s,
+                    "[sky]\ngenerate = {generate}\nanchor_m = {}\nwidth_m = {}\nheight_m = {}\nmax_texels = 2048\n",
+                    vec3(anchor),
+                    num(view_w),
+                    num(view_h)
+                );
+            }
         }
 
         // the weather
@@ -484,16 +723,31 @@ impl DatasetSpec {
             let [lo, hi] = visibility_range_km(aerosol);
             let _ = writeln!(s, "visibility_km = {}", num(visibility.clamp(lo, hi)));
         }
+        if sky_kind == "image" && self.sky.images.as_ref().is_some_and(|i| i.at_plane) {
+            s.push_str("sky_path = true\n");
+        }
         s.push('\n');
 
         // the targets, each in view at the sequence's middle
         let scene = std::mem::take(&mut s);
         let [n0, n1] = self.targets_per_sequence;
         let n = n0 + rng.bits() % (n1 - n0 + 1);
+        let mut asked_snr = Vec::new();
+        let mut drawn_ranges = Vec::new();
         for i in 0..n {
             let class = TargetClass::named(rng.pick(&self.classes)).ok_or("unknown class")?;
             let family = rng.pick(&self.trajectories);
-            let range = rng.uniform(self.range_m);
+            let mut range = rng.uniform(range_m);
+            if let Some(r) = self.snr {
+                asked_snr.push(match self.snr_draw {
+                    SnrDraw::Uniform => rng.uniform(r),
+                    SnrDraw::LogUniform => rng.uniform([r[0].ln(), r[1].ln()]).exp(),
+                });
+            }
+            drawn_ranges.push(range);
+            if let Some(&r) = ranges.and_then(|r| r.get(i as usize)) {
+                range = r;
+            }
             let az = yaw + rng.uniform([-0.7, 0.7]) * half_w;
             let el = elevation + rng.uniform([-0.7, 0.7]) * half_h;
             let mut mid = eye + dir(az, el) * range;
@@ -513,18 +767,22 @@ impl DatasetSpec {
             };
             let trajectory = match family {
                 "coordinated_turn" => {
-                    // a turn at 3–12 °/s through the middle point
-                    let rate = rng.uniform([3.0, 12.0]).to_radians();
+                    // a turn at 3–12 °/s through the middle point at the middle frame
+                    let rate_deg = rng.uniform([3.0, 12.0]);
+                    let rate = rate_deg.to_radians();
                     let radius = (speed / rate).max(1.0);
                     let bearing = rng.uniform([0.0, 360.0]);
                     let b = bearing.to_radians();
                     let centre = DVec3::new(mid.x - radius * b.sin(), mid.y - radius * b.cos(), mid.z);
+                    // the bearing grows with time in a clockwise turn
+                    let turned = speed / radius * t_mid;
+                    let start = bearing - side * turned.to_degrees();
                     format!(
                         "{{ kind = \"coordinated_turn\", center_m = {}, radius_m = {}, speed_m_s = {}, start_bearing_deg = {}, clockwise = {} }}",
                         vec3(centre),
                         num(radius),
                         num(speed),
-                        num(bearing),
+                        num(wrap_deg(start)),
                         side > 0.0
                     )
                 }
@@ -538,22 +796,23 @@ impl DatasetSpec {
                     for j in 0..=steps + 2 {
                         let t = j as f64 * 0.5 - 0.5;
                         let p = mid
-                            + velocity * (t - 0.5 * duration_s)
-                            + across * amplitude * (std::f64::consts::TAU * t / period).sin();
+                            + velocity * (t - t_mid)
+                            + across * amplitude * (std::f64::consts::TAU * (t - t_mid) / period).sin();
                         points.push(format!("[{}, {}, {}, {}]", num(t), num(p.x), num(p.y), num(p.z)));
                     }
                     format!("{{ kind = \"waypoints\", points = [{}] }}", points.join(", "))
                 }
                 _ => format!(
                     "{{ kind = \"constant_velocity\", position_m = {}, velocity_m_s = {} }}",
-                    vec3(mid - velocity * 0.5 * duration_s),
+                    vec3(mid - velocity * t_mid),
                     vec3(velocity)
                 ),
             };
             let [a, b, c] = class.semi_axes_m.map(|v| v * scale);
+            let snr_note = asked_snr.last().map(|v| format!(", SNR {} asked", num(*v))).unwrap_or_default();
             let _ = writeln!(
                 s,
-                "[[targets]]\nname = \"{}_{i}\"\n# class {}, {family}, {} m away at the middle\ntrajectory = {trajectory}\nsemi_axes_m = [{}, {}, {}]\nemissivity = {}\nheating_k = {}\n",
+                "[[targets]]\nname = \"{}_{i}\"\n# class {}, {family}, {} m away at the middle{snr_note}\ntrajectory = {trajectory}\nsemi_axes_m = [{}, {}, {}]\nemissivity = {}\nheating_k = {}\n",
                 class.name,
                 class.name,
                 num(range),
@@ -569,7 +828,58 @@ impl DatasetSpec {
             let _ = writeln!(tail, "preset = \"{q}\"");
         }
         let _ = writeln!(tail, "fusion_guidance = \"{}\"", self.fusion_guidance);
-        Ok((scene, s, tail))
+        Ok(Drawn { scene, targets: s, tail, asked_snr, drawn_ranges, middle_frame: self.frames / 2 })
+    }
+}
+
+/// One sequence as drawn: its scenario in three parts, and what an SNR solve needs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Drawn {
+    /// Everything before the targets.
+    pub scene: String,
+    /// The `[[targets]]` tables.
+    pub targets: String,
+    /// What follows the targets.
+    pub tail: String,
+    /// Each target's asked SNR (empty without `snr`).
+    pub asked_snr: Vec<f64>,
+    /// Each target's drawn range, m.
+    pub drawn_ranges: Vec<f64>,
+    /// The frame at which every target is in view and the SNR is asked.
+    pub middle_frame: u64,
+}
+
+impl Drawn {
+    /// The whole scenario.
+    pub fn scenario(&self) -> String {
+        format!("{}{}{}", self.scene, self.targets, self.tail)
+    }
+
+    /// The scenario without its targets: the background its frames are drawn on.
+    pub fn background(&self) -> String {
+        format!("{}{}", self.scene, self.tail)
+    }
+}
+
+/// An angle brought into (−180°, 180°].
+fn wrap_deg(a: f64) -> f64 {
+    let r = a.rem_euclid(360.0);
+    if r > 180.0 { r - 360.0 } else { r }
+}
+
+/// A sky calibration as a TOML inline table.
+fn calibration_toml(c: &SkyCalibration) -> String {
+    match *c {
+        SkyCalibration::Kelvin { scale_k, offset_k } => {
+            format!("{{ mode = \"kelvin\", scale_k = {scale_k:?}, offset_k = {offset_k:?} }}")
+        }
+        SkyCalibration::Temperature { value_range, temp_range_k } => format!(
+            "{{ mode = \"temperature\", value_range = [{:?}, {:?}], temp_range_k = [{:?}, {:?}] }}",
+            value_range[0], value_range[1], temp_range_k[0], temp_range_k[1]
+        ),
+        SkyCalibration::Radiance { gain, offset } => {
+            format!("{{ mode = \"radiance\", gain = {gain:?}, offset = {offset:?} }}")
+        }
     }
 }
 
@@ -656,8 +966,8 @@ mod tests {
     #[test]
     fn the_background_scenario_is_the_sequence_without_its_targets() {
         let s = spec(3, [0.8, 0.1, 0.1]);
-        let full = s.sequence_scenario(2).unwrap();
-        let bg = s.sequence_background(2).unwrap();
+        let drawn = s.draw(2, None, &[]).unwrap();
+        let (full, bg) = (drawn.scenario(), drawn.background());
         assert!(full.contains("[[targets]]") && !bg.contains("[[targets]]"));
         assert!(full.starts_with(&bg[..bg.find("[quality]").unwrap()]));
         assert!(bg.contains("fusion_guidance = \"additive\""));

@@ -78,16 +78,33 @@ fn io_err(path: &Path, e: impl std::fmt::Display) -> RecordError {
 /// The I/O error with the path.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
     let tmp = path.with_extension(format!("{}.tmp", path.extension().and_then(|e| e.to_str()).unwrap_or("")));
+    write_through(&tmp, path, bytes)
+}
+
+/// Writes `bytes` to `tmp`, syncs it and renames it to `path`; `tmp` is removed on failure.
+fn write_through(tmp: &Path, path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
     let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
+        let mut f = std::fs::File::create(tmp)?;
         f.write_all(bytes)?;
         f.sync_data()?;
-        std::fs::rename(&tmp, path)
+        std::fs::rename(tmp, path)
     })();
     result.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
+        let _ = std::fs::remove_file(tmp);
         io_err(path, e)
     })
+}
+
+/// [`write_atomic`] for a file that several processes may write at once with the same bytes (the shards of a
+/// dataset, each putting its spec in place): the temporary file is this process's own, so a rename never takes
+/// another's half-written file.
+///
+/// # Errors
+/// The I/O error with the path.
+pub fn write_shared(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
+    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    write_through(&tmp, path, bytes)
 }
 
 /// Name of the lock file a recording holds in its output directory.
