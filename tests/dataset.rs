@@ -116,21 +116,7 @@ fn sequences_are_the_same_bytes_for_any_shard_count_and_a_rerun_skips_them() {
     let seq = dir.join("out1/sequences/seq_000001");
     let (code, _, err) = irsim(&["validate", seq.join("scenario.toml").to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
-    let again = dir.join("again");
-    let (code, _, err) = irsim(&[
-        "record",
-        seq.join("scenario.toml").to_str().unwrap(),
-        "--out",
-        again.to_str().unwrap(),
-        "--masks",
-        "--quiet",
-    ]);
-    assert_eq!(code, 0, "{err}");
-    assert_eq!(
-        std::fs::read(again.join("frames/000002.png")).unwrap(),
-        std::fs::read(seq.join("frames/000002.png")).unwrap()
-    );
-    assert_eq!(std::fs::read(again.join("labels.jsonl")).unwrap(), std::fs::read(seq.join("labels.jsonl")).unwrap());
+    records_again(&seq, &dir.join("again"), "000002.png");
 
     // a rerun finds everything complete; a left-over partial sequence (a pre-empted run) is made again
     let out = dir.join("out1");
@@ -252,21 +238,7 @@ fn snr_solves_moving_cameras_and_user_skies_are_the_same_bytes_for_any_shard_cou
     // a sequence that drew an image records again from its own folder
     let k = scenarios.iter().position(|s| s.contains("../../skies/")).unwrap();
     let seq = out.join(format!("sequences/seq_{k:06}"));
-    let again = dir.join("again");
-    let (code, _, err) = irsim(&[
-        "record",
-        seq.join("scenario.toml").to_str().unwrap(),
-        "--out",
-        again.to_str().unwrap(),
-        "--masks",
-        "--quiet",
-    ]);
-    assert_eq!(code, 0, "{err}");
-    assert_eq!(std::fs::read(again.join("labels.jsonl")).unwrap(), std::fs::read(seq.join("labels.jsonl")).unwrap());
-    assert_eq!(
-        std::fs::read(again.join("frames/000003.png")).unwrap(),
-        std::fs::read(seq.join("frames/000003.png")).unwrap()
-    );
+    records_again(&seq, &dir.join("again"), "000003.png");
 
     // the same dataset with another image under the same name is refused, nothing touched
     std::fs::copy(skies.join("clear.png"), skies.join("cumulus.png")).unwrap();
@@ -284,6 +256,17 @@ fn snr_solves_moving_cameras_and_user_skies_are_the_same_bytes_for_any_shard_cou
     );
     assert!(!dir.join("out3").exists());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `irsim record` of the sequence `seq`'s own scenario into `again` gives its labels and its frame `frame` again.
+fn records_again(seq: &Path, again: &Path, frame: &str) {
+    let scenario = seq.join("scenario.toml");
+    let (code, _, err) =
+        irsim(&["record", scenario.to_str().unwrap(), "--out", again.to_str().unwrap(), "--masks", "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(std::fs::read(again.join("labels.jsonl")).unwrap(), std::fs::read(seq.join("labels.jsonl")).unwrap());
+    let frames = Path::new("frames").join(frame);
+    assert_eq!(std::fs::read(again.join(&frames)).unwrap(), std::fs::read(seq.join(&frames)).unwrap(), "{frame}");
 }
 
 /// Runs tests/python/check_dataset.py on `dir` where python3 has pycocotools and motmetrics; with

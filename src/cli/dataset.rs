@@ -288,9 +288,11 @@ fn find_skies(spec: &DatasetSpec, text: &str, spec_path: &Path) -> Result<Vec<(S
 /// the same bytes (a dataset is made from one set of images).
 fn copy_skies(found: Vec<(SkyFile, PathBuf)>, out: &Path) -> Result<Vec<SkyFile>, CliError> {
     let mut skies = Vec::new();
-    for (sky, source) in found {
-        let dir = out.join("skies");
+    let dir = out.join("skies");
+    if !found.is_empty() {
         std::fs::create_dir_all(&dir).map_err(|e| io(&dir, e))?;
+    }
+    for (sky, source) in found {
         let bytes = std::fs::read(&source).map_err(|e| io(&source, e))?;
         let copy = dir.join(&sky.name);
         match std::fs::read(&copy) {
