@@ -15,6 +15,7 @@ use plotters::prelude::*;
 
 use super::CliError;
 use super::run::{bench_dir, bench_scenario, with_quality_spec};
+use crate::dataset::card;
 use crate::labels::FrameLabels;
 use crate::record::write_atomic;
 use crate::scenario::load::{load_for_frames, located};
@@ -269,25 +270,6 @@ pub(super) fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
 }
 
-/// Ticks at 1, 2 and 5 times the powers of ten in `[lo, hi]`: a log axis spanning little more than a decade
-/// otherwise has one or two labels.
-fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
-    if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
-        return Vec::new();
-    }
-    let mut ticks = Vec::new();
-    for k in lo.log10().floor() as i32..=hi.log10().ceil() as i32 {
-        for m in [1, 2, 5] {
-            // parsed from decimal text, so that a tick prints as "0.005", not "0.005000000000000001"
-            let v: f64 = format!("{m}e{k}").parse().unwrap_or(f64::NAN);
-            if v >= lo && v <= hi {
-                ticks.push(v);
-            }
-        }
-    }
-    ticks
-}
-
 /// A text box: left, top, right, bottom, px.
 type TextBox = (i32, i32, i32, i32);
 
@@ -385,8 +367,8 @@ fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
             .x_label_area_size(50)
             .y_label_area_size(80)
             .build_cartesian_2d(
-                (x0..x1).log_scale().with_key_points(log_ticks(x0, x1)),
-                (y0..y1).log_scale().with_key_points(log_ticks(y0, y1)),
+                (x0..x1).log_scale().with_key_points(card::log_ticks(x0, x1)),
+                (y0..y1).log_scale().with_key_points(card::log_ticks(y0, y1)),
             )
             .map_err(failed)?;
         chart
@@ -458,7 +440,7 @@ fn plot(path: &Path, title: &str, x_desc: &str, y_desc: &str, series: &[Series],
 
 /// An RGB buffer written as a PNG, atomically.
 fn write_png(path: &Path, w: u32, h: u32, buf: Vec<u8>) -> Result<(), CliError> {
-    let png = crate::dataset::card::rgb_png(w, h, buf).map_err(failed)?;
+    let png = card::rgb_png(w, h, buf).map_err(failed)?;
     write_atomic(path, &png).map_err(failed)
 }
 
@@ -603,7 +585,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     if md_path.exists() && !a.force {
         return Err(CliError::Invalid(format!("{}: holds a report already (--force replaces it)", a.out.display())));
     }
-    crate::dataset::card::register_plot_font();
+    card::register_plot_font();
     let started = Instant::now();
     let mut scenario_paths: Vec<PathBuf> = std::fs::read_dir(&a.scenarios)
         .map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenarios.display())))?
@@ -1098,12 +1080,6 @@ mod tests {
         let (at, b) = legend_corner(&[(30, 20), (60, 40), (780, 590)], (120, 50), area);
         assert!(matches!(at, SeriesLabelPosition::UpperRight | SeriesLabelPosition::LowerLeft), "{at:?}");
         assert!(b.0 >= 0 && b.2 <= 800 && b.1 >= 0 && b.3 <= 600);
-    }
-
-    #[test]
-    fn log_ticks_one_two_five() {
-        assert_eq!(log_ticks(70.0, 3000.0), vec![100.0, 200.0, 500.0, 1000.0, 2000.0]);
-        assert_eq!(log_ticks(0.003, 0.02), vec![0.005, 0.01, 0.02]);
     }
 
     #[test]

@@ -19,6 +19,25 @@ pub fn register_plot_font() {
     );
 }
 
+/// Ticks at 1, 2 and 5 times the powers of ten in `[lo, hi]`: a log axis spanning little more than a decade
+/// otherwise has one or two labels.
+pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
+        return Vec::new();
+    }
+    let mut ticks = Vec::new();
+    for k in lo.log10().floor() as i32..=hi.log10().ceil() as i32 {
+        for m in [1, 2, 5] {
+            // parsed from decimal text, so that a tick prints as "0.005", not "0.005000000000000001"
+            let v: f64 = format!("{m}e{k}").parse().unwrap_or(f64::NAN);
+            if v >= lo && v <= hi {
+                ticks.push(v);
+            }
+        }
+    }
+    ticks
+}
+
 /// One annotation as the card counts it: class index, SNR, size (mask pixels), range (m), detectable, and
 /// whether it is in its sequence's middle frame (where a spec's `snr` is asked).
 pub type Sample = (usize, f64, f64, f64, bool, bool);
@@ -229,7 +248,7 @@ fn histogram(path: &Path, title: &str, x_desc: &str, values: &[f64], log: bool) 
                     .x_desc(x_desc)
                     .y_desc("targets × frames")
                     .y_label_formatter(&|v| format!("{v:.0}"))
-                    .x_label_formatter(&|v| sig(*v))
+                    .x_label_formatter(&|v| if log { format!("{v}") } else { sig(*v) })
                     .label_style(("sans-serif", 15))
                     .axis_desc_style(("sans-serif", 17))
                     .draw()
@@ -238,7 +257,7 @@ fn histogram(path: &Path, title: &str, x_desc: &str, values: &[f64], log: bool) 
             }};
         }
         if log {
-            finish!(b.build_cartesian_2d((lo..hi).log_scale(), 0.0..top));
+            finish!(b.build_cartesian_2d((lo..hi).log_scale().with_key_points(log_ticks(lo, hi)), 0.0..top));
         } else {
             finish!(b.build_cartesian_2d(lo..hi, 0.0..top));
         }
@@ -309,4 +328,16 @@ pub fn rgb_png(w: u32, h: u32, buf: Vec<u8>) -> Result<Vec<u8>, String> {
     let mut png = Vec::new();
     image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| e.to_string())?;
     Ok(png)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn log_ticks_one_two_five() {
+        assert_eq!(log_ticks(70.0, 3000.0), vec![100.0, 200.0, 500.0, 1000.0, 2000.0]);
+        assert_eq!(log_ticks(0.003, 0.02), vec![0.005, 0.01, 0.02]);
+        assert_eq!(log_ticks(1.99, 60.0), vec![2.0, 5.0, 10.0, 20.0, 50.0]);
+    }
 }
