@@ -47,6 +47,9 @@ pub struct TargetLabel {
     pub ellipse_px: EllipseLabel,
     /// Distance from the camera, m.
     pub range_m: f64,
+    /// Height of the target's centre above the ground (the world's z), m.
+    #[serde(default)]
+    pub altitude_m: f64,
     /// Largest signal the target adds over its background, DN (signed: a target colder than the sky is
     /// negative).
     pub peak_dn: f64,

@@ -38,9 +38,24 @@ pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
     ticks
 }
 
-/// One annotation as the card counts it: class index, SNR, size (mask pixels), range (m), detectable, and
-/// whether it is in its sequence's middle frame (where a spec's `snr` is asked).
-pub type Sample = (usize, f64, f64, f64, bool, bool);
+/// One annotation as the card counts it.
+#[derive(Debug, Clone, Copy)]
+pub struct Sample {
+    /// Index in [`TargetClass::ALL`].
+    pub class: usize,
+    /// Peak over the temporal noise.
+    pub snr: f64,
+    /// Mask pixels.
+    pub size_px: f64,
+    /// Distance from the camera, m.
+    pub range_m: f64,
+    /// Height above the ground, m.
+    pub altitude_m: f64,
+    /// SNR at least the scenario's detection threshold.
+    pub detectable: bool,
+    /// In its sequence's middle frame (where a spec's `snr` and the class altitudes are asked).
+    pub middle: bool,
+}
 
 /// Counts and distributions of a dataset.
 #[derive(Debug, Default)]
@@ -49,6 +64,8 @@ pub struct Stats {
     sets: BTreeMap<Set, (u64, u64, u64)>,
     /// Per class: annotations, and the sequences it appears in.
     classes: Vec<(u64, u64)>,
+    /// Per class: the altitudes of its annotations, and of those in the middle frames.
+    altitudes: Vec<(Vec<f64>, Vec<f64>)>,
     /// Sequences per camera preset.
     sensors: BTreeMap<String, u64>,
     snr: Vec<f64>,
@@ -61,7 +78,8 @@ pub struct Stats {
 impl Stats {
     /// From each sequence's set, camera, annotations and frame count.
     pub fn gather<'a>(seqs: impl Iterator<Item = (Set, &'a str, Vec<Sample>, u64)>) -> Self {
-        let mut s = Self { classes: vec![(0, 0); TargetClass::ALL.len()], ..Self::default() };
+        let n = TargetClass::ALL.len();
+        let mut s = Self { classes: vec![(0, 0); n], altitudes: vec![Default::default(); n], ..Self::default() };
         for (set, sensor, samples, frames) in seqs {
             let e = s.sets.entry(set).or_default();
             e.0 += 1;
@@ -69,16 +87,18 @@ impl Stats {
             e.2 += samples.len() as u64;
             *s.sensors.entry(sensor.to_owned()).or_default() += 1;
             let mut seen = vec![false; TargetClass::ALL.len()];
-            for (class, snr, size, range, detectable, middle) in samples {
-                s.classes[class].0 += 1;
-                seen[class] = true;
-                s.snr.push(snr);
-                if middle {
-                    s.snr_middle.push(snr);
+            for a in samples {
+                s.classes[a.class].0 += 1;
+                seen[a.class] = true;
+                s.snr.push(a.snr);
+                s.altitudes[a.class].0.push(a.altitude_m);
+                if a.middle {
+                    s.snr_middle.push(a.snr);
+                    s.altitudes[a.class].1.push(a.altitude_m);
                 }
-                s.size_px.push(size);
-                s.range_m.push(range);
-                s.detectable += u64::from(detectable);
+                s.size_px.push(a.size_px);
+                s.range_m.push(a.range_m);
+                s.detectable += u64::from(a.detectable);
             }
             for (c, seen) in s.classes.iter_mut().zip(seen) {
                 c.1 += u64::from(seen);
@@ -156,10 +176,29 @@ pub fn write(dir: &Path, spec: &DatasetSpec, st: &Stats) -> Result<(), String> {
         let (n, f, a) = st.sets.get(&set).copied().unwrap_or_default();
         let _ = writeln!(md, "| {} | {n} | {f} | {a} |", set.name());
     }
-    md.push_str("\n## Classes\n\n| class | annotations | sequences |\n|---|---:|---:|\n");
-    for (c, (a, s)) in TargetClass::ALL.iter().zip(&st.classes) {
+    md.push_str(
+        "\n## Classes\n\nAltitudes above the ground (5th percentile, median, 95th percentile of the annotations), \
+         and how many targets of the middle frames fly within their class's altitudes",
+    );
+    md.push_str(if spec.class_altitudes {
+        " (asked: each target is placed within them where its view reaches them).\n\n"
+    } else {
+        " (not asked: `class_altitudes = false`).\n\n"
+    });
+    md.push_str("| class | annotations | sequences | altitude, m | p5 | median | p95 | middle frames within |\n|---|---:|---:|---|---:|---:|---:|---:|\n");
+    for ((c, (a, s)), (alts, middle)) in TargetClass::ALL.iter().zip(&st.classes).zip(&st.altitudes) {
         if *a > 0 || spec.classes.iter().any(|n| n == c.name) {
-            let _ = writeln!(md, "| `{}` | {a} | {s} |", c.name);
+            let [lo, hi] = c.altitude_m;
+            let within = middle.iter().filter(|&&z| z >= lo - 1.0 && z <= hi + 1.0).count();
+            let _ = writeln!(
+                md,
+                "| `{}` | {a} | {s} | {lo} – {hi} | {} | {} | {} | {within} of {} |",
+                c.name,
+                sig(quantile(alts, 0.05)),
+                sig(quantile(alts, 0.5)),
+                sig(quantile(alts, 0.95)),
+                middle.len()
+            );
         }
     }
     md.push_str("\n![annotations per class](card/class.png)\n\n## Cameras\n\n| preset | sequences |\n|---|---:|\n");

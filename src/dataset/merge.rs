@@ -80,6 +80,7 @@ struct Annotation {
     snr: f64,
     scr: f64,
     range_m: f64,
+    altitude_m: f64,
     peak_dn: f64,
     local_contrast: f64,
     apparent_temp_k: f64,
@@ -222,6 +223,7 @@ fn read_sequence(out: &Path, stage: &Path, spec: &DatasetSpec, k: u64, set: Set)
                 snr: t.snr,
                 scr: t.scr,
                 range_m: t.range_m,
+                altitude_m: t.altitude_m,
                 peak_dn: t.peak_dn,
                 local_contrast: t.local_contrast,
                 apparent_temp_k: t.apparent_temp_k,
@@ -342,6 +344,7 @@ fn coco(spec: &DatasetSpec, seqs: &[&SequenceEntry], set: Option<Set>) -> Value 
                         "snr": a.snr,
                         "scr": a.scr,
                         "range_m": a.range_m,
+                        "altitude_m": a.altitude_m,
                         "peak_dn": a.peak_dn,
                         "local_contrast": a.local_contrast,
                         "apparent_temp_k": a.apparent_temp_k,
@@ -627,7 +630,15 @@ fn merge_staged(
                 .iter()
                 .flat_map(|f| {
                     let middle = f.frame == spec.frames / 2;
-                    f.annotations.iter().map(move |a| (a.class, a.snr, a.area, a.range_m, a.detectable, middle))
+                    f.annotations.iter().map(move |a| super::card::Sample {
+                        class: a.class,
+                        snr: a.snr,
+                        size_px: a.area,
+                        range_m: a.range_m,
+                        altitude_m: a.altitude_m,
+                        detectable: a.detectable,
+                        middle,
+                    })
                 })
                 .collect::<Vec<_>>(),
             s.frames.len() as u64,

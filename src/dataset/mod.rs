@@ -84,6 +84,9 @@ pub struct DatasetSpec {
     pub classes: Vec<String>,
     /// Trajectory families to draw from.
     pub trajectories: Vec<String>,
+    /// Place each target, where the view allows, within its class's altitudes (true unless given).
+    #[serde(default = "default_true")]
+    pub class_altitudes: bool,
     /// Range from the observer at the sequence's middle, m; with `snr`, the ranges the solve may use
     /// ([`DEFAULT_SNR_RANGE_M`] unless given).
     #[serde(default, deserialize_with = "optional_pair")]
@@ -177,6 +180,10 @@ impl Set {
             Set::Test => "test",
         }
     }
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn default_frame_rate() -> f64 {
@@ -749,7 +756,10 @@ impl DatasetSpec {
                 range = r;
             }
             let az = yaw + rng.uniform([-0.7, 0.7]) * half_w;
-            let el = elevation + rng.uniform([-0.7, 0.7]) * half_h;
+            // within 70 % of the half view, and where the view reaches them, the class's altitudes
+            let view = [elevation - 0.7 * half_h, elevation + 0.7 * half_h];
+            let band = if self.class_altitudes { class.altitude_m } else { [f64::NEG_INFINITY, f64::INFINITY] };
+            let el = rng.uniform(elevations_at_altitudes(view, alt, range, band));
             let mut mid = eye + dir(az, el) * range;
             // above the ground by at least 20 m
             mid.z = mid.z.max(20.0);
@@ -812,15 +822,20 @@ impl DatasetSpec {
             let snr_note = asked_snr.last().map(|v| format!(", SNR {} asked", num(*v))).unwrap_or_default();
             let _ = writeln!(
                 s,
-                "[[targets]]\nname = \"{}_{i}\"\n# class {}, {family}, {} m away at the middle{snr_note}\ntrajectory = {trajectory}\nsemi_axes_m = [{}, {}, {}]\nemissivity = {}\nheating_k = {}\n",
+                "[[targets]]\nname = \"{}_{i}\"\n# class {}, {family}, {} m away and {} m up at the middle{snr_note}\ntrajectory = {trajectory}\nsemi_axes_m = [{}, {}, {}]\nemissivity = {}\nheating_k = {}\nbrdf = {{ kd = {}, ks = {}, f0 = {}, roughness = {} }}\n",
                 class.name,
                 class.name,
                 num(range),
+                num(mid.z.round()),
                 num(a),
                 num(b),
                 num(c),
                 num(class.emissivity),
                 num(rng.uniform(class.heating_k)),
+                num(class.brdf.kd),
+                num(class.brdf.ks),
+                num(class.brdf.f0),
+                num(class.brdf.roughness),
             );
         }
         let mut tail = String::from("[quality]\n");
@@ -862,6 +877,22 @@ impl Drawn {
 }
 
 /// An angle brought into (−180°, 180°].
+/// The elevations of `view` (rad) at which a point `range` m from an eye `eye_alt` m up is within `band` m up:
+/// the part of `view` whose altitude `eye_alt + range·sin(el)` lies in `band`, or, where none does, the end of
+/// `view` nearest the band (the target stays in view).
+fn elevations_at_altitudes(view: Range, eye_alt: f64, range: f64, band: Range) -> Range {
+    let el = |alt: f64| ((alt - eye_alt) / range).clamp(-1.0, 1.0).asin();
+    let (lo, hi) = (view[0].max(el(band[0])), view[1].min(el(band[1])));
+    if lo <= hi {
+        [lo, hi]
+    } else if lo > view[1] {
+        // the band lies above the view
+        [view[1], view[1]]
+    } else {
+        [view[0], view[0]]
+    }
+}
+
 fn wrap_deg(a: f64) -> f64 {
     let r = a.rem_euclid(360.0);
     if r > 180.0 { r - 360.0 } else { r }
@@ -961,6 +992,42 @@ mod tests {
             assert_eq!(e.field, field, "{e}");
             assert!(e.line >= 10, "{e}");
         }
+    }
+
+    #[test]
+    fn targets_fly_within_their_class_s_altitudes_where_the_view_reaches_them() {
+        // the elevations of the view at which the band is reached
+        let view = [-0.05, 0.05];
+        let [lo, hi] = elevations_at_altitudes(view, 100.0, 1000.0, [90.0, 120.0]);
+        assert!(lo >= view[0] && hi <= view[1] && lo < hi);
+        for el in [lo, hi, 0.5 * (lo + hi)] {
+            let z = 100.0 + 1000.0 * el.sin();
+            assert!((90.0 - 1e-9..=120.0 + 1e-9).contains(&z), "{z}");
+        }
+        // a band above or below the view: its nearest edge
+        assert_eq!(elevations_at_altitudes(view, 100.0, 1000.0, [500.0, 900.0]), [0.05, 0.05]);
+        assert_eq!(elevations_at_altitudes(view, 100.0, 1000.0, [0.0, 10.0]), [-0.05, -0.05]);
+        // drawn sequences from low cameras with a wide view (±7° up and down): every multirotor between 5 and 500 m
+        // at the middle frame, and the same spec without the bands puts some above
+        let text = "name = \"t\"\nseed = 5\nsequences = 40\nframes = 2\nsensors = [\"uncooled_lwir_microbolometer\"]\ntargets_per_sequence = [3, 3]\nclasses = [\"small_multirotor\"]\ntrajectories = [\"straight\", \"coordinated_turn\", \"weave\"]\nrange_m = [1000, 6000]\n[observer]\naltitude_m = [100, 300]\nlook_elevation_deg = [0, 2]\n";
+        let heights = |text: &str| -> Vec<f64> {
+            let s = DatasetSpec::from_str(text, "t.toml").unwrap();
+            (0..s.sequences)
+                .flat_map(|k| {
+                    let drawn = s.draw(k, None, &[]).unwrap();
+                    drawn
+                        .targets
+                        .lines()
+                        .filter_map(|l| l.split(" m away and ").nth(1)?.split(" m up").next()?.parse().ok())
+                        .collect::<Vec<f64>>()
+                })
+                .collect()
+        };
+        let banded = heights(text);
+        assert_eq!(banded.len(), 120);
+        assert!(banded.iter().all(|z| (5.0..=500.0).contains(z)), "{banded:?}");
+        let free = heights(&text.replace("range_m", "class_altitudes = false\nrange_m"));
+        assert!(free.iter().any(|&z| z > 500.0), "{free:?}");
     }
 
     #[test]

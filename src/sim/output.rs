@@ -8,8 +8,8 @@ use bevy::prelude::FixedUpdate;
 use wgpu_types::{Extent3d, TextureDimension, TextureFormat};
 
 use super::{
-    Aircraft, Footprint, FrameOutput, FramePool, LabelScratch, OutputSystems, Sensor, SensorFrame, Signature, SimClock,
-    SimSettings, TargetPatches,
+    Aircraft, Footprint, FrameOutput, FramePool, Kinematics, LabelScratch, OutputSystems, Sensor, SensorFrame,
+    Signature, SimClock, SimSettings, TargetPatches,
 };
 use crate::imaging::frame::Frame;
 use crate::imaging::target_blob::ImageEllipse;
@@ -86,7 +86,7 @@ pub fn collect_labels(
     patches: Res<TargetPatches>,
     mut scratch: ResMut<LabelScratch>,
     sensor: Query<(&Sensor, &SensorFrame)>,
-    targets: Query<(&Aircraft, &Footprint, &Signature)>,
+    targets: Query<(&Aircraft, &Footprint, &Signature, &Kinematics)>,
 ) {
     let Ok((sensor, sf)) = sensor.single() else { return };
     let out = &mut *output;
@@ -95,14 +95,15 @@ pub fn collect_labels(
     out.labels.targets.clear();
     let (w, h) = (sf.frame.width(), sf.frame.height());
     let mut sorted: Vec<_> = targets.iter().collect();
-    sorted.sort_by_key(|(a, _, _)| a.id);
+    sorted.sort_by_key(|(a, _, _, _)| a.id);
     let blur_1e = sensor.psf.as_ref().map_or(0.0, |p| 0.6006 * p.fwhm_px());
     let model = &sensor.resolved.model;
-    for (aircraft, fp, sig) in &sorted {
+    for (aircraft, fp, sig, kin) in &sorted {
         let mut label = TargetLabel {
             id: aircraft.id,
             name: aircraft.name.clone(),
             range_m: fp.range_m,
+            altitude_m: kin.position_m.z,
             mach: sig.mach,
             skin_temp_k: sig.signal.map_or(0.0, |s| s.skin_temp_k),
             apparent_temp_k: sig.signal.map_or(0.0, |s| {
@@ -143,7 +144,7 @@ pub fn collect_labels(
     if settings.masks {
         let mut drawn: Vec<MaskPatch<'_>> = sorted
             .iter()
-            .filter_map(|(aircraft, fp, _)| {
+            .filter_map(|(aircraft, fp, _, _)| {
                 let (rect, values) = &patches.patches[fp.patch?];
                 Some(MaskPatch { id: aircraft.id, range_m: fp.range_m, rect: *rect, values, peak: fp.peak_radiance })
             })
