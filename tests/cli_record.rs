@@ -377,3 +377,48 @@ fn bench_times_a_given_scenario() {
     let (code, _, err) = irsim(&["bench", "no/such/scenario.toml"]);
     assert_eq!(code, 2, "{err}");
 }
+
+#[test]
+fn every_instruction_set_and_thread_count_gives_the_same_frames() {
+    // the per-pixel kernels run with AVX-512, AVX2 or the baseline as the CPU allows (IRSIM_SIMD caps it), on
+    // any number of threads: the frames are the same bytes
+    let dir = temp_dir("simd");
+    let scenario = root().join("scenarios/sense_and_avoid.toml");
+    for quality in ["standard", "draft"] {
+        let runs = [("native", None, "2"), ("baseline", Some("baseline"), "1"), ("avx2", Some("avx2"), "2")];
+        let mut frames: Vec<Vec<u8>> = Vec::new();
+        for (name, simd, threads) in runs {
+            let out = dir.join(format!("{quality}-{name}"));
+            let mut c = Command::new(env!("CARGO_BIN_EXE_irsim"));
+            c.args(["record", scenario.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "2"])
+                .args(["--quality", quality, "--quiet"])
+                .env("RAYON_NUM_THREADS", threads);
+            match simd {
+                Some(level) => c.env("IRSIM_SIMD", level),
+                None => c.env_remove("IRSIM_SIMD"),
+            };
+            let o = c.output().unwrap();
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            let bytes = std::fs::read(out.join("frames/000001.png")).unwrap();
+            if let Some(first) = frames.first() {
+                assert!(*first == bytes, "{quality}: {name} differs from the native run");
+            }
+            frames.push(bytes);
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bench_limits_prints_each_bound_and_ratio() {
+    let (code, out, err) = irsim(&["bench", "--limits", "--frames", "10"]);
+    assert_eq!(code, 0, "{err}");
+    for size in ["256x256", "640x512"] {
+        let line = out.lines().find(|l| l.starts_with(size)).unwrap_or_else(|| panic!("{size}: {out}"));
+        let numbers: Vec<f64> =
+            line.split(|c: char| c.is_whitespace() || c == '|' || c == 'x').filter_map(|w| w.parse().ok()).collect();
+        // size, threads, five bounds, three stages, three ratios: every one positive and finite
+        assert!(numbers.len() >= 13, "{line}");
+        assert!(numbers.iter().all(|v| v.is_finite() && *v > 0.0), "{line}");
+    }
+}

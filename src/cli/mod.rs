@@ -5,6 +5,7 @@
 pub mod atmosphere;
 pub mod calc;
 pub mod dataset;
+pub mod limits;
 pub mod opencv;
 pub mod report;
 pub mod run;

@@ -942,7 +942,7 @@ fn kernel_section(md: &mut String, n: usize) {
         2.0 * normal_cdf(-4.0)
     );
     let mut z = vec![0f32; n];
-    for sampler in [NormalSampler::Ziggurat, NormalSampler::Table] {
+    for sampler in [NormalSampler::Ziggurat, NormalSampler::BoxMuller, NormalSampler::Table] {
         let mut best = f64::INFINITY;
         for round in 0..5 {
             let mut rng = SplitMix64::substream(0x5EED, round);

@@ -140,6 +140,10 @@ pub struct BenchArgs {
     /// Accuracy against speed: draft, standard or reference, in place of each scenario's `[quality]` table.
     #[arg(long, value_name = "PRESET")]
     pub quality: Option<QualityPreset>,
+    /// Per-pixel lower bounds (store, bilinear sample, normal deviate, readout, all fused) measured beside the
+    /// pipeline's stages at 256×256 and 640×512 on 1 and 2 threads, with the ratios.
+    #[arg(long, conflicts_with_all = ["scenarios", "quality"])]
+    pub limits: bool,
 }
 
 /// What `irsim bench` can do besides timing.
@@ -621,9 +625,29 @@ height_m = 4000
     s
 }
 
-/// Frames per second of `scenario` run headless without disk writes, over `frames` frames after 10 warm-up
-/// frames, and lines on where the time went (per stage, the sky blur).
-fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<(f64, Vec<String>), CliError> {
+/// Where a headless run's time went: the mean wall time of a frame and of each stage, µs.
+#[derive(Debug, Clone)]
+pub(super) struct StageSplit {
+    /// Wall time per frame, the schedule's own time included.
+    pub frame_us: f64,
+    /// Per stage, in pipeline order.
+    pub stages_us: Vec<(&'static str, f64)>,
+}
+
+impl StageSplit {
+    /// The mean µs of stage `name` (0 for an unknown name).
+    pub fn stage_us(&self, name: &str) -> f64 {
+        self.stages_us.iter().find(|(n, _)| *n == name).map_or(0.0, |s| s.1)
+    }
+}
+
+/// Runs `scenario` headless without disk writes for `frames` frames after 10 warm-up frames; `each` sees the
+/// app after every timed frame.
+fn run_timed(
+    scenario: &CheckedScenario,
+    frames: u64,
+    mut each: impl FnMut(&mut bevy::app::App),
+) -> Result<(StageSplit, bevy::app::App), CliError> {
     let options = RunOptions { timings: true, ..RunOptions::default() };
     let mut app = headless_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
@@ -632,46 +656,60 @@ fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<(f64, Vec<St
     }
     app.world_mut().insert_resource(StageTimings::default());
     let t = Instant::now();
-    let (mut needed, mut blurred, mut prefiltered, mut builds) = (0.0, 0.0, 0.0, 0);
-    let plan = {
-        let mut q = app.world_mut().query::<&crate::sim::Sensor>();
-        q.iter(app.world()).next().map(|s| (s.sky_blur, s.sky_blur_plan))
-    };
-    let mut sensor_frame = app.world_mut().query::<&SensorFrame>();
     for _ in 0..frames {
         step(&mut app);
-        if let Some(sf) = sensor_frame.iter(app.world()).next() {
+        each(&mut app);
+    }
+    let frame_us = t.elapsed().as_secs_f64() * 1e6 / frames.max(1) as f64;
+    let stages_us = app
+        .world()
+        .get_resource::<StageTimings>()
+        .map(|t| t.mean_ms().into_iter().map(|(n, ms)| (n, ms * 1e3)).collect())
+        .unwrap_or_default();
+    Ok((StageSplit { frame_us, stages_us }, app))
+}
+
+/// [`run_timed`] without looking at the frames.
+pub(super) fn time_stages(scenario: &CheckedScenario, frames: u64) -> Result<StageSplit, CliError> {
+    run_timed(scenario, frames, |_| {}).map(|(split, _)| split)
+}
+
+/// Frames per second of `scenario` run headless without disk writes, over `frames` frames after 10 warm-up
+/// frames, and lines on where the time went (per stage, the sky blur).
+fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<(f64, Vec<String>), CliError> {
+    let (mut needed, mut blurred, mut prefiltered, mut builds) = (0.0, 0.0, 0.0, 0);
+    let mut plan = None;
+    let (split, _) = run_timed(scenario, frames, |app| {
+        let mut q = app.world_mut().query::<(&crate::sim::Sensor, &SensorFrame)>();
+        if let Some((sensor, sf)) = q.iter(app.world()).next() {
+            plan = Some((sensor.sky_blur, sensor.sky_blur_plan));
             let b = &sf.background_stats.blur;
             needed += b.tiles_needed as f64 / b.tiles.max(1) as f64;
             blurred += b.tiles_blurred as f64 / b.tiles.max(1) as f64;
             prefiltered += sf.background_stats.tiles_prefiltered as f64 / b.tiles.max(1) as f64;
             builds = sf.background_stats.texture_builds;
         }
-    }
-    let fps = frames as f64 / t.elapsed().as_secs_f64();
+    })?;
+    let fps = 1e6 / split.frame_us;
     let mut details = Vec::new();
-    if let Some(timings) = app.world().get_resource::<StageTimings>() {
-        let stages: Vec<String> =
-            timings.mean_ms().iter().map(|(name, ms)| format!("{name} {:.0}", ms * 1e3)).collect();
-        details.push(format!(
-            "  stage µs per frame: {}; background: {:.0} % of the frame from the prefiltered sky ({builds} \
-             textures made), per-frame blur needed on {:.0} %, applied on {:.0} %",
-            stages.join(", "),
-            100.0 * prefiltered / frames as f64,
-            100.0 * needed / frames as f64,
-            100.0 * blurred / frames as f64
-        ));
-        if let Some((choice, plan)) = plan {
-            let why = plan.map_or_else(String::new, |p| {
-                format!(
-                    " (planned: {} texture builds for {} of {} views, {:.2e} multiply–adds against {:.2e} for frame blurs)",
-                    p.texture_builds, p.views_prefiltered, p.views, p.texture_work, p.frame_work
-                )
-            });
-            let name =
-                serde_json::to_value(choice).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default();
-            details.push(format!("  sky blur: {name}{why}"));
-        }
+    let stages: Vec<String> = split.stages_us.iter().map(|(name, us)| format!("{name} {us:.0}")).collect();
+    details.push(format!(
+        "  stage µs per frame: {}; background: {:.0} % of the frame from the prefiltered sky ({builds} \
+         textures made), per-frame blur needed on {:.0} %, applied on {:.0} %",
+        stages.join(", "),
+        100.0 * prefiltered / frames as f64,
+        100.0 * needed / frames as f64,
+        100.0 * blurred / frames as f64
+    ));
+    if let Some((choice, plan)) = plan {
+        let why = plan.map_or_else(String::new, |p| {
+            format!(
+                " (planned: {} texture builds for {} of {} views, {:.2e} multiply–adds against {:.2e} for frame blurs)",
+                p.texture_builds, p.views_prefiltered, p.views, p.texture_work, p.frame_work
+            )
+        });
+        let name = serde_json::to_value(choice).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default();
+        details.push(format!("  sky blur: {name}{why}"));
     }
     Ok((fps, details))
 }
@@ -686,6 +724,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         return super::report::report(r);
     }
     let frames = a.frames.max(10);
+    if a.limits {
+        return super::limits::limits(frames.min(2000));
+    }
     if !a.scenarios.is_empty() {
         for path in &a.scenarios {
             let scenario = load_for_frames(path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;

@@ -1,20 +1,84 @@
 //! Per-pixel loops compiled for the widest vectors the CPU has.
 //!
-//! The crate is built for baseline x86-64 (SSE2, four f32 lanes). [`widest`] runs a closure inside a function
-//! compiled with AVX2 (eight lanes) when the CPU has it, so the loops inlined into it vectorize twice as wide.
-//! Only code inlined into that function is compiled with AVX2: the per-pixel functions a closure calls are
+//! The crate is built for baseline x86-64 (SSE2, four f32 lanes) so that one binary runs on any x86-64 (and on
+//! aarch64, where NEON is baseline). [`widest`] runs a closure inside a function compiled with AVX-512 (sixteen
+//! f32 lanes, 64-bit multiplies and masked gathers) where the CPU has it, else with AVX2 (eight lanes), else as
+//! the baseline, so the loops inlined into it vectorize as wide as the machine allows. Only code inlined into
+//! that function is compiled with the wider set: the per-pixel functions a closure calls are
 //! `#[inline(always)]`, or they run the baseline code (LLVM does not inline large functions on its own).
 //! Fused multiply–add is not enabled: Rust never contracts `a·b + c`, so every lane does the same operations in
 //! the same order as on the baseline path and the results are bit-identical whichever path runs.
 
-/// Runs `f`, compiled with AVX2 where the CPU supports it (results identical to the baseline path).
+/// The vector instruction set [`widest`] runs with on this CPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Level {
+    /// The target's baseline (SSE2 on x86-64, NEON on aarch64).
+    Baseline,
+    /// AVX2.
+    Avx2,
+    /// AVX-512 (F, DQ, BW, VL).
+    Avx512,
+}
+
+impl Level {
+    /// What this CPU offers, or what `IRSIM_SIMD` (`baseline`, `avx2`, `avx512`) caps it at.
+    pub fn detect() -> Self {
+        static LEVEL: std::sync::OnceLock<Level> = std::sync::OnceLock::new();
+        *LEVEL.get_or_init(|| {
+            let best = Self::supported();
+            match std::env::var("IRSIM_SIMD").as_deref() {
+                Ok("baseline") => Self::Baseline,
+                Ok("avx2") if best != Self::Baseline => Self::Avx2,
+                _ => best,
+            }
+        })
+    }
+
+    /// The widest level the CPU supports.
+    fn supported() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512dq")
+                && std::arch::is_x86_feature_detected!("avx512bw")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+            {
+                return Self::Avx512;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Self::Avx2;
+            }
+        }
+        Self::Baseline
+    }
+
+    /// Its name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Baseline => {
+                if cfg!(target_arch = "aarch64") {
+                    "neon"
+                } else {
+                    "sse2"
+                }
+            }
+            Self::Avx2 => "avx2",
+            Self::Avx512 => "avx512",
+        }
+    }
+}
+
+/// Runs `f`, compiled with AVX-512 or AVX2 where the CPU supports it (results identical to the baseline path).
 #[inline]
 pub fn widest<R>(f: impl FnOnce() -> R) -> R {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2, checked just above.
-            return unsafe { with_avx2(f) };
+        match Level::detect() {
+            // SAFETY: the CPU supports the features, checked by `Level::supported`.
+            Level::Avx512 => return unsafe { with_avx512(f) },
+            // SAFETY: as above.
+            Level::Avx2 => return unsafe { with_avx2(f) },
+            Level::Baseline => {}
         }
     }
     f()
@@ -26,6 +90,14 @@ pub fn widest<R>(f: impl FnOnce() -> R) -> R {
 #[target_feature(enable = "avx2")]
 #[inline(never)]
 unsafe fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// `f` inlined into a function compiled with AVX-512.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f,avx512dq,avx512bw,avx512vl")]
+#[inline(never)]
+unsafe fn with_avx512<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
@@ -41,5 +113,12 @@ mod tests {
             (0..data.len() - 4).map(|i| kernel.iter().zip(&data[i..i + 5]).map(|(k, d)| k * d).sum()).collect()
         };
         assert_eq!(widest(run), run());
+        #[cfg(target_arch = "x86_64")]
+        {
+            if Level::supported() == Level::Avx512 {
+                // SAFETY: checked just above
+                assert_eq!(unsafe { with_avx2(run) }, run());
+            }
+        }
     }
 }

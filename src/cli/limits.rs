@@ -1,0 +1,401 @@
+//! `irsim bench --limits`: lower bounds of the per-pixel work, measured on this machine in the same run as the
+//! pipeline's stages, and the ratio of each stage to its bound.
+//!
+//! Each bound is the least a stage could do per pixel, written as a plain loop over a row and compiled for the
+//! widest vectors the CPU has ([`widest`]): no planning, no tiles, no labels, no fork-join beyond one split of
+//! the rows over the threads.
+//! - `store`: write every pixel once (memory bandwidth; every stage pays it).
+//! - `bilinear`: one bilinear sample per pixel of a 1000 × 1000 f32 texture at coordinates stepped along the
+//!   row (a turned, scaled view, so neighbouring pixels read neighbouring texels, as the sky's ray cast does), and
+//!   the store: the bound of the `render` stage.
+//! - `normal`: one standard normal deviate per pixel (Box–Muller on a counter-based hash, 24-bit uniforms, a
+//!   table-free logarithm and sine/cosine polynomials: the `box_muller` sampler's transform) and the store.
+//! - `readout`: the detector on a frame in place: signal, a normal deviate, shot and read noise, the ADC,
+//!   rounding and clamping: the bound of the `noise` stage.
+//! - `fused`: bilinear sample → signal → noise → ADC → round, in one pass: the bound of a whole frame.
+//!
+//! The pipeline runs `irsim bench`'s built-in case of that size with one target (the `standard` preset) in a
+//! thread pool of the same size. Its stages include what the bounds leave out (the sky's planning, targets,
+//! labels); the ratios say how far each stage is from what the machine can do.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::CliError;
+use super::run::{StageSplit, bench_dir, bench_scenario, time_stages};
+use crate::physics::random::{NormalSampler, SplitMix64, box_muller, mix64};
+use crate::physics::simd::{Level, widest};
+use crate::scenario::load::load_for_frames;
+
+/// Side of the bounds' texture, texels (not a power of two: rows 4 KiB apart would share cache sets).
+const TEXTURE: usize = 1000;
+
+/// The bounds' parameters: the texture, its view and the detector.
+struct Setup {
+    texture: Vec<f32>,
+    /// Texture coordinates of pixel (0, 0) and their steps along a row and down a column.
+    origin: [f32; 2],
+    step_u: [f32; 2],
+    step_v: [f32; 2],
+    /// Electrons per unit of texture value, dark electrons, read variance, well, DN per electron, offset, top.
+    gain: f32,
+    dark: f32,
+    read_variance: f32,
+    well: f32,
+    dn_per_e: f32,
+    offset: f32,
+    top: f32,
+}
+
+impl Setup {
+    fn new(width: usize, height: usize) -> Self {
+        let mut rng = SplitMix64::new(7);
+        let texture = (0..TEXTURE * TEXTURE).map(|_| 1000.0 + (rng.next_bits() >> 54) as f32).collect();
+        // a view turned by 0.3 rad, 0.7 texels per pixel, inside the texture
+        let scale = 0.7f32;
+        let (s, c) = 0.3f32.sin_cos();
+        let step_u = [scale * c, scale * s];
+        let step_v = [-scale * s, scale * c];
+        let centre = TEXTURE as f32 / 2.0;
+        let (hw, hh) = (width as f32 / 2.0, height as f32 / 2.0);
+        let origin = [centre - hw * step_u[0] - hh * step_v[0], centre - hw * step_u[1] - hh * step_v[1]];
+        Self {
+            texture,
+            origin,
+            step_u,
+            step_v,
+            gain: 20.0,
+            dark: 500.0,
+            read_variance: 400.0,
+            well: 3.0e6,
+            dn_per_e: 0.05,
+            offset: 100.0,
+            top: 65_535.0,
+        }
+    }
+
+    /// Row `j`'s bilinear samples: with AVX2 or AVX-512, 8 or 16 pixels at a time, their texels gathered (LLVM
+    /// does not vectorize the loop below with gathers on its own); else one pixel after another.
+    #[inline(always)]
+    fn sample_row(&self, j: usize, row: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let level = Level::detect();
+            if level != Level::Baseline {
+                // SAFETY: the CPU supports `level`
+                unsafe { x86::bilinear_row(level, self, j, row) };
+                return;
+            }
+        }
+        for (i, o) in row.iter_mut().enumerate() {
+            let (k, [fx, fy]) = self.texel(i, j);
+            let t = &self.texture;
+            let top = t[k] + (t[k + 1] - t[k]) * fx;
+            let bottom = t[k + TEXTURE] + (t[k + TEXTURE + 1] - t[k + TEXTURE]) * fx;
+            *o = top + (bottom - top) * fy;
+        }
+    }
+
+    /// The index of the top-left texel of pixel `i` of row `j`'s bilinear sample, and its weights.
+    #[inline(always)]
+    fn texel(&self, i: usize, j: usize) -> (usize, [f32; 2]) {
+        let (fi, fj) = (i as f32, j as f32);
+        let x = self.origin[0] + self.step_u[0] * fi + self.step_v[0] * fj;
+        let y = self.origin[1] + self.step_u[1] * fi + self.step_v[1] * fj;
+        // inside the texture by construction; the clamps keep every read in bounds whatever the view
+        let limit = (TEXTURE - 2) as f32;
+        let (x, y) = (x.max(0.0).min(limit), y.max(0.0).min(limit));
+        // i32 conversions: one instruction per vector (a float-to-usize conversion is a sequence)
+        let (ix, iy) = (x as i32, y as i32);
+        ((iy * TEXTURE as i32 + ix) as usize, [x - ix as f32, y - iy as f32])
+    }
+
+    /// The detector on the signal `electrons` with the deviate `z`: noise, well, ADC, rounding.
+    #[inline(always)]
+    fn read(&self, electrons: f32, z: f32) -> f32 {
+        let s = electrons + (electrons.max(0.0) + self.read_variance).sqrt() * z;
+        round_clamp(self.offset + s.min(self.well) * self.dn_per_e, self.top)
+    }
+}
+
+/// `⌊x + ½⌋` clamped to `[0, top]` (the pipeline's rounding, `noise::quantize_row`).
+#[inline(always)]
+fn round_clamp(x: f32, top: f32) -> f32 {
+    const SHIFT: f32 = 8_388_608.0;
+    let y = x.max(0.0).min(top) + 0.5;
+    let t = (y + SHIFT) - SHIFT;
+    if t > y { t - 1.0 } else { t }
+}
+
+/// The bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Bound {
+    Store,
+    Bilinear,
+    Normal,
+    Readout,
+    Fused,
+}
+
+impl Bound {
+    const ALL: [Self; 5] = [Self::Store, Self::Bilinear, Self::Normal, Self::Readout, Self::Fused];
+
+    /// Row `j` of the bound, for frame `frame` (its random stream).
+    #[inline(always)]
+    fn row(self, s: &Setup, frame: u64, j: usize, row: &mut [f32]) {
+        let key = mix64(frame ^ ((j as u64) << 32));
+        let draw = |p: usize| mix64(key.wrapping_add((p as u64 + 1).wrapping_mul(SplitMix64::GAMMA)));
+        match self {
+            Self::Store => row.fill(frame as f32),
+            Self::Bilinear => s.sample_row(j, row),
+            Self::Normal => {
+                for (p, pair) in row.chunks_exact_mut(2).enumerate() {
+                    let (a, b) = box_muller(draw(p));
+                    pair[0] = a;
+                    pair[1] = b;
+                }
+            }
+            Self::Readout => {
+                for (p, pair) in row.chunks_exact_mut(2).enumerate() {
+                    let (a, b) = box_muller(draw(p));
+                    pair[0] = s.read(s.gain * pair[0] + s.dark, a);
+                    pair[1] = s.read(s.gain * pair[1] + s.dark, b);
+                }
+            }
+            Self::Fused => {
+                s.sample_row(j, row);
+                for (p, pair) in row.chunks_exact_mut(2).enumerate() {
+                    let (a, b) = box_muller(draw(p));
+                    pair[0] = s.read(s.gain * pair[0] + s.dark, a);
+                    pair[1] = s.read(s.gain * pair[1] + s.dark, b);
+                }
+            }
+        }
+    }
+
+    /// One frame of the bound, rows split over the current pool.
+    fn frame(self, s: &Setup, frame: u64, pixels: &mut [f32], width: usize) {
+        let per_task = (16_384 / width).max(1);
+        pixels.par_chunks_mut(width).enumerate().with_min_len(per_task).for_each(|(j, row)| {
+            widest(
+                #[inline(always)]
+                || self.row(s, frame, j, row),
+            )
+        });
+    }
+}
+
+/// Median µs per frame of `bound` over `frames` frames (after a few to warm up).
+fn time_bound(bound: Bound, s: &Setup, width: usize, height: usize, frames: u64) -> f64 {
+    let mut pixels = vec![1000.0f32; width * height];
+    for k in 0..5 {
+        bound.frame(s, k, &mut pixels, width);
+    }
+    let mut times: Vec<f64> = (0..frames)
+        .map(|k| {
+            if bound == Bound::Readout {
+                pixels.fill(1000.0);
+            }
+            let t = Instant::now();
+            bound.frame(s, k, &mut pixels, width);
+            t.elapsed().as_secs_f64() * 1e6
+        })
+        .collect();
+    super::report::median(&mut times)
+}
+
+/// Median µs per frame of the pipeline's normal generator (`sampler`) alone: one deviate per pixel, a stream
+/// per row as the readout draws them.
+fn time_sampler(sampler: NormalSampler, width: usize, height: usize, frames: u64) -> f64 {
+    let mut pixels = vec![0f32; width * height];
+    let per_task = (16_384 / width).max(1);
+    let mut times: Vec<f64> = (0..frames + 5)
+        .map(|k| {
+            let t = Instant::now();
+            pixels.par_chunks_mut(width).enumerate().with_min_len(per_task).for_each(|(j, row)| {
+                let mut rng = SplitMix64::substream(k, j as u64);
+                widest(
+                    #[inline(always)]
+                    || {
+                        for block in row.chunks_mut(64) {
+                            sampler.fill(&mut rng, block);
+                        }
+                    },
+                );
+            });
+            t.elapsed().as_secs_f64() * 1e6
+        })
+        .skip(5)
+        .collect();
+    super::report::median(&mut times)
+}
+
+/// `irsim bench --limits`: the bounds and the pipeline's stages at 256 × 256 and 640 × 512, on 1 and 2
+/// threads, with the ratios.
+///
+/// # Errors
+/// [`CliError::Failed`] if the bench scenario cannot be written or run.
+pub fn limits(frames: u64) -> Result<(), CliError> {
+    let failed = |e: String| CliError::Failed(e);
+    let dir = bench_dir("limits")?;
+    let threads_max = std::thread::available_parallelism().map_or(1, |n| n.get()).min(2);
+    super::say(&format!(
+        "per-pixel lower bounds beside the pipeline ({} vectors, {frames} frames each, medians; pipeline: \
+         irsim bench's case, 1 target, standard)",
+        Level::detect().name()
+    ))?;
+    super::say(
+        "size      threads | store bilinear normal readout  fused | render  noise  frame | render/bilinear noise/readout frame/fused",
+    )?;
+    for (w, h) in [(256usize, 256usize), (640, 512)] {
+        let setup = Setup::new(w, h);
+        let path = dir.join(format!("limits_{w}x{h}.toml"));
+        std::fs::write(&path, bench_scenario(w as u32, h as u32, 1)).map_err(|e| failed(e.to_string()))?;
+        let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
+        for threads in 1..=threads_max {
+            let pool =
+                rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| failed(e.to_string()))?;
+            let (bounds, split): (Vec<f64>, StageSplit) = pool.install(|| {
+                let bounds = Bound::ALL.iter().map(|&b| time_bound(b, &setup, w, h, frames)).collect();
+                time_stages(&scenario, frames).map(|split| (bounds, split))
+            })?;
+            let at = |b: Bound| bounds[Bound::ALL.iter().position(|&x| x == b).expect("a bound")];
+            let samplers: Vec<String> = [NormalSampler::Ziggurat, NormalSampler::BoxMuller, NormalSampler::Table]
+                .into_iter()
+                .map(|n| {
+                    let name = serde_json::to_value(n).ok().and_then(|v| v.as_str().map(str::to_owned));
+                    format!("{} {:.0}", name.unwrap_or_default(), pool.install(|| time_sampler(n, w, h, frames)))
+                })
+                .collect();
+            eprintln!("  the pipeline's normal samplers alone, µs per frame: {}", samplers.join(", "));
+            let (render, noise, frame) = (split.stage_us("render"), split.stage_us("noise"), split.frame_us);
+            let cols: Vec<String> = Bound::ALL.iter().map(|&b| format!("{:.0}", at(b))).collect();
+            super::say(&format!(
+                "{:<9} {threads:>7} | {:>5} {:>8} {:>6} {:>7} {:>6} | {render:>6.0} {noise:>6.0} {frame:>6.0} | {:>15.1}x {:>12.1}x {:>10.1}x",
+                format!("{w}x{h}"),
+                cols[0],
+                cols[1],
+                cols[2],
+                cols[3],
+                cols[4],
+                render / at(Bound::Bilinear),
+                noise / at(Bound::Readout),
+                frame / at(Bound::Fused),
+            ))?;
+        }
+    }
+    super::say("(µs per frame; a frame's time includes every stage and the schedule's own)")?;
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
+
+/// The bilinear bound with the CPU's gathers.
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use std::arch::x86_64::*;
+
+    use super::{Level, Setup, TEXTURE};
+
+    /// Row `j` of the bilinear bound.
+    ///
+    /// # Safety
+    /// The CPU must support `level` (not [`Level::Baseline`]).
+    pub unsafe fn bilinear_row(level: Level, s: &Setup, j: usize, row: &mut [f32]) {
+        // SAFETY: the caller checked the CPU's features
+        unsafe {
+            match level {
+                Level::Avx512 => row_512(s, j, row),
+                _ => row_256(s, j, row),
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    unsafe fn row_512(s: &Setup, j: usize, row: &mut [f32]) {
+        let fj = j as f32;
+        let x0 = _mm512_set1_ps(s.origin[0] + s.step_v[0] * fj);
+        let y0 = _mm512_set1_ps(s.origin[1] + s.step_v[1] * fj);
+        let (su, sv) = (_mm512_set1_ps(s.step_u[0]), _mm512_set1_ps(s.step_u[1]));
+        let limit = _mm512_set1_ps((TEXTURE - 2) as f32);
+        let lanes = _mm512_setr_ps(0., 1., 2., 3., 4., 5., 6., 7., 8., 9., 10., 11., 12., 13., 14., 15.);
+        let t = s.texture.as_ptr();
+        let mut i = 0;
+        let mut tail = [0f32; 16];
+        while i < row.len() {
+            let fi = _mm512_add_ps(_mm512_set1_ps(i as f32), lanes);
+            let x = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(x0, _mm512_mul_ps(su, fi)), _mm512_setzero_ps()), limit);
+            let y = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(y0, _mm512_mul_ps(sv, fi)), _mm512_setzero_ps()), limit);
+            let (ix, iy) = (_mm512_cvttps_epi32(x), _mm512_cvttps_epi32(y));
+            let (fx, fy) = (_mm512_sub_ps(x, _mm512_cvtepi32_ps(ix)), _mm512_sub_ps(y, _mm512_cvtepi32_ps(iy)));
+            let k = _mm512_add_epi32(_mm512_mullo_epi32(iy, _mm512_set1_epi32(TEXTURE as i32)), ix);
+            // SAFETY: 0 ≤ ix, iy ≤ TEXTURE − 2 (clamped), so every index is inside the texture
+            let (a, b, c, d) = unsafe {
+                (
+                    _mm512_i32gather_ps::<4>(k, t),
+                    _mm512_i32gather_ps::<4>(k, t.add(1)),
+                    _mm512_i32gather_ps::<4>(k, t.add(TEXTURE)),
+                    _mm512_i32gather_ps::<4>(k, t.add(TEXTURE + 1)),
+                )
+            };
+            let top = _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), fx));
+            let bottom = _mm512_add_ps(c, _mm512_mul_ps(_mm512_sub_ps(d, c), fx));
+            let v = _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy));
+            let n = (row.len() - i).min(16);
+            // SAFETY: 16 floats into `tail`, then n ≤ 16 into the row at i
+            unsafe {
+                if n == 16 {
+                    _mm512_storeu_ps(row.as_mut_ptr().add(i), v);
+                } else {
+                    _mm512_storeu_ps(tail.as_mut_ptr(), v);
+                    row[i..].copy_from_slice(&tail[..n]);
+                }
+            }
+            i += 16;
+        }
+    }
+
+    #[target_feature(enable = "avx2")]
+    unsafe fn row_256(s: &Setup, j: usize, row: &mut [f32]) {
+        let fj = j as f32;
+        let x0 = _mm256_set1_ps(s.origin[0] + s.step_v[0] * fj);
+        let y0 = _mm256_set1_ps(s.origin[1] + s.step_v[1] * fj);
+        let (su, sv) = (_mm256_set1_ps(s.step_u[0]), _mm256_set1_ps(s.step_u[1]));
+        let limit = _mm256_set1_ps((TEXTURE - 2) as f32);
+        let lanes = _mm256_setr_ps(0., 1., 2., 3., 4., 5., 6., 7.);
+        let t = s.texture.as_ptr();
+        let mut i = 0;
+        let mut tail = [0f32; 8];
+        while i < row.len() {
+            let fi = _mm256_add_ps(_mm256_set1_ps(i as f32), lanes);
+            let x = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(x0, _mm256_mul_ps(su, fi)), _mm256_setzero_ps()), limit);
+            let y = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(y0, _mm256_mul_ps(sv, fi)), _mm256_setzero_ps()), limit);
+            let (ix, iy) = (_mm256_cvttps_epi32(x), _mm256_cvttps_epi32(y));
+            let (fx, fy) = (_mm256_sub_ps(x, _mm256_cvtepi32_ps(ix)), _mm256_sub_ps(y, _mm256_cvtepi32_ps(iy)));
+            let k = _mm256_add_epi32(_mm256_mullo_epi32(iy, _mm256_set1_epi32(TEXTURE as i32)), ix);
+            // SAFETY: 0 ≤ ix, iy ≤ TEXTURE − 2 (clamped), so every index is inside the texture
+            let (a, b, c, d) = unsafe {
+                (
+                    _mm256_i32gather_ps::<4>(t, k),
+                    _mm256_i32gather_ps::<4>(t.add(1), k),
+                    _mm256_i32gather_ps::<4>(t.add(TEXTURE), k),
+                    _mm256_i32gather_ps::<4>(t.add(TEXTURE + 1), k),
+                )
+            };
+            let top = _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), fx));
+            let bottom = _mm256_add_ps(c, _mm256_mul_ps(_mm256_sub_ps(d, c), fx));
+            let v = _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy));
+            let n = (row.len() - i).min(8);
+            // SAFETY: 8 floats into `tail`, then n ≤ 8 into the row at i
+            unsafe {
+                if n == 8 {
+                    _mm256_storeu_ps(row.as_mut_ptr().add(i), v);
+                } else {
+                    _mm256_storeu_ps(tail.as_mut_ptr(), v);
+                    row[i..].copy_from_slice(&tail[..n]);
+                }
+            }
+            i += 8;
+        }
+    }
+}
