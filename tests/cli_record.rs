@@ -280,9 +280,11 @@ fn sigterm_leaves_complete_frames_matching_labels_and_a_manifest() {
 }
 
 #[cfg(unix)]
-fn interrupt_recording(signal: libc::c_int, name: &str) {
+/// Starts recording paper_clear_sky for as long as it takes into `out` and waits until frames are being
+/// written and `checkpointed` frames are in the labels on disk.
+#[cfg(unix)]
+fn start_long_recording(name: &str, out: &std::path::Path, checkpointed: usize) -> std::process::Child {
     use std::time::{Duration, Instant};
-    let out = temp_dir(name);
     // paper_clear_sky flown for as long as it takes: past the LOWTRAN table's 100 km, so with a Beer–Lambert
     // atmosphere (a LOWTRAN scene that leaves the table is refused at load)
     let text = std::fs::read_to_string(root().join("scenarios/paper_clear_sky.toml")).unwrap();
@@ -303,11 +305,19 @@ fn interrupt_recording(signal: libc::c_int, name: &str) {
         .expect("start irsim");
     // wait until frames are being written (the recorder checkpoints labels and manifest as it goes)
     let started = Instant::now();
-    while std::fs::read_dir(out.join("frames")).map_or(0, |d| d.count()) < 5 {
+    let labelled = || std::fs::read_to_string(out.join("labels.jsonl")).map_or(0, |l| l.lines().count());
+    while std::fs::read_dir(out.join("frames")).map_or(0, |d| d.count()) < 5 || labelled() < checkpointed {
         assert!(started.elapsed() < Duration::from_secs(120), "no frames after two minutes");
         assert!(child.try_wait().unwrap().is_none(), "irsim exited before it was interrupted");
         std::thread::sleep(Duration::from_millis(20));
     }
+    child
+}
+
+#[cfg(unix)]
+fn interrupt_recording(signal: libc::c_int, name: &str) {
+    let out = temp_dir(name);
+    let child = start_long_recording(name, &out, 0);
     // SAFETY: kill(2) with a child's pid and a valid signal number has no memory-safety preconditions.
     let sent = unsafe { libc::kill(child.id() as libc::pid_t, signal) };
     assert_eq!(sent, 0, "could not send signal {signal}");
@@ -347,6 +357,45 @@ fn interrupt_recording(signal: libc::c_int, name: &str) {
     }
     let leftovers: Vec<_> = walk(&out).into_iter().filter(|p| p.to_string_lossy().ends_with(".tmp")).collect();
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+#[cfg(unix)]
+fn sigkill_leaves_the_checkpointed_frames_whole_and_their_labels() {
+    // no chance to clean up: what the last checkpoint wrote must stand on its own
+    let out = temp_dir("sigkill");
+    let child = start_long_recording("sigkill", &out, 3);
+    // SAFETY: kill(2) with a child's pid and a valid signal number has no memory-safety preconditions.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGKILL) }, 0);
+    let output = child.wait_with_output().expect("wait for irsim");
+    assert_eq!(output.status.code(), None, "killed by a signal");
+
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["status"], "running");
+    let written = manifest["frames_written"].as_u64().unwrap() as usize;
+    let labels = std::fs::read_to_string(out.join("labels.jsonl")).unwrap();
+    let frames: Vec<u64> = labels
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["frame"].as_u64().unwrap())
+        .collect();
+    assert!(written >= 3, "{written} frames checkpointed");
+    assert_eq!(frames, (0..written as u64).collect::<Vec<_>>(), "label lines against the manifest");
+    let mot = std::fs::read_to_string(out.join("gt_mot.txt")).unwrap();
+    assert!(mot.lines().all(|l| l.split(',').next().unwrap().parse::<usize>().unwrap() <= written), "{mot}");
+    // every labelled frame is there and decodes completely; any frame file beyond them is whole too (files
+    // are renamed into place), only temporary files may be cut short
+    for entry in std::fs::read_dir(out.join("frames")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "png") {
+            let img = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert_eq!((img.width(), img.height()), (256, 256));
+        }
+    }
+    for i in 0..written {
+        assert!(out.join(format!("frames/{i:06}.png")).exists(), "frame {i}");
+    }
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -440,6 +440,10 @@ pub fn record_scenario(
             _ => frame,
         };
         rec.push(frame, mask, labels);
+        // buffers the encoders are done with go back to the simulation's pool (no allocation per frame)
+        while let Some(spare) = rec.take_spare() {
+            app.world_mut().resource_mut::<crate::sim::FramePool>().give_back(spare);
+        }
         progress(rec.frames_sent(), frames);
     }
     let elapsed = started.elapsed().as_secs_f64();

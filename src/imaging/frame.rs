@@ -101,23 +101,43 @@ impl Frame {
         compression: PngCompression,
         out: W,
     ) -> image::ImageResult<()> {
-        use image::ImageEncoder;
-        use image::codecs::png::{CompressionType, FilterType};
-        let img = self.to_gray16(max_level);
-        // the encoder takes native-endian samples and writes PNG's big-endian itself
-        let bytes: Vec<u8> = img.as_raw().iter().flat_map(|v| v.to_ne_bytes()).collect();
+        let mut samples = Vec::new();
+        self.png16_samples(max_level, &mut samples);
+        self.write_png16_samples(&samples, compression, out)
+    }
+
+    /// The 16-bit samples of [`Frame::write_png16_with`] (quantized to `[0, max_level]`, big-endian, as a PNG
+    /// holds them) into `samples`, replacing its contents, in one pass.
+    pub fn png16_samples(&self, max_level: u16, samples: &mut Vec<u16>) {
+        let max = f32::from(max_level);
+        samples.clear();
+        // through i32 (one vector conversion); `max` first so that NaN becomes 0, as `quantize` has it
+        samples.extend(self.pixels.iter().map(|&v| ((v.max(0.0).min(max) + 0.5) as i32 as u16).to_be()));
+    }
+
+    /// Writes the samples made by [`Frame::png16_samples`] as a 16-bit grayscale PNG of this frame's size.
+    ///
+    /// # Errors
+    /// The encoder's error, e.g. on a failed write.
+    pub fn write_png16_samples<W: Write>(
+        &self,
+        samples: &[u16],
+        compression: PngCompression,
+        out: W,
+    ) -> image::ImageResult<()> {
         let (level, filter) = match compression {
-            PngCompression::None => (CompressionType::Uncompressed, FilterType::NoFilter),
-            PngCompression::Fast => (CompressionType::Fast, FilterType::Sub),
-            PngCompression::Default => (CompressionType::Default, FilterType::Adaptive),
-            PngCompression::Best => (CompressionType::Best, FilterType::Adaptive),
+            PngCompression::None => (png::Compression::NoCompression, png::Filter::NoFilter),
+            PngCompression::Fast => (png::Compression::Fast, png::Filter::Sub),
+            PngCompression::Default => (png::Compression::Balanced, png::Filter::Adaptive),
+            PngCompression::Best => (png::Compression::High, png::Filter::Adaptive),
         };
-        image::codecs::png::PngEncoder::new_with_quality(out, level, filter).write_image(
-            &bytes,
-            self.width as u32,
-            self.height as u32,
-            image::ExtendedColorType::L16,
-        )
+        let io = |e: png::EncodingError| image::ImageError::IoError(std::io::Error::other(e));
+        let mut encoder = png::Encoder::new(out, self.width as u32, self.height as u32);
+        encoder.set_color(png::ColorType::Grayscale);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        encoder.set_compression(level);
+        encoder.set_filter(filter);
+        encoder.write_header().map_err(io)?.write_image_data(bytemuck::cast_slice(samples)).map_err(io)
     }
 
     /// Writes the frame as an 8-bit grayscale PNG to `out`, scaling `[0, max_level]` to `[0, 255]`.

@@ -5,6 +5,13 @@
 //! the MOT file and the manifest are rewritten at checkpoints (every second) and at the end, so an
 //! interruption (Ctrl-C, SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest
 //! whose `status` and `frames_written` say where the run stopped.
+//!
+//! Durability is paid once per checkpoint, not per file: an encoder thread writes a frame to a temporary file
+//! and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
+//! waiting for the disk; each checkpoint first makes everything written since the last one durable (one
+//! `syncfs` of the output's file system on Linux, a sync of each file elsewhere), then writes the labels. A
+//! crash of the machine loses at most the frames since the last checkpoint, and never leaves labels that list
+//! a frame the disk does not hold.
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -83,10 +90,17 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
 
 /// Writes `bytes` to `tmp`, syncs it and renames it to `path`; `tmp` is removed on failure.
 fn write_through(tmp: &Path, path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
+    write_renamed(tmp, path, bytes, true)
+}
+
+/// Writes `bytes` to `tmp`, syncs it if `sync`, and renames it to `path`; `tmp` is removed on failure.
+fn write_renamed(tmp: &Path, path: &Path, bytes: &[u8], sync: bool) -> Result<(), RecordError> {
     let result = (|| {
         let mut f = std::fs::File::create(tmp)?;
         f.write_all(bytes)?;
-        f.sync_data()?;
+        if sync {
+            f.sync_data()?;
+        }
         std::fs::rename(tmp, path)
     })();
     result.map_err(|e| {
@@ -105,6 +119,43 @@ pub fn write_shared(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
     let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
     write_through(&tmp, path, bytes)
+}
+
+/// Makes every file written under `dir` so far durable: on Linux one `syncfs` of `dir`'s file system (its data
+/// and the renames that put the files in place, in one journal commit), elsewhere a sync of each of `files` and
+/// of their directories.
+///
+/// # Errors
+/// The I/O error with the path.
+fn sync_written(dir: &Path, files: &[PathBuf]) -> Result<(), RecordError> {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        let _ = files;
+        let d = std::fs::File::open(dir).map_err(|e| io_err(dir, e))?;
+        // SAFETY: `d` is an open descriptor for the duration of the call
+        if unsafe { libc::syncfs(d.as_raw_fd()) } != 0 {
+            return Err(io_err(dir, std::io::Error::last_os_error()));
+        }
+        Ok(())
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let mut dirs = std::collections::BTreeSet::new();
+        for f in files {
+            std::fs::File::open(f).and_then(|h| h.sync_all()).map_err(|e| io_err(f, e))?;
+            if let Some(parent) = f.parent() {
+                dirs.insert(parent.to_path_buf());
+            }
+        }
+        // directories cannot be opened for syncing on every platform (Windows): their syncs are best effort
+        for d in dirs.iter().chain(std::iter::once(&dir.to_path_buf())) {
+            if let Ok(h) = std::fs::File::open(d) {
+                let _ = h.sync_all();
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Name of the lock file a recording holds in its output directory.
@@ -195,24 +246,43 @@ struct Job {
     labels: FrameLabels,
 }
 
-/// A worker's answer.
+/// A worker's answer: the frame's buffer comes back for reuse, with the files it wrote.
 struct Done {
     index: u64,
     result: Result<(), RecordError>,
     labels: FrameLabels,
+    frame: Frame,
+    files: Vec<PathBuf>,
 }
 
 /// Encodes `frame` in `format` into bytes.
 pub fn encode(frame: &Frame, format: FrameFormat, max_level: u16, png: PngCompression) -> Vec<u8> {
-    let mut bytes = Vec::with_capacity(frame.width() * frame.height() * 2 + 1024);
-    match format {
-        FrameFormat::Png16 => frame.write_png16_with(max_level, png, &mut bytes).expect("writing to memory"),
-        FrameFormat::Png8 => frame.write_png8(f32::from(max_level), &mut bytes).expect("writing to memory"),
-        // the AGC has already mapped the frame to 0–255
-        FrameFormat::Png8Agc => frame.write_png8(255.0, &mut bytes).expect("writing to memory"),
-        FrameFormat::Npy => write_npy_f32(frame, &mut bytes),
-    }
+    let mut bytes = Vec::new();
+    encode_into(frame, format, max_level, png, &mut Vec::new(), &mut bytes);
     bytes
+}
+
+/// [`encode`] into `bytes` (replacing its contents), with `samples` as scratch: an encoder thread keeps both
+/// from frame to frame.
+pub fn encode_into(
+    frame: &Frame,
+    format: FrameFormat,
+    max_level: u16,
+    png: PngCompression,
+    samples: &mut Vec<u16>,
+    bytes: &mut Vec<u8>,
+) {
+    bytes.clear();
+    match format {
+        FrameFormat::Png16 => {
+            frame.png16_samples(max_level, samples);
+            frame.write_png16_samples(samples, png, &mut *bytes).expect("writing to memory");
+        }
+        FrameFormat::Png8 => frame.write_png8(f32::from(max_level), &mut *bytes).expect("writing to memory"),
+        // the AGC has already mapped the frame to 0–255
+        FrameFormat::Png8Agc => frame.write_png8(255.0, &mut *bytes).expect("writing to memory"),
+        FrameFormat::Npy => write_npy_f32(frame, bytes),
+    }
 }
 
 /// A little-endian float32 `.npy` (format 1.0) of shape (height, width).
@@ -268,6 +338,10 @@ pub struct Recorder {
     manifest: serde_json::Value,
     frames_requested: u64,
     agc: Option<(Agc, u32)>,
+    /// Files the workers wrote since the last checkpoint's sync.
+    unsynced: Vec<PathBuf>,
+    /// Frame buffers the workers are done with.
+    spare: Vec<Frame>,
 }
 
 impl Recorder {
@@ -295,6 +369,8 @@ impl Recorder {
                 let tx = done_tx.clone();
                 let dir = dir.to_path_buf();
                 std::thread::spawn(move || {
+                    // the encoder's buffers, kept from frame to frame
+                    let (mut samples, mut bytes) = (Vec::new(), Vec::new());
                     loop {
                         let job = match rx.lock() {
                             Ok(guard) => match guard.recv() {
@@ -303,20 +379,33 @@ impl Recorder {
                             },
                             Err(_) => break,
                         };
-                        let name = format!("{:06}.{}", job.index, format.extension());
-                        let mut result =
-                            write_atomic(&dir.join("frames").join(&name), &encode(&job.frame, format, max_level, png));
+                        // each file appears under its name complete (renamed into place); it is made durable
+                        // with the others at the next checkpoint, before the labels that list it
+                        let unsynced = |path: &Path, bytes: &[u8]| {
+                            let tmp = path.with_extension(format!(
+                                "{}.tmp",
+                                path.extension().and_then(|e| e.to_str()).unwrap_or("")
+                            ));
+                            write_renamed(&tmp, path, bytes, false)
+                        };
+                        let frame_path = dir.join("frames").join(format!("{:06}.{}", job.index, format.extension()));
+                        encode_into(&job.frame, format, max_level, png, &mut samples, &mut bytes);
+                        let mut result = unsynced(&frame_path, &bytes);
+                        let mut files = vec![frame_path];
                         if let (Ok(()), Some(mask)) = (&result, &job.mask) {
                             let m = Frame::from_pixels(
                                 job.frame.width(),
                                 job.frame.height(),
                                 mask.iter().map(|&v| f32::from(v)).collect(),
                             );
-                            let mut bytes = Vec::new();
+                            bytes.clear();
                             m.write_png8(255.0, &mut bytes).expect("writing to memory");
-                            result = write_atomic(&dir.join("masks").join(format!("{:06}.png", job.index)), &bytes);
+                            let mask_path = dir.join("masks").join(format!("{:06}.png", job.index));
+                            result = unsynced(&mask_path, &bytes);
+                            files.push(mask_path);
                         }
-                        if tx.send(Done { index: job.index, result, labels: job.labels }).is_err() {
+                        let done = Done { index: job.index, result, labels: job.labels, frame: job.frame, files };
+                        if tx.send(done).is_err() {
                             break;
                         }
                     }
@@ -343,6 +432,8 @@ impl Recorder {
             manifest,
             frames_requested,
             agc: (format == FrameFormat::Png8Agc).then(|| (Agc::new(AgcSpec::default()), u32::from(max_level))),
+            unsynced: Vec::new(),
+            spare: Vec::new(),
         };
         rec.checkpoint("running")?;
         Ok(rec)
@@ -356,6 +447,11 @@ impl Recorder {
     /// Marks the run failed with `message` (the frames so far are kept, with their labels).
     pub fn fail(&mut self, message: String) {
         self.error.get_or_insert(RecordError::Io { path: self.dir.display().to_string(), message });
+    }
+
+    /// A frame buffer the workers have finished with, for the next frame.
+    pub fn take_spare(&mut self) -> Option<Frame> {
+        self.spare.pop()
     }
 
     /// Frames handed to the recorder so far.
@@ -402,6 +498,10 @@ impl Recorder {
         loop {
             let done = if block { self.done.recv().ok() } else { self.done.try_recv().ok() };
             let Some(done) = done else { break };
+            self.unsynced.extend(done.files);
+            if self.spare.len() < 8 {
+                self.spare.push(done.frame);
+            }
             match done.result {
                 Ok(()) => {
                     self.pending.insert(done.index, done.labels);
@@ -423,11 +523,16 @@ impl Recorder {
         }
     }
 
-    /// Rewrites labels, MOT file and manifest atomically.
+    /// Makes the frames written so far durable, then rewrites labels, MOT file and manifest atomically: the
+    /// labels on disk never list a frame that a crash of the machine could lose.
     fn checkpoint(&mut self, status: &str) -> Result<(), RecordError> {
         let mot_on_disk = if self.texts_written && self.on_disk == self.committed {
             self.committed
         } else {
+            if !self.unsynced.is_empty() {
+                sync_written(&self.dir, &self.unsynced)?;
+                self.unsynced.clear();
+            }
             // labels first: a failure between the two leaves the MOT file behind, never ahead
             write_atomic(&self.dir.join("labels.jsonl"), self.labels_text.as_bytes())?;
             let r = write_atomic(&self.dir.join("gt_mot.txt"), self.mot_text.as_bytes());

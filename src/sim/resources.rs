@@ -114,9 +114,9 @@ impl FramePool {
         }
     }
 
-    /// Gives `frame` back for reuse (a few are kept).
+    /// Gives `frame` back for reuse (a few are kept: as many as a recorder's encoders hold at once).
     pub fn give_back(&mut self, frame: Frame) {
-        if self.0.len() < 4 {
+        if self.0.len() < 8 {
             self.0.push(frame);
         }
     }
