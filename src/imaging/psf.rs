@@ -153,8 +153,9 @@ pub struct Kernel {
 #[derive(Debug, Clone)]
 pub struct Psf {
     radius: usize,
-    /// Fine table over offsets `[−R−½, R+½]²` (per px², integrating to 1), row-major, `fine_side` wide.
-    fine: Vec<f32>,
+    /// The fine table over offsets `[−R−½, R+½]²` (per px², integrating to 1; `fine_side` nodes a side,
+    /// [`FINE_PER_PX`] per px) stored by sub-pixel phase ([`PhaseTable`]).
+    fine: PhaseTable,
     fine_side: usize,
     point: Kernel,
     area: Kernel,
@@ -211,6 +212,7 @@ impl Psf {
             *v = (f64::from(*v) / total) as f32;
         }
         let fwhm_px = fwhm(&fine, side, FINE_PER_PX);
+        let fine = PhaseTable::new(&fine, side);
         Ok(Self { radius, fine, fine_side: side, point, area, fwhm_px, region_radius })
     }
 
@@ -245,10 +247,9 @@ impl Psf {
         }
         let (x0, y0) = (fx as usize, fy as usize);
         let (tx, ty) = ((fx - x0 as f64) as f32, (fy - y0 as f64) as f32);
-        let i = y0 * self.fine_side + x0;
-        let f = &self.fine;
-        let top = f[i] + (f[i + 1] - f[i]) * tx;
-        let bottom = f[i + self.fine_side] + (f[i + self.fine_side + 1] - f[i + self.fine_side]) * tx;
+        let f = |x: usize, y: usize| self.fine.at(x, y);
+        let top = f(x0, y0) + (f(x0 + 1, y0) - f(x0, y0)) * tx;
+        let bottom = f(x0, y0 + 1) + (f(x0 + 1, y0 + 1) - f(x0, y0 + 1)) * tx;
         top + (bottom - top) * ty
     }
 
@@ -279,17 +280,27 @@ impl Psf {
         let (ix, iy) = (fx.floor(), fy.floor());
         let (tx, ty) = ((fx - ix) as f32, (fy - iy) as f32);
         let (ix, iy) = (ix as usize, iy as usize);
-        let (side, f) = (self.fine_side, &self.fine);
-        for ky in ky0..ky1 {
-            let row = iy + (ky - ky0) * FINE_PER_PX;
-            let (top, bottom) = (&f[row * side..], &f[(row + 1) * side..]);
-            for (n, o) in out[ky * width + kx0..ky * width + kx1].iter_mut().enumerate() {
-                let i = ix + n * FINE_PER_PX;
-                let t = top[i] + (top[i + 1] - top[i]) * tx;
-                let b = bottom[i] + (bottom[i + 1] - bottom[i]) * tx;
-                *o += weight * (t + (b - t) * ty);
-            }
-        }
+        // the nodes pixel after pixel are one phase's block, contiguous: the loop over a row vectorizes
+        let (px, i0) = (ix % FINE_PER_PX, ix / FINE_PER_PX);
+        let (py, j0) = (iy % FINE_PER_PX, iy / FINE_PER_PX);
+        let n = kx1 - kx0;
+        widest(
+            #[inline(always)]
+            || {
+                for ky in ky0..ky1 {
+                    let j = j0 + ky - ky0;
+                    let row = |qy: usize, qx: usize| &self.fine.row(qy, qx, j)[i0..i0 + n];
+                    let (a, b) = (row(py, px), row(py, px + 1));
+                    let (c, d) = (row(py + 1, px), row(py + 1, px + 1));
+                    let out = &mut out[ky * width + kx0..ky * width + kx1];
+                    for k in 0..n {
+                        let t = a[k] + (b[k] - a[k]) * tx;
+                        let bottom = c[k] + (d[k] - c[k]) * tx;
+                        out[k] += weight * (t + (bottom - t) * ty);
+                    }
+                }
+            },
+        );
     }
 
     /// Kernel for a frame of point samples (nearest or bilinear sky).
@@ -305,7 +316,60 @@ impl Psf {
     /// Integral of the fine table, px² (1 up to f32 rounding).
     pub fn integral(&self) -> f64 {
         let h2 = 1.0 / (FINE_PER_PX * FINE_PER_PX) as f64;
-        self.fine.iter().map(|&v| f64::from(v) * h2).sum()
+        let side = self.fine_side;
+        (0..side).flat_map(|y| (0..side).map(move |x| (x, y))).map(|(x, y)| f64::from(self.fine.at(x, y)) * h2).sum()
+    }
+}
+
+/// Phases stored per axis: the [`FINE_PER_PX`] sub-pixel phases and one more, the first again one pixel on.
+const PHASES: usize = FINE_PER_PX + 1;
+
+/// A fine table stored by sub-pixel phase: for each phase `(qy, qx)` in `0..=FINE_PER_PX` a block of the nodes
+/// `(qy + FINE_PER_PX·j, qx + FINE_PER_PX·i)`, one per whole pixel `(j, i)`, row-major (0 beyond the table).
+/// Every pixel centre sees a point source at the same sub-pixel offset, so a point's pixels read one phase's
+/// block (and its neighbours' for the interpolation) at consecutive addresses: a node's right neighbour is
+/// the next phase's block at the same step (phase `FINE_PER_PX` is phase 0 one pixel on).
+#[derive(Debug, Clone)]
+struct PhaseTable {
+    values: Vec<f32>,
+    /// Pixel steps per block side.
+    steps: usize,
+}
+
+impl PhaseTable {
+    /// From a row-major table `side` nodes wide.
+    fn new(fine: &[f32], side: usize) -> Self {
+        let steps = side.div_ceil(FINE_PER_PX) + 1;
+        let mut values = vec![0f32; PHASES * PHASES * steps * steps];
+        for qy in 0..PHASES {
+            for qx in 0..PHASES {
+                for j in 0..steps {
+                    let y = qy + FINE_PER_PX * j;
+                    for i in 0..steps {
+                        let x = qx + FINE_PER_PX * i;
+                        if x < side && y < side {
+                            values[((qy * PHASES + qx) * steps + j) * steps + i] = fine[y * side + x];
+                        }
+                    }
+                }
+            }
+        }
+        Self { values, steps }
+    }
+
+    /// Node `(x, y)` of the table.
+    #[inline]
+    fn at(&self, x: usize, y: usize) -> f32 {
+        let (qx, i) = (x % FINE_PER_PX, x / FINE_PER_PX);
+        let (qy, j) = (y % FINE_PER_PX, y / FINE_PER_PX);
+        self.values[((qy * PHASES + qx) * self.steps + j) * self.steps + i]
+    }
+
+    /// Row `j` of phase `(qy, qx)`'s block: nodes `(qy + FINE_PER_PX·j, qx + FINE_PER_PX·i)` for every `i`.
+    #[inline(always)]
+    fn row(&self, qy: usize, qx: usize, j: usize) -> &[f32] {
+        let start = ((qy * PHASES + qx) * self.steps + j) * self.steps;
+        &self.values[start..start + self.steps]
     }
 }
 
