@@ -974,52 +974,69 @@ impl Convolver {
             return BlurStats { tiles_needed: blurred, tiles_blurred: considered, tiles };
         }
         let r = kernel.radius;
-        let pw = self.pad(frame, r);
+        // only the padded rows the blurred tiles' bands read
+        let needed_tiles = std::mem::take(&mut self.needed);
+        let needed = &needed_tiles;
+        let band_needed = |ty: usize| needed[ty * tw..(ty + 1) * tw].iter().any(|&n| n);
+        let pw = self.pad_rows(frame, r, |py| {
+            // padded row py is read by the bands ty with ty·t ≤ py < ty·t + t + 2r
+            let first = py.saturating_sub(t + 2 * r - 1) / t;
+            (first..=(py / t).min(th - 1)).any(band_needed)
+        });
         let padded = &self.padded;
-        let needed = &self.needed;
         frame.pixels_mut().par_chunks_mut(t * w).enumerate().for_each_init(
-            || (vec![0.0f32; (t + 2 * r) * t], vec![0.0f32; t * t]),
+            || (vec![0.0f32; (t + 2 * r) * w], vec![0.0f32; t * w]),
             |(tmp, acc), (ty, band)| {
                 let rows = band.len() / w;
-                for tx in (0..tw).filter(|&tx| needed[ty * tw + tx]) {
-                    let (x0, cols) = (tx * t, t.min(w - tx * t));
-                    acc[..rows * t].fill(0.0);
+                // each run of blurred tiles along the band in one sweep (the same sums, pixel by pixel, as tile
+                // by tile: a run starts on a tile's edge, a multiple of the rows' 16 lanes)
+                for run in true_runs(&needed[ty * tw..(ty + 1) * tw]) {
+                    let x0 = run.start * t;
+                    let cols = (run.end * t).min(w) - x0;
+                    acc[..rows * cols].fill(0.0);
                     for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
                         // horizontal over the band's rows and r more on each side (padded coordinates)
                         for py in 0..rows + 2 * r {
                             let src = &padded[(ty * t + py) * pw + x0..];
                             widest(
                                 #[inline(always)]
-                                || correlate_row(src, v, &mut tmp[py * t..py * t + cols]),
+                                || correlate_row(src, v, &mut tmp[py * cols..(py + 1) * cols]),
                             );
                         }
                         let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
                         for y in 0..rows {
                             for (k, row) in src.iter_mut().enumerate().take(v.len()) {
-                                *row = &tmp[(y + k) * t..(y + k) * t + cols];
+                                *row = &tmp[(y + k) * cols..(y + k + 1) * cols];
                             }
                             widest(
                                 #[inline(always)]
-                                || accumulate_rows(&src[..v.len()], scaled, &mut acc[y * t..y * t + cols]),
+                                || accumulate_rows(&src[..v.len()], scaled, &mut acc[y * cols..(y + 1) * cols]),
                             );
                         }
                     }
                     for y in 0..rows {
-                        band[y * w + x0..y * w + x0 + cols].copy_from_slice(&acc[y * t..y * t + cols]);
+                        band[y * w + x0..y * w + x0 + cols].copy_from_slice(&acc[y * cols..(y + 1) * cols]);
                     }
                 }
             },
         );
+        self.needed = needed_tiles;
         BlurStats { tiles_needed: blurred, tiles_blurred: blurred, tiles }
     }
 
     /// Copies `frame` into `self.padded` with `r` replicated pixels on every side.
     fn pad(&mut self, frame: &Frame, r: usize) -> usize {
+        self.pad_rows(frame, r, |_| true)
+    }
+
+    /// As [`Convolver::pad`], writing only the padded rows `py` (`0..height + 2r`) for which `wanted(py)`;
+    /// returns the padded width.
+    fn pad_rows(&mut self, frame: &Frame, r: usize, wanted: impl Fn(usize) -> bool) -> usize {
         let (w, h) = (frame.width(), frame.height());
         let pw = w + 2 * r;
         self.padded.resize(pw * (h + 2 * r), 0.0);
         let src = frame.pixels();
-        for py in 0..h + 2 * r {
+        for py in (0..h + 2 * r).filter(|&py| wanted(py)) {
             let y = py.saturating_sub(r).min(h - 1);
             let row = &src[y * w..(y + 1) * w];
             let out = &mut self.padded[py * pw..(py + 1) * pw];
@@ -1106,7 +1123,7 @@ impl Convolver {
 }
 
 /// The smallest `2^a·3^b·5^c` not below `n`.
-fn fast_len(n: usize) -> usize {
+pub(crate) fn fast_len(n: usize) -> usize {
     let mut m = n.max(1);
     loop {
         let mut k = m;
