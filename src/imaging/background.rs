@@ -483,7 +483,14 @@ mod tests {
     #[test]
     fn a_frame_does_not_depend_on_the_frames_before_it() {
         let (plane, dome) = (plane(), dome());
-        let views = [(DVec2::new(256.0, 250.0), 0.0), (DVec2::new(100.0, 400.0), 30.0), (DVec2::new(256.0, 28.0), 5.0)];
+        // a view, another turned far away, one over the image's edge, and the first panned (its crops share blocks)
+        let views = [
+            (DVec2::new(256.0, 250.0), 0.0),
+            (DVec2::new(100.0, 400.0), 30.0),
+            (DVec2::new(256.0, 28.0), 5.0),
+            (DVec2::new(296.0, 250.0), 0.0),
+            (DVec2::new(336.0, 290.0), 0.0),
+        ];
         let fresh: Vec<Frame> = views
             .iter()
             .map(|&(l, r)| {
@@ -491,7 +498,7 @@ mod tests {
             })
             .collect();
         let mut renderer = BackgroundRenderer::new();
-        for order in [[0, 1, 2], [2, 1, 0], [1, 0, 2]] {
+        for order in [[0, 1, 2, 3, 4], [4, 2, 3, 1, 0], [1, 0, 3, 2, 4]] {
             for i in order {
                 let (l, r) = views[i];
                 let f = render(&mut renderer, &plane, &dome, &camera(&plane, l, r), SkyBlur::Prefilter);
