@@ -19,7 +19,7 @@ use thiserror::Error;
 use super::camera::Camera;
 use super::frame::Frame;
 use super::psf::true_runs;
-use crate::physics::simd::widest;
+use crate::physics::simd::{Level, widest};
 
 /// An error loading or placing a sky image.
 #[derive(Debug, Error)]
@@ -850,6 +850,19 @@ impl RowGeometry {
         let (ddx, ddy) = (fixed(2.0 * span.c.x), fixed(2.0 * span.c.y));
         let px = &img.pixels;
         const FRACTION: f32 = 1.0 / 16_777_216.0; // 2⁻²⁴
+        let mut out = out;
+        #[cfg(target_arch = "x86_64")]
+        if bilinear && out.len() >= 16 && px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
+            // SAFETY: the CPU has AVX-512; every sample and its neighbours lie inside the image (checked above)
+            let done = unsafe { x86::bilinear_span_512(px, w, [x, y], [dx, dy], [ddx, ddy], out, accumulate) };
+            // the recurrence below, advanced by `done` steps: q(k) = q₀ + k·d₀ + k(k−1)/2·dd, d(k) = d₀ + k·dd
+            let k = done as i64;
+            x = x.wrapping_add(k.wrapping_mul(dx)).wrapping_add((k * (k - 1) / 2).wrapping_mul(ddx));
+            y = y.wrapping_add(k.wrapping_mul(dy)).wrapping_add((k * (k - 1) / 2).wrapping_mul(ddy));
+            dx = dx.wrapping_add(k.wrapping_mul(ddx));
+            dy = dy.wrapping_add(k.wrapping_mul(ddy));
+            out = &mut out[done..];
+        }
         for o in out.iter_mut() {
             let (xi, yi) = ((x >> 32) as usize, (y >> 32) as usize);
             let value = if bilinear {
@@ -868,6 +881,92 @@ impl RowGeometry {
             dy += ddy;
         }
         true
+    }
+}
+
+/// The bilinear span with AVX-512 gathers.
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use std::arch::x86_64::*;
+
+    /// [`SkyPlane::fast_span`](super::SkyPlane)'s bilinear loop, sixteen pixels at a time, for the whole blocks of
+    /// sixteen in `out`; returns how many pixels it wrote. The positions are the scalar recurrence's, in closed
+    /// form (`q(k) = q₀ + k·d₀ + k(k−1)/2·dd` in 32.32 fixed point, exact integer arithmetic), and the mix is
+    /// the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so every value is the same.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel and its right and lower neighbours must
+    /// lie inside `px` (`w` wide), and `px.len()` must fit an `i32`.
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    pub unsafe fn bilinear_span_512(
+        px: &[f32],
+        w: usize,
+        q: [i64; 2],
+        d: [i64; 2],
+        dd: [i64; 2],
+        out: &mut [f32],
+        accumulate: bool,
+    ) -> usize {
+        let blocks = out.len() / 16;
+        let lanes_lo = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+        let lanes_hi = _mm512_setr_epi64(8, 9, 10, 11, 12, 13, 14, 15);
+        // k(k−1)/2 per lane
+        let tri_lo = _mm512_setr_epi64(0, 0, 1, 3, 6, 10, 15, 21);
+        let tri_hi = _mm512_setr_epi64(28, 36, 45, 55, 66, 78, 91, 105);
+        let low = _mm512_set1_epi64(0xffff_ffff);
+        let fraction = _mm512_set1_ps(1.0 / 16_777_216.0);
+        let width = _mm512_set1_epi32(w as i32);
+        let base = px.as_ptr();
+        let (mut q, mut d) = (q, d);
+        // one axis' sixteen positions: whole pixels (i32) and the fraction's top 24 bits as f32
+        let positions = |q: i64, d: i64, dd: i64| {
+            let at = |lanes: __m512i, tri: __m512i| {
+                let step = _mm512_mullo_epi64(lanes, _mm512_set1_epi64(d));
+                let bend = _mm512_mullo_epi64(tri, _mm512_set1_epi64(dd));
+                _mm512_add_epi64(_mm512_set1_epi64(q), _mm512_add_epi64(step, bend))
+            };
+            let (lo, hi) = (at(lanes_lo, tri_lo), at(lanes_hi, tri_hi));
+            let join = |a: __m512i, b: __m512i| {
+                _mm512_inserti64x4::<1>(_mm512_castsi256_si512(_mm512_cvtepi64_epi32(a)), _mm512_cvtepi64_epi32(b))
+            };
+            let whole = join(_mm512_srli_epi64::<32>(lo), _mm512_srli_epi64::<32>(hi));
+            let top24 = join(
+                _mm512_srli_epi64::<8>(_mm512_and_si512(lo, low)),
+                _mm512_srli_epi64::<8>(_mm512_and_si512(hi, low)),
+            );
+            (whole, _mm512_mul_ps(_mm512_cvtepi32_ps(top24), fraction))
+        };
+        for b in 0..blocks {
+            let (ix, fx) = positions(q[0], d[0], dd[0]);
+            let (iy, fy) = positions(q[1], d[1], dd[1]);
+            let i = _mm512_add_epi32(_mm512_mullo_epi32(iy, width), ix);
+            // SAFETY: the caller guarantees every index and its neighbours are inside `px`
+            let (tl, tr, bl, br) = unsafe {
+                (
+                    _mm512_i32gather_ps::<4>(i, base),
+                    _mm512_i32gather_ps::<4>(i, base.add(1)),
+                    _mm512_i32gather_ps::<4>(i, base.add(w)),
+                    _mm512_i32gather_ps::<4>(i, base.add(w + 1)),
+                )
+            };
+            let top = _mm512_add_ps(tl, _mm512_mul_ps(_mm512_sub_ps(tr, tl), fx));
+            let bottom = _mm512_add_ps(bl, _mm512_mul_ps(_mm512_sub_ps(br, bl), fx));
+            let mut v = _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy));
+            let at = out[16 * b..16 * b + 16].as_mut_ptr();
+            // SAFETY: sixteen floats at `at`, inside `out`
+            unsafe {
+                if accumulate {
+                    v = _mm512_add_ps(_mm512_loadu_ps(at), v);
+                }
+                _mm512_storeu_ps(at, v);
+            }
+            // sixteen steps of the recurrence
+            for a in 0..2 {
+                q[a] = q[a].wrapping_add(d[a].wrapping_mul(16)).wrapping_add(dd[a].wrapping_mul(120));
+                d[a] = d[a].wrapping_add(dd[a].wrapping_mul(16));
+            }
+        }
+        16 * blocks
     }
 }
 
