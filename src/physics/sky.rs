@@ -325,10 +325,19 @@ impl Dome {
     #[inline(always)]
     pub fn radiance_along(&self, base: DVec3, step: DVec3, out: &mut [f32], only_nan: bool) {
         const BLOCK: usize = 16;
+        #[allow(unused_mut)]
+        let mut done = 0;
+        #[cfg(target_arch = "x86_64")]
+        if self.table.len() == TABLE_SAMPLES
+            && crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512
+        {
+            // SAFETY: the CPU has AVX-512
+            done = unsafe { x86::radiance_along_512(&self.table, self.horizon_sky as f32, base, step, out, only_nan) };
+        }
         let mut sin_e = [0.0f64; BLOCK];
-        for (b, block) in out.chunks_mut(BLOCK).enumerate() {
+        for (b, block) in out[done..].chunks_mut(BLOCK).enumerate() {
             for (k, s) in sin_e.iter_mut().enumerate() {
-                let d = base + step * (b * BLOCK + k) as f64;
+                let d = base + step * (done + b * BLOCK + k) as f64;
                 let len = d.length();
                 // NaN marks a zero ray (the horizon's sky)
                 *s = if len > 0.0 { d.z / len } else { f64::NAN };
@@ -350,6 +359,71 @@ impl Dome {
     /// The sky's radiance just above the horizon.
     pub fn horizon_sky(&self) -> f64 {
         self.horizon_sky
+    }
+}
+
+/// The dome along a row with AVX-512.
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use std::arch::x86_64::*;
+
+    use glam::DVec3;
+
+    use super::TABLE_SAMPLES;
+
+    /// [`Dome::radiance_along`](super::Dome::radiance_along) for the whole blocks of eight pixels in `out`;
+    /// returns how many it wrote. Each value is the scalar's: the same f64 operations in the same order
+    /// (`base + step·i`, the squared length summed x, y, z, a correctly rounded square root and division), the
+    /// same index and fraction, and the table's interpolation in f32 in the same order.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, DQ, BW, VL); `table` must hold [`TABLE_SAMPLES`] values.
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    pub unsafe fn radiance_along_512(
+        table: &[f32],
+        horizon: f32,
+        base: DVec3,
+        step: DVec3,
+        out: &mut [f32],
+        only_nan: bool,
+    ) -> usize {
+        let blocks = out.len() / 8;
+        let lanes = _mm512_setr_pd(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let (zero, one, half) = (_mm512_setzero_pd(), _mm512_set1_pd(1.0), _mm512_set1_pd(0.5));
+        let last = _mm512_set1_pd((TABLE_SAMPLES - 1) as f64);
+        let top = _mm512_set1_epi64((TABLE_SAMPLES - 2) as i64);
+        let horizon = _mm256_set1_ps(horizon);
+        let t = table.as_ptr();
+        for b in 0..blocks {
+            let k = _mm512_add_pd(_mm512_set1_pd((8 * b) as f64), lanes);
+            let axis = |o: f64, s: f64| _mm512_add_pd(_mm512_set1_pd(o), _mm512_mul_pd(_mm512_set1_pd(s), k));
+            let (x, y, z) = (axis(base.x, step.x), axis(base.y, step.y), axis(base.z, step.z));
+            let dot = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(x, x), _mm512_mul_pd(y, y)), _mm512_mul_pd(z, z));
+            let len = _mm512_sqrt_pd(dot);
+            let seen = _mm512_cmp_pd_mask::<_CMP_GT_OQ>(len, zero);
+            let sin_e = _mm512_min_pd(_mm512_max_pd(_mm512_div_pd(z, len), _mm512_set1_pd(-1.0)), one);
+            // zero rays read sample 0, then take the horizon's value
+            let sin_e = _mm512_mask_blend_pd(seen, zero, sin_e);
+            let at = _mm512_mul_pd(_mm512_mul_pd(_mm512_add_pd(sin_e, one), half), last);
+            let i = _mm512_min_epi64(_mm512_cvttpd_epi64(at), top);
+            let frac = _mm512_cvtpd_ps(_mm512_sub_pd(at, _mm512_cvtepi64_pd(i)));
+            // SAFETY: 0 ≤ i ≤ TABLE_SAMPLES − 2, so i and i + 1 are inside the table
+            let (lo, hi) = unsafe { (_mm512_i64gather_ps::<4>(i, t), _mm512_i64gather_ps::<4>(i, t.add(1))) };
+            let v = _mm256_add_ps(lo, _mm256_mul_ps(_mm256_sub_ps(hi, lo), frac));
+            let v = _mm256_mask_blend_ps(seen, horizon, v);
+            let p = out[8 * b..8 * b + 8].as_mut_ptr();
+            // SAFETY: eight floats at `p`, inside `out`
+            unsafe {
+                let v = if only_nan {
+                    let old = _mm256_loadu_ps(p);
+                    _mm256_mask_blend_ps(_mm256_cmp_ps_mask::<_CMP_UNORD_Q>(old, old), old, v)
+                } else {
+                    v
+                };
+                _mm256_storeu_ps(p, v);
+            }
+        }
+        8 * blocks
     }
 }
 
