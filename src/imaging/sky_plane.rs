@@ -852,9 +852,10 @@ impl RowGeometry {
         const FRACTION: f32 = 1.0 / 16_777_216.0; // 2⁻²⁴
         let mut out = out;
         #[cfg(target_arch = "x86_64")]
-        if bilinear && out.len() >= 16 && px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
-            // SAFETY: the CPU has AVX-512; every sample and its neighbours lie inside the image (checked above)
-            let done = unsafe { x86::bilinear_span_512(px, w, [x, y], [dx, dy], [ddx, ddy], out, accumulate) };
+        if out.len() >= 16 && px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
+            // SAFETY: the CPU has AVX-512; every sample (and its neighbours, bilinear) lies inside the image
+            // (checked above)
+            let done = unsafe { x86::span_512(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) };
             // the recurrence below, advanced by `done` steps: q(k) = q₀ + k·d₀ + k(k−1)/2·dd, d(k) = d₀ + k·dd
             let k = done as i64;
             x = x.wrapping_add(k.wrapping_mul(dx)).wrapping_add((k * (k - 1) / 2).wrapping_mul(ddx));
@@ -889,21 +890,24 @@ impl RowGeometry {
 mod x86 {
     use std::arch::x86_64::*;
 
-    /// [`SkyPlane::fast_span`](super::SkyPlane)'s bilinear loop, sixteen pixels at a time, for the whole blocks of
-    /// sixteen in `out`; returns how many pixels it wrote. The positions are the scalar recurrence's, in closed
-    /// form (`q(k) = q₀ + k·d₀ + k(k−1)/2·dd` in 32.32 fixed point, exact integer arithmetic), and the mix is
-    /// the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so every value is the same.
+    /// [`SkyPlane::fast_span`](super::SkyPlane)'s loop (nearest or bilinear), sixteen pixels at a time, for the
+    /// whole blocks of sixteen in `out`; returns how many pixels it wrote. The positions are the scalar
+    /// recurrence's, in closed form (`q(k) = q₀ + k·d₀ + k(k−1)/2·dd` in 32.32 fixed point, exact integer
+    /// arithmetic), and the mix is the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so
+    /// every value is the same.
     ///
     /// # Safety
-    /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel and its right and lower neighbours must
-    /// lie inside `px` (`w` wide), and `px.len()` must fit an `i32`.
+    /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel (and, bilinear, its right and lower
+    /// neighbours) must lie inside `px` (`w` wide), and `px.len()` must fit an `i32`.
+    #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
-    pub unsafe fn bilinear_span_512(
+    pub unsafe fn span_512(
         px: &[f32],
         w: usize,
         q: [i64; 2],
         d: [i64; 2],
         dd: [i64; 2],
+        bilinear: bool,
         out: &mut [f32],
         accumulate: bool,
     ) -> usize {
@@ -940,18 +944,23 @@ mod x86 {
             let (ix, fx) = positions(q[0], d[0], dd[0]);
             let (iy, fy) = positions(q[1], d[1], dd[1]);
             let i = _mm512_add_epi32(_mm512_mullo_epi32(iy, width), ix);
-            // SAFETY: the caller guarantees every index and its neighbours are inside `px`
-            let (tl, tr, bl, br) = unsafe {
-                (
-                    _mm512_i32gather_ps::<4>(i, base),
-                    _mm512_i32gather_ps::<4>(i, base.add(1)),
-                    _mm512_i32gather_ps::<4>(i, base.add(w)),
-                    _mm512_i32gather_ps::<4>(i, base.add(w + 1)),
-                )
+            let mut v = if bilinear {
+                // SAFETY: the caller guarantees every index and its neighbours are inside `px`
+                let (tl, tr, bl, br) = unsafe {
+                    (
+                        _mm512_i32gather_ps::<4>(i, base),
+                        _mm512_i32gather_ps::<4>(i, base.add(1)),
+                        _mm512_i32gather_ps::<4>(i, base.add(w)),
+                        _mm512_i32gather_ps::<4>(i, base.add(w + 1)),
+                    )
+                };
+                let top = _mm512_add_ps(tl, _mm512_mul_ps(_mm512_sub_ps(tr, tl), fx));
+                let bottom = _mm512_add_ps(bl, _mm512_mul_ps(_mm512_sub_ps(br, bl), fx));
+                _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy))
+            } else {
+                // SAFETY: the caller guarantees every index is inside `px`
+                unsafe { _mm512_i32gather_ps::<4>(i, base) }
             };
-            let top = _mm512_add_ps(tl, _mm512_mul_ps(_mm512_sub_ps(tr, tl), fx));
-            let bottom = _mm512_add_ps(bl, _mm512_mul_ps(_mm512_sub_ps(br, bl), fx));
-            let mut v = _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy));
             let at = out[16 * b..16 * b + 16].as_mut_ptr();
             // SAFETY: sixteen floats at `at`, inside `out`
             unsafe {
