@@ -228,8 +228,8 @@ struct Block {
 }
 
 /// Prefiltered crops of one sky plane for one PSF, by Jacobian key: a few are kept, the least recently used
-/// replaced. A crop is put together from prefiltered blocks, kept (up to [`BLOCK_CACHE_BYTES`]) for the next
-/// crops of the same key, so a view panning across the image filters each block once.
+/// replaced. A crop is put together from prefiltered blocks, kept (up to 64 MiB) for the next crops of the same
+/// key, so a view panning across the image filters each block once.
 #[derive(Debug, Default)]
 pub struct PrefilterCache {
     entries: Vec<Entry>,
