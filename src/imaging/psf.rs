@@ -689,27 +689,66 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
         || vec![0.0f32; w],
         |line, (ty, tiles)| {
             let wanted = &wanted[ty * tw..(ty + 1) * tw];
-            for y in ty * t..((ty + 1) * t).min(h) {
-                let (up, mid, down) = (&px[y.saturating_sub(1) * w..], &px[y * w..], &px[(y + 1).min(h - 1) * w..]);
-                for run in true_runs(wanted) {
-                    let (x0, x1) = (run.start * t, (run.end * t).min(w));
-                    for (x, c) in line.iter_mut().enumerate().take(x1).skip(x0) {
-                        let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                        let fxx = mid[l] - 2.0 * mid[x] + mid[r];
-                        let fyy = up[x] - 2.0 * mid[x] + down[x];
-                        let fxy = down[r] - down[x] - mid[r] + mid[x];
-                        *c = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
-                    }
-                    for (k, tile) in tiles.iter_mut().enumerate().take(run.end).skip(run.start) {
-                        for &c in &line[k * t..((k + 1) * t).min(w)] {
-                            // NaN sticks
-                            *tile = if c.is_nan() || tile.is_nan() { f32::NAN } else { tile.max(c) };
+            widest(
+                #[inline(always)]
+                || {
+                    for y in ty * t..((ty + 1) * t).min(h) {
+                        let row = |y: usize| &px[y * w..(y + 1) * w];
+                        let (up, mid, down) = (row(y.saturating_sub(1)), row(y), row((y + 1).min(h - 1)));
+                        for run in true_runs(wanted) {
+                            let (x0, x1) = (run.start * t, (run.end * t).min(w));
+                            curvature_row(up, mid, down, x0..x1, line);
+                            for (k, tile) in tiles.iter_mut().enumerate().take(run.end).skip(run.start) {
+                                let c = &line[k * t..((k + 1) * t).min(w)];
+                                // NaN sticks; the values are ≥ 0, so their largest is the same in any order
+                                let nan = c.iter().fold(false, |any, v| any | v.is_nan());
+                                *tile = if nan || tile.is_nan() {
+                                    f32::NAN
+                                } else {
+                                    c.iter().fold(*tile, |m, &v| m.max(v))
+                                };
+                            }
                         }
                     }
-                }
-            }
+                },
+            );
         },
     );
+}
+
+/// The curvature measure `|f_xx| + |f_yy| + 2·|f_xy|` of row `mid` (rows `up` and `down` around it, edges
+/// replicated) at the columns `xs`, into `line` at the same columns. The interior is one pass over slices (it
+/// vectorizes); the first and last columns use the replicated neighbours.
+#[inline(always)]
+fn curvature_row(up: &[f32], mid: &[f32], down: &[f32], xs: std::ops::Range<usize>, line: &mut [f32]) {
+    let w = mid.len();
+    let at = |x: usize| {
+        let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+        let fxx = mid[l] - 2.0 * mid[x] + mid[r];
+        let fyy = up[x] - 2.0 * mid[x] + down[x];
+        let fxy = down[r] - down[x] - mid[r] + mid[x];
+        fxx.abs() + fyy.abs() + 2.0 * fxy.abs()
+    };
+    // the interior columns a..b have both neighbours
+    let (a, b) = (xs.start.max(1), xs.end.min(w.saturating_sub(1)));
+    for (x, c) in line.iter_mut().enumerate().take(a.min(xs.end)).skip(xs.start) {
+        *c = at(x);
+    }
+    if a < b {
+        let n = b - a;
+        let (ml, mc, mr) = (&mid[a - 1..b - 1], &mid[a..b], &mid[a + 1..b + 1]);
+        let (uc, dc, dr) = (&up[a..b], &down[a..b], &down[a + 1..b + 1]);
+        let out = &mut line[a..b];
+        for i in 0..n {
+            let fxx = ml[i] - 2.0 * mc[i] + mr[i];
+            let fyy = uc[i] - 2.0 * mc[i] + dc[i];
+            let fxy = dr[i] - dc[i] - mr[i] + mc[i];
+            out[i] = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
+        }
+    }
+    for (x, c) in line.iter_mut().enumerate().take(xs.end).skip(b.max(a)) {
+        *c = at(x);
+    }
 }
 
 /// Reusable buffers for applying kernels to frames of one size.
