@@ -531,7 +531,7 @@ impl PhaseSpectra {
                         }
                     }
                 }
-                this.transform(&mut grid, true);
+                this.transform(&mut grid, true, &mut Vec::new());
                 grid
             })
             .collect();
@@ -539,13 +539,16 @@ impl PhaseSpectra {
     }
 
     /// In place, `side²` values: forward (rows, transpose, rows: the result transposed) or inverse (the
-    /// same steps undoing a forward one).
-    fn transform(&self, grid: &mut [Complex<f32>], forward: bool) {
+    /// same steps undoing a forward one); `scratch` is grown as the transforms need.
+    fn transform(&self, grid: &mut [Complex<f32>], forward: bool, scratch: &mut Vec<Complex<f32>>) {
         let fft = if forward { &self.forward } else { &self.inverse };
-        let mut scratch = vec![Complex::new(0.0f32, 0.0); fft.get_inplace_scratch_len()];
-        fft.process_with_scratch(grid, &mut scratch);
+        let need = fft.get_inplace_scratch_len();
+        if scratch.len() < need {
+            scratch.resize(need, Complex::new(0.0, 0.0));
+        }
+        fft.process_with_scratch(grid, &mut scratch[..need]);
         transpose_square(grid, self.side);
-        fft.process_with_scratch(grid, &mut scratch);
+        fft.process_with_scratch(grid, &mut scratch[..need]);
     }
 
     /// The block of `image` whose first texel is `at`, prefiltered: every phase on the fine grid (as
@@ -560,7 +563,8 @@ impl PhaseSpectra {
                 c.re = v;
             }
         }
-        self.transform(&mut spectrum, true);
+        let mut scratch = Vec::new();
+        self.transform(&mut spectrum, true, &mut scratch);
         let scale = 1.0 / (n * n) as f32;
         let bs = s * m;
         let mut values = vec![0.0f32; bs * bs];
@@ -569,7 +573,7 @@ impl PhaseSpectra {
             for ((o, &a), &k) in product.iter_mut().zip(&spectrum).zip(kernel) {
                 *o = a * k;
             }
-            self.transform(&mut product, false);
+            self.transform(&mut product, false, &mut scratch);
             for (part, phase) in [2 * p, 2 * p + 1].into_iter().enumerate() {
                 if phase >= m * m {
                     break;

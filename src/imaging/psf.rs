@@ -1024,14 +1024,19 @@ impl Convolver {
         });
         let padded = &self.padded;
         frame.pixels_mut().par_chunks_mut(t * w).enumerate().for_each_init(
-            || (vec![0.0f32; (t + 2 * r) * w], vec![0.0f32; t * w]),
-            |(tmp, acc), (ty, band)| {
+            // grown to the widest run a task meets, so bands with nothing to blur allocate nothing
+            || (Vec::new(), Vec::new()),
+            |(tmp, acc): &mut (Vec<f32>, Vec<f32>), (ty, band)| {
                 let rows = band.len() / w;
                 // each run of blurred tiles along the band in one sweep (the same sums, pixel by pixel, as tile
                 // by tile: a run starts on a tile's edge, a multiple of the rows' 16 lanes)
                 for run in true_runs(&needed[ty * tw..(ty + 1) * tw]) {
                     let x0 = run.start * t;
                     let cols = (run.end * t).min(w) - x0;
+                    if tmp.len() < (t + 2 * r) * cols {
+                        tmp.resize((t + 2 * r) * cols, 0.0);
+                        acc.resize(t * cols, 0.0);
+                    }
                     acc[..rows * cols].fill(0.0);
                     for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
                         // horizontal over the band's rows and r more on each side (padded coordinates)

@@ -890,6 +890,8 @@ impl RowGeometry {
 mod x86 {
     use std::arch::x86_64::*;
 
+    use crate::physics::simd::bilinear16_avx512;
+
     /// [`SkyPlane::fast_span`](super::SkyPlane)'s loop (nearest or bilinear), sixteen pixels at a time, for the
     /// whole blocks of sixteen in `out`; returns how many pixels it wrote. The positions are the scalar
     /// recurrence's, in closed form (`q(k) = q₀ + k·d₀ + k(k−1)/2·dd` in 32.32 fixed point, exact integer
@@ -946,17 +948,7 @@ mod x86 {
             let i = _mm512_add_epi32(_mm512_mullo_epi32(iy, width), ix);
             let mut v = if bilinear {
                 // SAFETY: the caller guarantees every index and its neighbours are inside `px`
-                let (tl, tr, bl, br) = unsafe {
-                    (
-                        _mm512_i32gather_ps::<4>(i, base),
-                        _mm512_i32gather_ps::<4>(i, base.add(1)),
-                        _mm512_i32gather_ps::<4>(i, base.add(w)),
-                        _mm512_i32gather_ps::<4>(i, base.add(w + 1)),
-                    )
-                };
-                let top = _mm512_add_ps(tl, _mm512_mul_ps(_mm512_sub_ps(tr, tl), fx));
-                let bottom = _mm512_add_ps(bl, _mm512_mul_ps(_mm512_sub_ps(br, bl), fx));
-                _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy))
+                unsafe { bilinear16_avx512(base, i, w, fx, fy) }
             } else {
                 // SAFETY: the caller guarantees every index is inside `px`
                 unsafe { _mm512_i32gather_ps::<4>(i, base) }

@@ -101,6 +101,39 @@ unsafe fn with_avx512<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
+/// Sixteen bilinear samples of a row-major f32 image `width` wide with AVX-512 gathers: the texel at each lane's
+/// `index` and its right, lower and lower-right neighbours, mixed by the lane's fractions the way the scalar
+/// samplers do (each row `left + (right − left)·fx`, then `top + (bottom − top)·fy`, multiplies and adds
+/// separate), so the values are the scalar's.
+///
+/// # Safety
+/// The CPU must have AVX-512F; for every lane, `index`, `index + 1`, `index + width` and `index + width + 1` must
+/// lie inside the image that `base` points at.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn bilinear16_avx512(
+    base: *const f32,
+    index: std::arch::x86_64::__m512i,
+    width: usize,
+    fx: std::arch::x86_64::__m512,
+    fy: std::arch::x86_64::__m512,
+) -> std::arch::x86_64::__m512 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees every lane's four texels are inside the image
+    let (tl, tr, bl, br) = unsafe {
+        (
+            _mm512_i32gather_ps::<4>(index, base),
+            _mm512_i32gather_ps::<4>(index, base.add(1)),
+            _mm512_i32gather_ps::<4>(index, base.add(width)),
+            _mm512_i32gather_ps::<4>(index, base.add(width + 1)),
+        )
+    };
+    let top = _mm512_add_ps(tl, _mm512_mul_ps(_mm512_sub_ps(tr, tl), fx));
+    let bottom = _mm512_add_ps(bl, _mm512_mul_ps(_mm512_sub_ps(br, bl), fx));
+    _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -325,15 +325,17 @@ impl Dome {
     #[inline(always)]
     pub fn radiance_along(&self, base: DVec3, step: DVec3, out: &mut [f32], only_nan: bool) {
         const BLOCK: usize = 16;
-        #[allow(unused_mut)]
-        let mut done = 0;
         #[cfg(target_arch = "x86_64")]
-        if self.table.len() == TABLE_SAMPLES
+        let done = if self.table.len() == TABLE_SAMPLES
             && crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512
         {
             // SAFETY: the CPU has AVX-512
-            done = unsafe { x86::radiance_along_512(&self.table, self.horizon_sky as f32, base, step, out, only_nan) };
-        }
+            unsafe { x86::radiance_along_512(&self.table, self.horizon_sky as f32, base, step, out, only_nan) }
+        } else {
+            0
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let done = 0;
         let mut sin_e = [0.0f64; BLOCK];
         for (b, block) in out[done..].chunks_mut(BLOCK).enumerate() {
             for (k, s) in sin_e.iter_mut().enumerate() {
