@@ -16,6 +16,7 @@ use crate::scenario::load::{load_for_frames, located};
 use crate::scenario::{CheckedScenario, QualityPreset, QualitySpec, load};
 use crate::sim::{
     FrameReady, RunOptions, SensorFrame, SimClock, StageTimings, drain_frames, headless_app, set_stop_flag, step,
+    with_workers_awake,
 };
 
 /// Flags of `irsim record`.
@@ -411,7 +412,7 @@ pub fn record_scenario(
         }
         // A bug must not leave the directory claiming to run: record it as the failure and stop there.
         let ready = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            app.update();
+            with_workers_awake(|| app.update());
             drain_frames(&mut app).pop()
         })) {
             Ok(Some(ready)) => ready,

@@ -82,6 +82,40 @@ pub fn frame_at(app: &mut App, k: u64) -> Option<FrameReady> {
     drain_frames(app).pop()
 }
 
+/// Runs `f` (one frame) with rayon's other workers kept awake: each takes a job that looks for work in the pool
+/// until `f` returns, so the frame's parallel stages find them ready instead of waking them from sleep (rayon
+/// puts an idle worker to sleep within microseconds, and waking it took 20–60 µs here, a large part of a
+/// 256×256 stage). A waiting worker yields its core to the system between looks, so other threads (the
+/// recorder's encoders) still run. Outside a pool, or in a pool of one, `f` just runs.
+pub fn with_workers_awake<R>(f: impl FnOnce() -> R) -> R {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let (Some(owner), others) = (rayon::current_thread_index(), rayon::current_num_threads().saturating_sub(1)) else {
+        return f();
+    };
+    if others == 0 {
+        return f();
+    }
+    let done = AtomicBool::new(false);
+    rayon::in_place_scope(|s| {
+        for _ in 0..others {
+            s.spawn(|_| {
+                // the frame's own thread may run this job itself while it waits in a join: it must not wait here
+                if rayon::current_thread_index() == Some(owner) {
+                    return;
+                }
+                while !done.load(Ordering::Acquire) {
+                    if rayon::yield_now() != Some(rayon::Yield::Executed) {
+                        std::thread::yield_now();
+                    }
+                }
+            });
+        }
+        let out = f();
+        done.store(true, Ordering::Release);
+        out
+    })
+}
+
 /// The frame [`step`] read last (its buffer goes back to the [`FramePool`] when the next one arrives).
 #[derive(Resource, Debug, Default)]
 pub struct LatestFrame(pub Option<FrameReady>);
@@ -93,14 +127,14 @@ pub struct LatestFrame(pub Option<FrameReady>);
 pub fn step(app: &mut App) -> FrameLabels {
     // the frame's systems run on a thread of rayon's pool, so that each parallel stage forks from a worker
     // (the other workers steal its halves) instead of handing the whole stage over to the pool and sleeping
-    // until it is done
+    // until it is done (the `irsim` program's main thread is a worker already)
     let sub_apps = app.sub_apps_mut();
     if sub_apps.sub_apps.is_empty() && rayon::current_thread_index().is_none() {
         // what `App::update` does for an app without sub-apps
         let main = &mut sub_apps.main;
-        rayon::scope(|_| main.update());
+        rayon::scope(|_| with_workers_awake(|| main.update()));
     } else {
-        app.update();
+        with_workers_awake(|| app.update());
     }
     let ready = drain_frames(app).pop().expect("each step completes one frame");
     let labels = ready.labels.clone();
