@@ -457,6 +457,8 @@ pub fn record_scenario(
         rec.set_manifest("timings", json!({ "wall_s": elapsed, "stage_ms_per_frame": stages }));
     }
     let progress = rec.finish(interrupted).map_err(|e| CliError::Failed(format!("recording stopped: {e}")))?;
+    // the rate counts the files still in the encoders' hands and the last sync
+    let elapsed = started.elapsed().as_secs_f64();
     let summary = format!(
         "{}: {} of {} frames written to {} ({:.1} frames/s)",
         progress.status,
