@@ -13,7 +13,62 @@ pub struct Frame {
 }
 
 impl Frame {
-    /// A frame of zeros.
+    /// Fills this frame from `coarse`, sampled every `step` pixels of it (coarse pixel `k` covers this frame's
+    /// pixels `k·step … k·step + step − 1`): bilinear between coarse pixel centres, the edge values held beyond
+    /// the outermost centres. `rows` is scratch (the coarse rows interpolated along x), kept by the caller.
+    ///
+    /// # Panics
+    /// If this frame is not `step` times `coarse` each way.
+    pub fn upsample_bilinear(&mut self, coarse: &Frame, step: usize, rows: &mut Vec<f32>) {
+        use rayon::prelude::*;
+        assert!(step >= 1 && self.width == coarse.width * step && self.height == coarse.height * step);
+        let (w, cw) = (self.width, coarse.width);
+        if w == 0 || self.height == 0 {
+            return;
+        }
+        // where a pixel centre falls between coarse centres: the lower one's index, the upper one's, the weight
+        let place = |i: usize, n: usize| -> (usize, usize, f32) {
+            let c = (i as f64 + 0.5) / step as f64 - 0.5;
+            if c <= 0.0 {
+                (0, 0, 0.0)
+            } else if c >= (n - 1) as f64 {
+                (n - 1, n - 1, 0.0)
+            } else {
+                let k = c as usize;
+                (k, k + 1, (c - k as f64) as f32)
+            }
+        };
+        // along x, once per coarse row
+        rows.resize(w * coarse.height, 0.0);
+        let columns: Vec<(usize, usize, f32)> = (0..w).map(|i| place(i, cw)).collect();
+        let per_task = (16_384 / w).max(1);
+        rows.par_chunks_mut(w).zip(coarse.pixels.par_chunks(cw)).with_min_len(per_task).for_each(|(out, a)| {
+            if step == 2 && cw >= 2 {
+                // centres at k ∓ ¼: ¾ of the nearest coarse pixel and ¼ of the next one out
+                out[0] = a[0];
+                out[w - 1] = a[cw - 1];
+                for (k, pair) in out[1..w - 1].chunks_exact_mut(2).enumerate() {
+                    pair[0] = 0.75 * a[k] + 0.25 * a[k + 1];
+                    pair[1] = 0.25 * a[k] + 0.75 * a[k + 1];
+                }
+            } else {
+                for (o, &(x0, x1, fx)) in out.iter_mut().zip(&columns) {
+                    *o = a[x0] + (a[x1] - a[x0]) * fx;
+                }
+            }
+        });
+        // along y, a blend of two of those rows per row
+        let rows = &*rows;
+        self.pixels.par_chunks_mut(w).enumerate().with_min_len(per_task).for_each(|(j, out)| {
+            let (y0, y1, fy) = place(j, coarse.height);
+            let (top, bottom) = (&rows[y0 * w..(y0 + 1) * w], &rows[y1 * w..(y1 + 1) * w]);
+            for ((o, &t), &b) in out.iter_mut().zip(top).zip(bottom) {
+                *o = t + (b - t) * fy;
+            }
+        });
+    }
+
+    /// A zero frame of `width × height` pixels.
     pub fn new(width: usize, height: usize) -> Self {
         Self { width, height, pixels: vec![0.0; width * height] }
     }
@@ -181,6 +236,24 @@ fn quantize(v: f32, max: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn upsampling_is_exact_on_a_plane_and_holds_the_edges() {
+        // a linear ramp is reproduced wherever a pixel lies between coarse centres
+        let (cw, ch) = (5, 4);
+        let coarse = Frame::from_pixels(cw, ch, (0..cw * ch).map(|i| (3 * (i % cw) + 7 * (i / cw)) as f32).collect());
+        for step in [1, 2, 3] {
+            let mut fine = Frame::new(cw * step, ch * step);
+            fine.upsample_bilinear(&coarse, step, &mut Vec::new());
+            for y in 0..ch * step {
+                for x in 0..cw * step {
+                    let c = |i: usize, n: usize| ((i as f64 + 0.5) / step as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+                    let want = 3.0 * c(x, cw) + 7.0 * c(y, ch);
+                    assert!((f64::from(fine.get(x, y)) - want).abs() < 1e-5, "step {step} ({x}, {y})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn png16_round_trip() {

@@ -95,6 +95,11 @@ pub struct Quality {
     pub sky_blur: SkyBlur,
     /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
     pub prefilter_tolerance: f64,
+    /// The sky background (image, dome and their blur) is made on a grid this many sensor pixels apart each
+    /// way, as a camera with pixels this many times larger but the detector's own photosensitive area would see
+    /// it, and interpolated bilinearly between (1: at every pixel; a frame whose width or height is not a
+    /// multiple of it is made at every pixel).
+    pub background_step_px: usize,
     /// Quadrature of a target's ellipse ⊗ PSF.
     pub target_method: TargetMethod,
     /// Pixel sampling of the paper's blob model.
@@ -149,6 +154,7 @@ impl Quality {
             psf_skip_below_dn: 0.1,
             sky_blur: SkyBlur::Prefilter,
             prefilter_tolerance: 0.05,
+            background_step_px: 1,
             target_method: TargetMethod::Auto,
             blob_sampling: BlobSampling::Auto,
             blob_roi_fraction: 1e-3,
@@ -195,6 +201,7 @@ impl Quality {
                 psf_skip_below_dn: 1.0,
                 sky_blur: SkyBlur::Auto,
                 prefilter_tolerance: 0.2,
+                background_step_px: DRAFT_BACKGROUND_STEP_PX,
                 blob_sampling: BlobSampling::Point,
                 blob_roi_fraction: 1e-2,
                 poisson_normal_threshold_e: 10.0,
@@ -242,7 +249,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 24] = [
+pub const SWITCHES: [&str; 25] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -253,6 +260,7 @@ pub const SWITCHES: [&str; 24] = [
     "psf_skip_below_dn",
     "sky_blur",
     "prefilter_tolerance",
+    "background_step_px",
     "target_method",
     "blob_sampling",
     "blob_roi_fraction",
@@ -295,6 +303,10 @@ pub const STANDARD_ATMOSPHERE_TOLERANCE: f64 = 0.01;
 pub const DRAFT_ATMOSPHERE_TOLERANCE: f64 = 0.05;
 /// Largest `atmosphere_tolerance`.
 pub const MAX_ATMOSPHERE_TOLERANCE: f64 = 0.2;
+/// The draft preset's `background_step_px`.
+pub const DRAFT_BACKGROUND_STEP_PX: usize = 2;
+/// Largest `background_step_px`.
+pub const MAX_BACKGROUND_STEP_PX: usize = 4;
 /// Smallest `blob_roi_fraction`.
 pub const MIN_ROI_FRACTION: f64 = 1e-9;
 /// Largest `poisson_normal_threshold_e`: every count exact.
@@ -333,6 +345,9 @@ pub struct QualitySpec {
     /// See [`Quality::prefilter_tolerance`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prefilter_tolerance: Option<f64>,
+    /// See [`Quality::background_step_px`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub background_step_px: Option<usize>,
     /// See [`Quality::target_method`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_method: Option<TargetMethod>,
@@ -412,6 +427,7 @@ impl QualitySpec {
             psf_skip_below_dn,
             sky_blur,
             prefilter_tolerance,
+            background_step_px,
             target_method,
             blob_sampling,
             blob_roi_fraction,
@@ -448,6 +464,12 @@ impl QualitySpec {
         range("psf_skip_below_dn", q.psf_skip_below_dn, 0.0, 1e6, " DN")?;
         range("fusion_skip_below_sigma", q.fusion_skip_below_sigma, 0.0, 100.0, " σ")?;
         range("prefilter_tolerance", q.prefilter_tolerance, MIN_PREFILTER_TOLERANCE, 0.5, "")?;
+        if !(1..=MAX_BACKGROUND_STEP_PX).contains(&q.background_step_px) {
+            return Err(fe(
+                "quality.background_step_px",
+                format!("{} must be in 1 … {MAX_BACKGROUND_STEP_PX} px", q.background_step_px),
+            ));
+        }
         if let BlobSampling::Integrated { n } = q.blob_sampling
             && !(1..=16).contains(&n)
         {
@@ -544,6 +566,8 @@ mod tests {
             ("planck = { method = \"gauss_legendre\", points = 0 }", "quality.planck.points"),
             ("radiometry_tolerance = 0.5", "quality.radiometry_tolerance"),
             ("reflection_skip_below_dn = -1", "quality.reflection_skip_below_dn"),
+            ("background_step_px = 0", "quality.background_step_px"),
+            ("background_step_px = 9", "quality.background_step_px"),
             (
                 "fusion_solver = { method = \"jacobi\", tolerance = 0, max_iterations = 10 }",
                 "quality.fusion_solver.tolerance",

@@ -306,6 +306,8 @@ pub struct ResolvedSensor {
     pub blob: BlobSettings,
     /// Frame rate the preset's camera runs at, if a preset was named.
     pub preset_frame_rate_hz: Option<f64>,
+    /// `[quality] background_step_px`.
+    pub background_step_px: usize,
 }
 
 const MIGRATION: &str = "was removed: the sensor is now a physical camera (optics, detector in electrons or volts, \
@@ -567,6 +569,7 @@ impl SensorSpec {
                 sampling: quality.blob_sampling,
             },
             preset_frame_rate_hz: base.map(|b| b.frame_rate_hz),
+            background_step_px: quality.background_step_px,
         })
     }
 }

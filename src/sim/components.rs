@@ -175,6 +175,12 @@ pub struct Sensor {
     pub sky_blur_plan: Option<SkyBlurPlan>,
     /// The non-idealities of this sequence.
     pub nonideal: Option<Arc<NonIdeal>>,
+    /// The background is made on a grid this many pixels apart (`[quality] background_step_px`, 1 where the
+    /// frame's size is not a multiple of it).
+    pub background_step: usize,
+    /// The PSF the coarse grid blurs with: the optics seen from pixels `background_step` times larger, over
+    /// the detector's own photosensitive area (`None` at step 1 or without optics blur).
+    pub coarse_psf: Option<Arc<Psf>>,
 }
 
 impl Sensor {
@@ -203,4 +209,8 @@ pub struct SensorFrame {
     pub background_stats: BackgroundStats,
     pub(super) renderer: BackgroundRenderer,
     pub(super) columns: Vec<f32>,
+    /// The background on the coarse grid, where `background_step` > 1.
+    pub(super) coarse: Option<Frame>,
+    /// Scratch of the upsampling.
+    pub(super) coarse_rows: Vec<f32>,
 }

@@ -30,7 +30,10 @@ pub fn render_sky(
     let sf = &mut *sf;
     if sf.background_camera != Some(pose.current) {
         let view = SkyView { plane: sky.plane.as_deref(), dome: &sky.dome, sampling: sky.sampling, miss: sky.miss };
-        let blur = match (&sensor.psf, sensor.resolved.psf, sensor.blur_frame) {
+        let step = sensor.background_step;
+        // on the coarse grid: the optics seen from pixels `step` times larger
+        let psf = if step > 1 { &sensor.coarse_psf } else { &sensor.psf };
+        let blur = match (psf, sensor.resolved.psf, sensor.blur_frame) {
             (Some(psf), Some(cfg), true) => Some(BackgroundBlur {
                 psf,
                 method: cfg.method,
@@ -42,7 +45,17 @@ pub fn render_sky(
             }),
             _ => None,
         };
-        sf.background_stats = sf.renderer.render(&view, &pose.current, blur.as_ref(), &mut sf.background);
+        match sf.coarse.as_mut() {
+            Some(coarse) if step > 1 => {
+                let mut camera = pose.current;
+                camera.intrinsics.width /= step as u32;
+                camera.intrinsics.height /= step as u32;
+                camera.intrinsics.pixel_pitch_m *= step as f64;
+                sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
+                sf.background.upsample_bilinear(coarse, step, &mut sf.coarse_rows);
+            }
+            _ => sf.background_stats = sf.renderer.render(&view, &pose.current, blur.as_ref(), &mut sf.background),
+        }
         sf.background_camera = Some(pose.current);
     }
     sf.frame.pixels_mut().copy_from_slice(sf.background.pixels());

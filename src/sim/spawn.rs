@@ -119,6 +119,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         sensor.sky_blur_plan = Some(plan);
     }
     world.insert_resource(scene);
+    let step = sensor.background_step;
     world.spawn((
         sensor,
         SensorFrame {
@@ -129,6 +130,8 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
             background_stats: BackgroundStats::default(),
             renderer: BackgroundRenderer::new(),
             columns: Vec::new(),
+            coarse: (step > 1).then(|| Frame::new(w / step, h / step)),
+            coarse_rows: Vec::new(),
         },
     ));
     let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
@@ -322,23 +325,27 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
     let k = model.signal_per_radiance();
     let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
     let dn_per_radiance = k / model.adc.gain;
-    let psf = match resolved.psf {
-        Some(p) => Some(
-            shared_psf(
-                &p.spec,
-                &PsfOptics {
-                    f_number: model.optics.f_number(),
-                    pixel_pitch_m: model.detector.pixel_pitch_m,
-                    fill_factor: model.detector.fill_factor,
-                    band: model.band,
-                    measure: model.measure(),
-                    reference_temp_k: 300.0,
-                },
-            )
-            .map_err(|e| SetupError { field: format!("sensor.psf.{}", e.name), message: e.to_string() })?,
-        ),
-        None => None,
+    let (w, h) = (resolved.intrinsics.width as usize, resolved.intrinsics.height as usize);
+    let step = resolved.background_step_px.max(1);
+    let background_step = if w % step == 0 && h % step == 0 { step } else { 1 };
+    // the PSF seen from pixels `scale` times larger over the detector's own photosensitive area
+    let psf_at = |scale: usize| -> Result<Option<Arc<Psf>>, SetupError> {
+        let Some(p) = resolved.psf else { return Ok(None) };
+        let scale = scale as f64;
+        let optics = PsfOptics {
+            f_number: model.optics.f_number(),
+            pixel_pitch_m: model.detector.pixel_pitch_m * scale,
+            fill_factor: model.detector.fill_factor / (scale * scale),
+            band: model.band,
+            measure: model.measure(),
+            reference_temp_k: 300.0,
+        };
+        shared_psf(&p.spec, &optics)
+            .map(Some)
+            .map_err(|e| SetupError { field: format!("sensor.psf.{}", e.name), message: e.to_string() })
     };
+    let psf = psf_at(1)?;
+    let coarse_psf = if background_step > 1 { psf_at(background_step)? } else { None };
     let blur_dome = match (&psf, resolved.psf) {
         (Some(psf), Some(cfg)) => dome_needs_blur(psf, &cfg, sky, resolved, dn_per_radiance),
         _ => false,
@@ -367,6 +374,8 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
         sky_blur: resolved.psf.map_or(SkyBlur::Frame, |p| p.sky_blur),
         sky_blur_plan: None,
         nonideal,
+        background_step,
+        coarse_psf,
     })
 }
 
