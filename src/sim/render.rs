@@ -58,5 +58,13 @@ pub fn render_sky(
         }
         sf.background_camera = Some(pose.current);
     }
-    sf.frame.pixels_mut().copy_from_slice(sf.background.pixels());
+    // the frame starts as the background: copied in parallel (one thread's memcpy of a 640 × 512 frame took a
+    // tenth of a draft frame)
+    use rayon::prelude::*;
+    let chunk = 16_384;
+    sf.frame
+        .pixels_mut()
+        .par_chunks_mut(chunk)
+        .zip(sf.background.pixels().par_chunks(chunk))
+        .for_each(|(dst, src)| dst.copy_from_slice(src));
 }
