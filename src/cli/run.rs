@@ -257,19 +257,7 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
     }
     let scenario = load_for_frames(&a.scenario, a.frames).map_err(|e| CliError::Invalid(e.to_string()))?;
     let scenario = with_quality(scenario, a.quality)?;
-    let plan = RecordPlan {
-        out: a.out.clone(),
-        first_frame: 0,
-        frames: scenario.spec.run.frames,
-        seed: a.seed,
-        force: a.force,
-        noise: !a.no_noise,
-        vibration: !a.no_vibration,
-        format: a.format,
-        png: a.png_compression,
-        masks: a.masks,
-        reproducible: false,
-    };
+    let plan = record_plan(a, scenario.spec.run.frames);
     let (stop, bar) = stop_flag_and_bar(a.quiet, plan.frames);
     let done = record_scenario(&scenario, &plan, &stop, &mut |written, _| bar.set_position(written));
     bar.finish_and_clear();
@@ -342,6 +330,23 @@ pub struct RecordDone {
     /// Frames written per second of the recording loop (from the first frame to the last file in place; the
     /// scenario's set-up not counted, as `irsim bench` does not count it for a run without disk writes).
     pub frames_per_s: f64,
+}
+
+/// What `irsim record` with `a` writes, for a run of `frames` frames.
+fn record_plan(a: &RecordArgs, frames: u64) -> RecordPlan {
+    RecordPlan {
+        out: a.out.clone(),
+        first_frame: 0,
+        frames,
+        seed: a.seed,
+        force: a.force,
+        noise: !a.no_noise,
+        vibration: !a.no_vibration,
+        format: a.format,
+        png: a.png_compression,
+        masks: a.masks,
+        reproducible: false,
+    }
 }
 
 /// Records `scenario` as `plan` says: what `irsim record` does, for any front end. `progress(written, total)` is
@@ -756,19 +761,21 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         let scenario = with_quality(scenario, a.quality)?;
         let (fps, details) = if recording {
             // the recorder's own loop, as `irsim record` reports it: set-up is not counted on either side
-            let plan = RecordPlan {
+            let args = RecordArgs {
+                scenario: path.clone(),
                 out: dir.join("out"),
-                first_frame: 0,
-                frames,
+                frames: Some(frames),
                 seed: None,
                 force: true,
-                noise: true,
-                vibration: true,
+                no_noise: false,
+                no_vibration: false,
                 format: FrameFormat::Png16,
-                png: PngCompression::Fast,
+                png_compression: PngCompression::Fast,
                 masks: false,
-                reproducible: false,
+                quiet: true,
+                quality: a.quality,
             };
+            let plan = record_plan(&args, frames);
             let done = record_scenario(&scenario, &plan, &Arc::new(AtomicBool::new(false)), &mut |_, _| {})?;
             let ratio = headless_256.map_or_else(String::new, |h: f64| {
                 format!("  ({:.2} of the rate without disk writes)", done.frames_per_s / h)

@@ -40,10 +40,13 @@ impl Frame {
         };
         // along x, once per coarse row
         rows.resize(w * coarse.height, 0.0);
-        let columns: Vec<(usize, usize, f32)> = (0..w).map(|i| place(i, cw)).collect();
+        // the general step's weights per column (the step of 2 needs none)
+        let halves = step == 2 && cw >= 2;
+        let columns: Vec<(usize, usize, f32)> =
+            if halves { Vec::new() } else { (0..w).map(|i| place(i, cw)).collect() };
         let per_task = (16_384 / w).max(1);
         rows.par_chunks_mut(w).zip(coarse.pixels.par_chunks(cw)).with_min_len(per_task).for_each(|(out, a)| {
-            if step == 2 && cw >= 2 {
+            if halves {
                 // centres at k ∓ ¼: ¾ of the nearest coarse pixel and ¼ of the next one out
                 out[0] = a[0];
                 out[w - 1] = a[cw - 1];

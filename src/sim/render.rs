@@ -46,7 +46,7 @@ pub fn render_sky(
             _ => None,
         };
         match sf.coarse.as_mut() {
-            Some(coarse) if step > 1 => {
+            Some(coarse) => {
                 let mut camera = pose.current;
                 camera.intrinsics.width /= step as u32;
                 camera.intrinsics.height /= step as u32;
@@ -54,7 +54,7 @@ pub fn render_sky(
                 sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
                 sf.background.upsample_bilinear(coarse, step, &mut sf.coarse_rows);
             }
-            _ => sf.background_stats = sf.renderer.render(&view, &pose.current, blur.as_ref(), &mut sf.background),
+            None => sf.background_stats = sf.renderer.render(&view, &pose.current, blur.as_ref(), &mut sf.background),
         }
         sf.background_camera = Some(pose.current);
     }
