@@ -11,7 +11,9 @@
 //! waiting for the disk; each checkpoint first makes everything written since the last one durable (one
 //! `syncfs` of the output's file system on Linux, a sync of each file elsewhere), then writes the labels. A
 //! crash of the machine loses at most the frames since the last checkpoint, and never leaves labels that list
-//! a frame the disk does not hold.
+//! a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the manifest, so a
+//! process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one checkpoint
+//! behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::io::Write;
