@@ -284,6 +284,19 @@ impl Psf {
         let (px, i0) = (ix % FINE_PER_PX, ix / FINE_PER_PX);
         let (py, j0) = (iy % FINE_PER_PX, iy / FINE_PER_PX);
         let n = kx1 - kx0;
+        #[cfg(target_arch = "x86_64")]
+        if crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512 {
+            let (steps, table) = (self.fine.steps, &self.fine.values);
+            let start = |qy: usize, qx: usize| self.fine.row_start(qy, qx, j0) + i0;
+            let starts = [start(py, px), start(py, px + 1), start(py + 1, px), start(py + 1, px + 1)];
+            let (count, at) = (ky1 - ky0, ky0 * width + kx0);
+            // every row read and written lies inside its buffer (the same rows as the loop below would slice)
+            assert!(i0 + n <= steps && starts.iter().all(|&s| s + (count - 1) * steps + n <= table.len()));
+            assert!(at + (count - 1) * width + n <= out.len());
+            // SAFETY: the CPU has AVX-512 (checked above); the reads and writes are inside the buffers (asserted)
+            unsafe { x86::add_rows_512(table, starts, steps, &mut out[at..], width, n, count, [tx, ty, weight]) };
+            return;
+        }
         widest(
             #[inline(always)]
             || {
@@ -368,8 +381,63 @@ impl PhaseTable {
     /// Row `j` of phase `(qy, qx)`'s block: nodes `(qy + FINE_PER_PX·j, qx + FINE_PER_PX·i)` for every `i`.
     #[inline(always)]
     fn row(&self, qy: usize, qx: usize, j: usize) -> &[f32] {
-        let start = ((qy * PHASES + qx) * self.steps + j) * self.steps;
+        let start = self.row_start(qy, qx, j);
         &self.values[start..start + self.steps]
+    }
+
+    /// Where [`PhaseTable::row`]`(qy, qx, j)` starts in `values` (row `j + 1` starts `steps` further on).
+    #[inline(always)]
+    fn row_start(&self, qy: usize, qx: usize, j: usize) -> usize {
+        ((qy * PHASES + qx) * self.steps + j) * self.steps
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use std::arch::x86_64::*;
+
+    /// [`Psf::add_point`](super::Psf::add_point)'s loop, sixteen pixels at a time with the row's last
+    /// pixels under a mask: for `count` rows `r`, `out[r·width + k] += weight·bilinear(a, b, c, d; tx, ty)` for
+    /// `k < n`, where `a`… are the table's values at `starts[0..4] + r·steps + k`. The operations are the scalar
+    /// loop's in its order (no fused multiply–add), so every value is the same.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, DQ, BW, VL); `starts[i] + (count − 1)·steps + n ≤ table.len()` for each
+    /// `i`, and `(count − 1)·width + n ≤ out.len()`.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    pub unsafe fn add_rows_512(
+        table: &[f32],
+        starts: [usize; 4],
+        steps: usize,
+        out: &mut [f32],
+        width: usize,
+        n: usize,
+        count: usize,
+        [tx, ty, weight]: [f32; 3],
+    ) {
+        let (tx, ty, weight) = (_mm512_set1_ps(tx), _mm512_set1_ps(ty), _mm512_set1_ps(weight));
+        let base = table.as_ptr();
+        let dst = out.as_mut_ptr();
+        for r in 0..count {
+            let mut k = 0;
+            while k < n {
+                let mask: __mmask16 = if n - k >= 16 { 0xffff } else { (1u16 << (n - k)) - 1 };
+                // SAFETY: lanes under the mask lie inside the rows the caller vouches for; the others are not
+                // touched (masked loads and stores do not fault)
+                unsafe {
+                    let load = |s: usize| _mm512_maskz_loadu_ps(mask, base.add(s + r * steps + k));
+                    let (a, b, c, d) = (load(starts[0]), load(starts[1]), load(starts[2]), load(starts[3]));
+                    let t = _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), tx));
+                    let bottom = _mm512_add_ps(c, _mm512_mul_ps(_mm512_sub_ps(d, c), tx));
+                    let v = _mm512_add_ps(t, _mm512_mul_ps(_mm512_sub_ps(bottom, t), ty));
+                    let o = dst.add(r * width + k);
+                    let sum = _mm512_add_ps(_mm512_maskz_loadu_ps(mask, o), _mm512_mul_ps(weight, v));
+                    _mm512_mask_storeu_ps(o, mask, sum);
+                }
+                k += 16;
+            }
+        }
     }
 }
 

@@ -102,9 +102,16 @@ pub fn render_target(
     if rect.is_empty() {
         return 0.0;
     }
-    match spec.method {
-        TargetMethod::Auto => render_nodes(ellipse, psf, spec.node_spacing_px, spec.seven_point_max_px, rect, out),
-        TargetMethod::Reference => render_nodes(ellipse, psf, 0.05, 0.0, rect, out),
+    let (spacing, seven_point_max) = match spec.method {
+        TargetMethod::Auto => (spec.node_spacing_px, spec.seven_point_max_px),
+        TargetMethod::Reference => (0.05, 0.0),
+    };
+    let (nodes, rings) = quadrature_nodes(ellipse, psf, spacing, seven_point_max);
+    for &(x, y, weight) in &nodes {
+        scatter(psf, x, y, weight, rect, out);
+    }
+    if rings {
+        fill_deep_pixels(ellipse, psf, rect, out);
     }
     let mut peak = 0.0f32;
     for v in out.iter_mut() {
@@ -116,24 +123,24 @@ pub fn render_target(
     peak
 }
 
-/// The nodes quadrature (unit amplitude).
-fn render_nodes(e: &ImageEllipse, psf: &Psf, spacing: f64, seven_point_max: f64, rect: PixelRect, out: &mut [f32]) {
+/// The quadrature's nodes `(x, y, weight)` (px, px, share of the area in px²; unit amplitude), and whether
+/// they are rings (which leave out the nodes that reach only the deep pixels, see [`fill_deep_pixels`]).
+fn quadrature_nodes(e: &ImageEllipse, psf: &Psf, spacing: f64, seven_point_max: f64) -> (Vec<(f64, f64, f32)>, bool) {
     let area = e.area_px2();
     let (s, c) = e.angle_rad.sin_cos();
     let at = |u: f64, v: f64| (e.center.x + u * e.a * c - v * e.b * s, e.center.y + u * e.a * s + v * e.b * c);
     if e.a < 0.01 {
-        scatter(psf, e.center.x, e.center.y, area as f32, rect, out);
-        return;
+        return (vec![(e.center.x, e.center.y, area as f32)], false);
     }
     if e.a <= seven_point_max {
-        scatter(psf, e.center.x, e.center.y, (0.25 * area) as f32, rect, out);
+        let mut nodes = vec![(e.center.x, e.center.y, (0.25 * area) as f32)];
         let r = (2.0f64 / 3.0).sqrt();
         for k in 0..6 {
             let phi = std::f64::consts::FRAC_PI_3 * k as f64;
             let (x, y) = at(r * phi.cos(), r * phi.sin());
-            scatter(psf, x, y, (0.125 * area) as f32, rect, out);
+            nodes.push((x, y, (0.125 * area) as f32));
         }
-        return;
+        return (nodes, false);
     }
     // rings of width `spacing` along the major axis; on ring i (unit radii r0..r1) points `spacing` apart at the
     // ring's area-weighted mean radius
@@ -156,7 +163,8 @@ fn render_nodes(e: &ImageEllipse, psf: &Psf, spacing: f64, seven_point_max: f64,
     while count(spacing).1 > MAX_NODES {
         spacing *= 1.5;
     }
-    let rings = count(spacing).0;
+    let (rings, total) = count(spacing);
+    let mut nodes = Vec::with_capacity(total);
     for i in 0..rings {
         let (r, fraction, r0) = ring(i, rings);
         if !needed(r0) {
@@ -169,20 +177,28 @@ fn render_nodes(e: &ImageEllipse, psf: &Psf, spacing: f64, seven_point_max: f64,
         for k in 0..n {
             let phi = std::f64::consts::TAU * (k as f64 + offset) / n as f64;
             let (x, y) = at(r * phi.cos(), r * phi.sin());
-            scatter(psf, x, y, weight, rect, out);
+            nodes.push((x, y, weight));
         }
     }
-    // deep pixels: the whole (unit-integral) PSF lies inside the ellipse
-    if (e.b - reach) > 0.0 {
-        let w = rect.width();
-        for y in rect.y0..rect.y1 {
-            for x in rect.x0..rect.x1 {
-                let (dx, dy) = (x as f64 + 0.5 - e.center.x, y as f64 + 0.5 - e.center.y);
-                let (u, v) = ((dx * c + dy * s) / e.a, (-dx * s + dy * c) / e.b);
-                let rho = u.hypot(v);
-                if (1.0 - rho) * e.b > reach {
-                    out[(y - rect.y0) * w + x - rect.x0] = 1.0;
-                }
+    (nodes, true)
+}
+
+/// Sets the pixels of `rect` deeper inside the ellipse than the PSF's reach to 1: the whole (unit-integral)
+/// PSF lies inside it there (the ring nodes that would reach only such pixels are left out).
+fn fill_deep_pixels(e: &ImageEllipse, psf: &Psf, rect: PixelRect, out: &mut [f32]) {
+    let reach = psf.radius_px() as f64 + 1.0;
+    if (e.b - reach) <= 0.0 {
+        return;
+    }
+    let (s, c) = e.angle_rad.sin_cos();
+    let w = rect.width();
+    for y in rect.y0..rect.y1 {
+        for x in rect.x0..rect.x1 {
+            let (dx, dy) = (x as f64 + 0.5 - e.center.x, y as f64 + 0.5 - e.center.y);
+            let (u, v) = ((dx * c + dy * s) / e.a, (-dx * s + dy * c) / e.b);
+            let rho = u.hypot(v);
+            if (1.0 - rho) * e.b > reach {
+                out[(y - rect.y0) * w + x - rect.x0] = 1.0;
             }
         }
     }

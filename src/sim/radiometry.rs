@@ -13,6 +13,7 @@ use crate::physics::lowtran_paths::LowtranAtmosphere;
 use crate::physics::signal::{ApparentContext, Sight, TargetState, apparent_radiance};
 use crate::physics::skin::mach_number;
 use glam::DVec3;
+use rayon::prelude::*;
 
 /// Computes each target's signature.
 pub struct RadiometryPlugin;
@@ -52,12 +53,15 @@ pub fn update_signatures(
         sight: None,
     };
     let tolerance = settings.quality.radiometry_tolerance;
-    for (kin, body, skin, mut sig) in &mut targets {
+    // each target's chain reads only its own components and the scene: the targets run in parallel (rayon's
+    // pool, whose workers the frame keeps awake), each computed exactly as alone
+    let mut all: Vec<_> = targets.iter_mut().collect();
+    all.par_iter_mut().with_max_len(1).for_each(|(kin, body, skin, sig)| {
         let p = kin.position_m;
         let dir = kin.velocity_m_s.normalize_or_zero();
         let key = [p.x, p.y, p.z, dir.x, dir.y, dir.z, kin.velocity_m_s.length(), eye.x, eye.y, eye.z];
         if sig.key.is_some_and(|old| unchanged(&old, &key, tolerance)) {
-            continue;
+            return;
         }
         let mach = match skin.mach {
             Some(m) => m,
@@ -72,7 +76,7 @@ pub fn update_signatures(
             semi_axes_m: body.semi_axes_m,
             attitude: body.body_to_world(kin.velocity_m_s),
         };
-        let sig = &mut *sig;
+        let sig = &mut **sig;
         let sight = match scene.atmosphere.lowtran() {
             Some(lowtran) => sig
                 .sight
@@ -91,7 +95,7 @@ pub fn update_signatures(
         };
         sig.mach = mach;
         sig.key = Some(key);
-    }
+    });
 }
 
 /// A target's line of sight through a LOWTRAN atmosphere: the spectrum last interpolated from the table and the

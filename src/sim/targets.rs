@@ -4,6 +4,7 @@
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
+use rayon::prelude::*;
 
 use super::{Footprint, Sensor, SensorFrame, Signature, SimSettings, TargetPatches, TargetsSystems};
 use crate::imaging::target_psf::render_target;
@@ -35,6 +36,8 @@ pub fn draw_targets(
     let patches = &mut *patches;
     patches.used = 0;
     let (w, h) = (sf.background.width(), sf.background.height());
+    // first the targets to draw, each given the next patch buffer (in the query's order, as before) ...
+    let mut jobs = Vec::new();
     for (sig, mut fp) in &mut targets {
         let (Some(ellipse), Some(roi), Some(signal)) = (fp.ellipse, fp.roi, sig.signal) else { continue };
         let (cx, cy) = (ellipse.center.x.floor(), ellipse.center.y.floor());
@@ -52,31 +55,47 @@ pub fn draw_targets(
         if !(delta.is_finite() && delta != 0.0) {
             continue;
         }
+        let drawable = match (settings.blob.model, &sensor.psf, fp.blob) {
+            (TargetModel::Psf, Some(_), _) => true,
+            (_, _, blob) => blob.is_some(),
+        };
+        if !drawable {
+            continue;
+        }
         if patches.patches.len() == patches.used {
             patches.patches.push((roi, Vec::new()));
         }
         let (rect, values) = &mut patches.patches[patches.used];
         *rect = roi;
         values.resize(roi.width() * roi.height(), 0.0);
-        let peak = match (settings.blob.model, &sensor.psf, fp.blob) {
-            (TargetModel::Psf, Some(psf), _) => {
-                f64::from(render_target(&ellipse, delta as f32, psf, &settings.blob.target_psf(), roi, values))
-            }
-            (_, _, Some(mut blob)) => {
-                blob.peak = delta * ellipse.area_px2() / blob.integral();
-                blob.render_patch(roi, settings.blob.sampling, values);
-                fp.blob = Some(blob);
-                values.iter().fold(0.0f64, |m, &v| if f64::from(v).abs() > m.abs() { f64::from(v) } else { m })
-            }
-            _ => continue,
-        };
+        jobs.push((fp, ellipse, delta, bg, 0.0f64));
+        patches.used += 1;
+    }
+    // ... then drawn in parallel, each into its own buffer (the same values as one after the other) ...
+    jobs.par_iter_mut().zip(&mut patches.patches[..patches.used]).with_max_len(1).for_each(
+        |((fp, ellipse, delta, _, peak), (roi, values))| {
+            *peak = match (settings.blob.model, &sensor.psf, fp.blob) {
+                (TargetModel::Psf, Some(psf), _) => {
+                    f64::from(render_target(ellipse, *delta as f32, psf, &settings.blob.target_psf(), *roi, values))
+                }
+                (_, _, Some(mut blob)) => {
+                    blob.peak = *delta * ellipse.area_px2() / blob.integral();
+                    blob.render_patch(*roi, settings.blob.sampling, values);
+                    fp.blob = Some(blob);
+                    values.iter().fold(0.0f64, |m, &v| if f64::from(v).abs() > m.abs() { f64::from(v) } else { m })
+                }
+                _ => unreachable!("only drawable targets are listed"),
+            };
+        },
+    );
+    // ... and their peaks and fusion mode recorded
+    patches.additive.clear();
+    for (k, (mut fp, _, _, bg, peak)) in jobs.into_iter().enumerate() {
         fp.peak_radiance = peak;
-        fp.patch = Some(patches.used);
+        fp.patch = Some(k);
         // a target whose peak is under the set fraction of the noise is added rather than fused
         let faint =
             (peak * sensor.dn_per_radiance).abs() < settings.quality.fusion_skip_below_sigma * sensor.noise_dn(bg);
-        patches.additive.truncate(patches.used);
         patches.additive.push(faint);
-        patches.used += 1;
     }
 }
