@@ -162,6 +162,15 @@ pub struct PoissonFusion {
     planner: FftPlanner<f64>,
     dst: HashMap<usize, Arc<Dst1>>,
     rects: Vec<PixelRect>,
+    /// One set of buffers per region: the regions are solved in parallel.
+    scratch: Vec<Scratch>,
+    /// Looked at between sweeps of the iterative solvers: when set, they stop at once.
+    stop: Option<Arc<AtomicBool>>,
+}
+
+/// The buffers of one region's solve.
+#[derive(Default)]
+struct Scratch {
     /// Guidance patch u on the region.
     u: Vec<f64>,
     /// Background f* on the region.
@@ -173,8 +182,8 @@ pub struct PoissonFusion {
     next: Vec<f64>,
     fft_buf: Vec<Complex<f64>>,
     fft_scratch: Vec<Complex<f64>>,
-    /// Looked at between sweeps of the iterative solvers: when set, they stop at once.
-    stop: Option<Arc<AtomicBool>>,
+    /// What the last solve on these buffers did.
+    stats: FusionStats,
 }
 
 impl std::fmt::Debug for PoissonFusion {
@@ -196,13 +205,7 @@ impl PoissonFusion {
             planner: FftPlanner::new(),
             dst: HashMap::new(),
             rects: Vec::new(),
-            u: Vec::new(),
-            bg: Vec::new(),
-            work: Vec::new(),
-            work2: Vec::new(),
-            next: Vec::new(),
-            fft_buf: Vec::new(),
-            fft_scratch: Vec::new(),
+            scratch: vec![Scratch::default()],
             stop: None,
         }
     }
@@ -217,9 +220,10 @@ impl PoissonFusion {
     pub fn with_capacity(max_side: usize) -> Self {
         let mut s = Self::new();
         for n in 1..=max_side.saturating_sub(2) {
-            s.plan(n);
+            let d = s.plan(n);
+            s.scratch[0].fit(&d);
         }
-        s.reserve(max_side * max_side);
+        s.scratch[0].reserve(max_side * max_side);
         s.rects.reserve(64);
         s
     }
@@ -230,26 +234,11 @@ impl PoissonFusion {
         }
         let m = 2 * (n + 1);
         let fft = self.planner.plan_fft_forward(m);
-        let zero = Complex::new(0.0, 0.0);
-        if self.fft_scratch.len() < fft.get_inplace_scratch_len() {
-            self.fft_scratch.resize(fft.get_inplace_scratch_len(), zero);
-        }
-        if self.fft_buf.len() < m {
-            self.fft_buf.resize(m, zero);
-        }
         let c = std::f64::consts::PI / (n + 1) as f64;
         let eigen = (0..n).map(|k| 2.0 - 2.0 * (c * (k + 1) as f64).cos()).collect();
         let d = Arc::new(Dst1 { n, fft, eigen });
         self.dst.insert(n, Arc::clone(&d));
         d
-    }
-
-    fn reserve(&mut self, area: usize) {
-        for b in [&mut self.u, &mut self.bg, &mut self.work, &mut self.work2] {
-            if b.len() < area {
-                b.resize(area, 0.0);
-            }
-        }
     }
 
     /// A flag the iterative solvers look at between sweeps: once it is set they return at once (the frame is
@@ -266,40 +255,68 @@ impl PoissonFusion {
         guidance: Guidance,
         solver: Solver,
     ) -> FusionStats {
+        use rayon::prelude::*;
         self.merge_regions(patches, frame.width(), frame.height());
-        let mut stats = FusionStats { regions: self.rects.len(), ..FusionStats::default() };
-        for k in 0..self.rects.len() {
-            let rect = self.rects[k];
-            self.load_region(frame, rect, patches);
-            let (w, h) = (rect.width(), rect.height());
-            if guidance == Guidance::Additive {
-                store(frame, rect, |i| self.bg[i] + self.u[i], 0);
-                continue;
-            }
-            if w < 3 || h < 3 {
-                continue;
-            }
-            stats.unknowns += (w - 2) * (h - 2);
-            self.build_rhs(w, h, guidance);
-            match solver {
-                Solver::Direct => {
-                    self.solve_direct(w - 2, h - 2);
-                    let (nx, work) = (w - 2, &self.work);
-                    store(frame, rect, |i| work[(i / w - 1) * nx + (i % w - 1)], 1);
+        let solved = guidance != Guidance::Additive;
+        // the transforms are planned first (the planner is not shared); then each region is loaded and solved
+        // on its own buffers, in parallel (regions do not touch, and each reads only its own pixels), and the
+        // solutions are written into the frame one region after the other
+        if solved && solver == Solver::Direct {
+            for k in 0..self.rects.len() {
+                let (w, h) = (self.rects[k].width(), self.rects[k].height());
+                if w >= 3 && h >= 3 {
+                    self.plan(w - 2);
+                    self.plan(h - 2);
                 }
+            }
+        }
+        let regions = self.rects.len();
+        if self.scratch.len() < regions {
+            self.scratch.resize_with(regions, Scratch::default);
+        }
+        let (dst, stop, rects) = (&self.dst, self.stop.as_deref(), &self.rects);
+        let frame_in: &Frame = frame;
+        self.scratch[..regions].par_iter_mut().zip(rects.par_iter()).with_max_len(1).for_each(|(sc, &rect)| {
+            let mut stats = FusionStats::default();
+            sc.load_region(frame_in, rect, patches);
+            let (w, h) = (rect.width(), rect.height());
+            if !solved || w < 3 || h < 3 {
+                sc.stats = stats;
+                return;
+            }
+            stats.unknowns = (w - 2) * (h - 2);
+            sc.build_rhs(w, h, guidance);
+            match solver {
+                Solver::Direct => sc.solve_direct(&dst[&(w - 2)], &dst[&(h - 2)]),
                 Solver::Jacobi { tolerance, max_iterations } => {
-                    let it = self.solve_iterative(w, h, tolerance, max_iterations, None, &mut stats);
-                    stats.iterations = stats.iterations.max(it);
-                    let work = &self.work;
-                    store(frame, rect, |i| work[i], 1);
+                    stats.iterations = sc.solve_iterative(w, h, tolerance, max_iterations, None, stop, &mut stats);
                 }
                 Solver::Sor { tolerance, max_iterations } => {
                     let n = (w - 2).max(h - 2) as f64;
                     let omega = 2.0 / (1.0 + (std::f64::consts::PI / (n + 1.0)).sin());
-                    let it = self.solve_iterative(w, h, tolerance, max_iterations, Some(omega), &mut stats);
-                    stats.iterations = stats.iterations.max(it);
-                    let work = &self.work;
-                    store(frame, rect, |i| work[i], 1);
+                    let it = sc.solve_iterative(w, h, tolerance, max_iterations, Some(omega), stop, &mut stats);
+                    stats.iterations = it;
+                }
+            }
+            sc.stats = stats;
+        });
+        let mut stats = FusionStats { regions, ..FusionStats::default() };
+        for (rect, sc) in self.rects.iter().zip(&self.scratch) {
+            let (w, h) = (rect.width(), rect.height());
+            let r = &sc.stats;
+            stats.unknowns += r.unknowns;
+            stats.iterations = stats.iterations.max(r.iterations);
+            stats.over_budget += r.over_budget;
+            stats.stopped |= r.stopped;
+            if !solved {
+                store(frame, *rect, |i| sc.bg[i] + sc.u[i], 0);
+            } else if w >= 3 && h >= 3 {
+                match solver {
+                    Solver::Direct => {
+                        let (nx, work) = (w - 2, &sc.work);
+                        store(frame, *rect, |i| work[(i / w - 1) * nx + (i % w - 1)], 1);
+                    }
+                    Solver::Jacobi { .. } | Solver::Sor { .. } => store(frame, *rect, |i| sc.work[i], 1),
                 }
             }
         }
@@ -340,6 +357,45 @@ impl PoissonFusion {
             }
             if !grown {
                 break;
+            }
+        }
+    }
+
+    /// Solves `(4I − adjacency) x = rhs` on an `nx × ny` grid with zero Dirichlet boundary, in place, in f64: the
+    /// direct solver that [`PoissonFusion::fuse`] uses, exposed for checks and other drivers.
+    ///
+    /// # Panics
+    /// If `rhs.len() != nx·ny`.
+    pub fn solve_dirichlet(&mut self, nx: usize, ny: usize, rhs: &mut [f64]) {
+        assert_eq!(rhs.len(), nx * ny, "right-hand side length");
+        if rhs.is_empty() {
+            return;
+        }
+        let (dst_x, dst_y) = (self.plan(nx), self.plan(ny));
+        let sc = &mut self.scratch[0];
+        sc.reserve(rhs.len());
+        sc.work[..rhs.len()].copy_from_slice(rhs);
+        sc.solve_direct(&dst_x, &dst_y);
+        rhs.copy_from_slice(&sc.work[..rhs.len()]);
+    }
+}
+
+impl Scratch {
+    /// Sizes the transform's buffers for `d`.
+    fn fit(&mut self, d: &Dst1) {
+        let zero = Complex::new(0.0, 0.0);
+        if self.fft_scratch.len() < d.fft.get_inplace_scratch_len() {
+            self.fft_scratch.resize(d.fft.get_inplace_scratch_len(), zero);
+        }
+        if self.fft_buf.len() < 2 * (d.n + 1) {
+            self.fft_buf.resize(2 * (d.n + 1), zero);
+        }
+    }
+
+    fn reserve(&mut self, area: usize) {
+        for b in [&mut self.u, &mut self.bg, &mut self.work, &mut self.work2] {
+            if b.len() < area {
+                b.resize(area, 0.0);
             }
         }
     }
@@ -397,26 +453,11 @@ impl PoissonFusion {
         }
     }
 
-    /// Solves `(4I − adjacency) x = rhs` on an `nx × ny` grid with zero Dirichlet boundary, in place, in f64: the
-    /// direct solver that [`PoissonFusion::fuse`] uses, exposed for checks and other drivers.
-    ///
-    /// # Panics
-    /// If `rhs.len() != nx·ny`.
-    pub fn solve_dirichlet(&mut self, nx: usize, ny: usize, rhs: &mut [f64]) {
-        assert_eq!(rhs.len(), nx * ny, "right-hand side length");
-        if rhs.is_empty() {
-            return;
-        }
-        self.reserve(rhs.len());
-        self.work[..rhs.len()].copy_from_slice(rhs);
-        self.solve_direct(nx, ny);
-        rhs.copy_from_slice(&self.work[..rhs.len()]);
-    }
-
     /// Solves `(4I − adjacency) x = work` on an `nx × ny` grid with zero Dirichlet boundary, in place.
-    fn solve_direct(&mut self, nx: usize, ny: usize) {
-        let dst_x = self.plan(nx);
-        let dst_y = self.plan(ny);
+    fn solve_direct(&mut self, dst_x: &Dst1, dst_y: &Dst1) {
+        let (nx, ny) = (dst_x.n, dst_y.n);
+        self.fit(dst_x);
+        self.fit(dst_y);
         let n = nx * ny;
         let (work, tmp) = (&mut self.work[..n], &mut self.work2[..n]);
         let (buf, scratch) = (&mut self.fft_buf, &mut self.fft_scratch);
@@ -439,6 +480,7 @@ impl PoissonFusion {
 
     /// Jacobi (eq 20, `omega = None`) or red-black SOR on the whole region layout, starting from the
     /// background; the solution is left in `work` (region layout). Returns the sweeps used.
+    #[allow(clippy::too_many_arguments)]
     fn solve_iterative(
         &mut self,
         w: usize,
@@ -446,6 +488,7 @@ impl PoissonFusion {
         tolerance: f64,
         max_iterations: u32,
         omega: Option<f64>,
+        stop: Option<&AtomicBool>,
         stats: &mut FusionStats,
     ) -> u32 {
         let area = w * h;
@@ -464,7 +507,7 @@ impl PoissonFusion {
         f[..area].copy_from_slice(&bg[..area]);
         next[..area].copy_from_slice(&bg[..area]);
         for it in 1..=max_iterations {
-            if self.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed)) {
+            if stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
                 stats.stopped = true;
                 return it - 1;
             }
