@@ -95,6 +95,9 @@ impl SphereQuadrature {
     }
 }
 
+/// Sphere grids with at least this many points are summed with their points' terms evaluated in parallel.
+const PARALLEL_POINTS: usize = 512;
+
 /// Projected-area weighted mean of `f·(n·l)` over the visible surface of an ellipsoid, sr⁻¹.
 ///
 /// `semi_axes_m` are the ellipsoid's semi-axes in its body frame, `body_to_world` its attitude; `v` points
@@ -112,19 +115,32 @@ pub fn ellipsoid_reflectance(
     let v_body = body_to_world.transpose() * v.normalize_or_zero();
     let l_body = body_to_world.transpose() * l.normalize_or_zero();
     let inv = semi_axes_m.recip();
-    let mut weighted = 0.0;
-    let mut area = 0.0;
-    for &(s, w) in &quadrature.points {
+    // each point's terms of the two sums (0 where it adds nothing: x + 0 = x for the sums' non-negative x)
+    let terms = |&(s, w): &(DVec3, f64)| -> (f64, f64) {
         let normal_scaled = s * inv; // A⁻ᵀ s for a diagonal A (det A cancels in the ratio)
         let projected = normal_scaled.dot(v_body);
         if projected <= 0.0 {
-            continue;
+            return (0.0, 0.0);
         }
-        area += w * projected;
         let n = normal_scaled.normalize();
         let nl = n.dot(l_body);
-        if nl > 0.0 {
-            weighted += w * projected * brdf.evaluate(n, v_body, l_body).f_per_sr * nl;
+        let weighted = if nl > 0.0 { w * projected * brdf.evaluate(n, v_body, l_body).f_per_sr * nl } else { 0.0 };
+        (w * projected, weighted)
+    };
+    // a large grid's terms are evaluated in parallel and summed in the points' order, as one thread would
+    let (mut weighted, mut area) = (0.0, 0.0);
+    if quadrature.points.len() >= PARALLEL_POINTS {
+        use rayon::prelude::*;
+        let all: Vec<(f64, f64)> = quadrature.points.par_iter().with_min_len(PARALLEL_POINTS / 4).map(terms).collect();
+        for (a, b) in all {
+            area += a;
+            weighted += b;
+        }
+    } else {
+        for p in &quadrature.points {
+            let (a, b) = terms(p);
+            area += a;
+            weighted += b;
         }
     }
     if area > 0.0 { weighted / area } else { 0.0 }
