@@ -236,23 +236,47 @@ fn time_sampler(sampler: NormalSampler, width: usize, height: usize, frames: u64
     super::report::median(&mut times)
 }
 
-/// `irsim bench --limits`: the bounds and the pipeline's stages at 256 × 256 and 640 × 512, on 1 and 2
-/// threads, with the ratios.
+/// One size and thread count of [`measure_limits`]: each bound and the pipeline's stages, µs per frame.
+pub(super) struct LimitsRow {
+    pub width: usize,
+    pub height: usize,
+    pub threads: usize,
+    /// Per [`Bound::ALL`]: store, bilinear, normal, readout, fused.
+    pub bounds: Vec<f64>,
+    pub render_us: f64,
+    pub noise_us: f64,
+    pub frame_us: f64,
+    /// The pipeline's normal samplers alone, `name µs`.
+    pub samplers: Vec<String>,
+}
+
+impl LimitsRow {
+    /// The time of bound `b`, µs per frame.
+    fn bound(&self, b: Bound) -> f64 {
+        self.bounds[Bound::ALL.iter().position(|&x| x == b).expect("a bound")]
+    }
+
+    /// Render / bilinear bound, noise / readout bound, frame / fused bound.
+    pub fn ratios(&self) -> [f64; 3] {
+        [
+            self.render_us / self.bound(Bound::Bilinear),
+            self.noise_us / self.bound(Bound::Readout),
+            self.frame_us / self.bound(Bound::Fused),
+        ]
+    }
+}
+
+/// Times the per-pixel lower bounds beside `irsim bench`'s built-in case (one target, `standard`) at 256×256 and
+/// 640×512 on 1 and 2 threads (as many as the machine has), `frames` frames each; `each` sees every row as it is
+/// measured.
 ///
 /// # Errors
-/// [`CliError::Failed`] if the bench scenario cannot be written or run.
-pub fn limits(frames: u64) -> Result<(), CliError> {
+/// [`CliError`] if the scenario cannot be written or run.
+pub(super) fn measure_limits(frames: u64, each: &mut dyn FnMut(&LimitsRow)) -> Result<Vec<LimitsRow>, CliError> {
     let failed = |e: String| CliError::Failed(e);
     let dir = bench_dir("limits")?;
     let threads_max = std::thread::available_parallelism().map_or(1, |n| n.get()).min(2);
-    super::say(&format!(
-        "per-pixel lower bounds beside the pipeline ({} vectors, {frames} frames each, medians; pipeline: \
-         irsim bench's case, 1 target, standard)",
-        Level::detect().name()
-    ))?;
-    super::say(
-        "size      threads | store bilinear normal readout  fused | render  noise  frame | render/bilinear noise/readout frame/fused",
-    )?;
+    let mut rows = Vec::new();
     for (w, h) in [(256usize, 256usize), (640, 512)] {
         let setup = Setup::new(w, h);
         let path = dir.join(format!("limits_{w}x{h}.toml"));
@@ -265,7 +289,6 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
                 let bounds = Bound::ALL.iter().map(|&b| time_bound(b, &setup, w, h, frames)).collect();
                 time_stages(&scenario, frames).map(|split| (bounds, split))
             })?;
-            let at = |b: Bound| bounds[Bound::ALL.iter().position(|&x| x == b).expect("a bound")];
             let samplers: Vec<String> = [NormalSampler::Ziggurat, NormalSampler::BoxMuller, NormalSampler::Table]
                 .into_iter()
                 .map(|n| {
@@ -273,26 +296,61 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
                     format!("{} {:.0}", name.unwrap_or_default(), pool.install(|| time_sampler(n, w, h, frames)))
                 })
                 .collect();
-            eprintln!("  the pipeline's normal samplers alone, µs per frame: {}", samplers.join(", "));
-            let (render, noise, frame) = (split.stage_us("render"), split.stage_us("noise"), split.frame_us);
-            let cols: Vec<String> = Bound::ALL.iter().map(|&b| format!("{:.0}", at(b))).collect();
-            super::say(&format!(
-                "{:<9} {threads:>7} | {:>5} {:>8} {:>6} {:>7} {:>6} | {render:>6.0} {noise:>6.0} {frame:>6.0} | {:>15.1}x {:>12.1}x {:>10.1}x",
-                format!("{w}x{h}"),
-                cols[0],
-                cols[1],
-                cols[2],
-                cols[3],
-                cols[4],
-                render / at(Bound::Bilinear),
-                noise / at(Bound::Readout),
-                frame / at(Bound::Fused),
-            ))?;
+            let row = LimitsRow {
+                width: w,
+                height: h,
+                threads,
+                bounds,
+                render_us: split.stage_us("render"),
+                noise_us: split.stage_us("noise"),
+                frame_us: split.frame_us,
+                samplers,
+            };
+            each(&row);
+            rows.push(row);
         }
     }
-    super::say("(µs per frame; a frame's time includes every stage and the schedule's own)")?;
     let _ = std::fs::remove_dir_all(&dir);
-    Ok(())
+    Ok(rows)
+}
+
+/// `irsim bench --limits`: [`measure_limits`] printed as a table.
+///
+/// # Errors
+/// [`CliError`] if the scenario cannot be written or run, or the output cannot be written.
+pub fn limits(frames: u64) -> Result<(), CliError> {
+    super::say(&format!(
+        "per-pixel lower bounds beside the pipeline ({} vectors, {frames} frames each, medians; pipeline: \
+         irsim bench's case, 1 target, standard)",
+        Level::detect().name()
+    ))?;
+    super::say(
+        "size      threads | store bilinear normal readout  fused | render  noise  frame | render/bilinear noise/readout frame/fused",
+    )?;
+    let mut printed = Ok(());
+    measure_limits(frames, &mut |row| {
+        eprintln!("  the pipeline's normal samplers alone, µs per frame: {}", row.samplers.join(", "));
+        let cols: Vec<String> = row.bounds.iter().map(|b| format!("{b:.0}")).collect();
+        let [render, noise, frame] = row.ratios();
+        let line = format!(
+            "{:<9} {:>7} | {:>5} {:>8} {:>6} {:>7} {:>6} | {:>6.0} {:>6.0} {:>6.0} | {render:>15.1}x {noise:>12.1}x {frame:>10.1}x",
+            format!("{}x{}", row.width, row.height),
+            row.threads,
+            cols[0],
+            cols[1],
+            cols[2],
+            cols[3],
+            cols[4],
+            row.render_us,
+            row.noise_us,
+            row.frame_us,
+        );
+        if printed.is_ok() {
+            printed = super::say(&line);
+        }
+    })?;
+    printed?;
+    super::say("(µs per frame; a frame's time includes every stage and the schedule's own)")
 }
 
 /// The bilinear bound with the CPU's gathers.

@@ -64,6 +64,10 @@ struct Plan {
     all_values: bool,
     /// Region sides of the OpenCV comparison.
     opencv_sides: Vec<usize>,
+    /// Frames per bound and pipeline run of the lower-bound section.
+    limits_frames: u64,
+    /// Frames of the recording against headless comparison.
+    recording_frames: u64,
 }
 
 impl Plan {
@@ -79,6 +83,8 @@ impl Plan {
                 sizes: vec![48, 64],
                 all_values: false,
                 opencv_sides: vec![17],
+                limits_frames: 20,
+                recording_frames: 20,
             }
         } else if a.quick {
             Plan {
@@ -91,6 +97,8 @@ impl Plan {
                 sizes: vec![128, 256, 512],
                 all_values: false,
                 opencv_sides: vec![17, 33, 65],
+                limits_frames: 200,
+                recording_frames: 300,
             }
         } else {
             Plan {
@@ -104,6 +112,8 @@ impl Plan {
                 sizes: vec![128, 256, 512, 1024, 2048],
                 all_values: true,
                 opencv_sides: vec![17, 33, 65, 129],
+                limits_frames: 2000,
+                recording_frames: 2000,
             }
         }
     }
@@ -916,6 +926,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     }
     let _ = writeln!(md);
 
+    progress("against the machine");
+    machine_section(&mut md, &plan)?;
     progress("OpenCV");
     super::opencv::section(&mut md, &plan.opencv_sides);
     progress("atmosphere");
@@ -923,6 +935,62 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     let _ = writeln!(md, "The report took {:.0} s.", started.elapsed().as_secs_f64());
     write_atomic(&md_path, md.as_bytes()).map_err(failed)?;
     super::say(&format!("wrote {}", md_path.display()))?;
+    Ok(())
+}
+
+/// Each per-pixel stage beside its lower bound on this CPU (`irsim bench --limits`), and what recording 16-bit
+/// PNG keeps of the headless rate on `irsim bench`'s cases.
+fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
+    let _ = writeln!(md, "## Against the machine\n");
+    let rows = super::limits::measure_limits(plan.limits_frames, &mut |_| {})?;
+    let _ = writeln!(
+        md,
+        "`irsim bench --limits` in this run ({} frames each, medians, {} vectors): simple kernels that bound each \
+         per-pixel stage from below (one bilinear sample of a texture per pixel; the detector's readout in place; \
+         sample, noise and ADC fused in one pass), beside `irsim bench`'s built-in case (one target, `standard`) \
+         in a pool of the same size. µs per frame; a frame includes every stage and the schedule's own.\n\n\
+         | size | threads | bilinear | readout | fused | render | noise | frame | render / bilinear | noise / \
+         readout | frame / fused |\n|---|---|---|---|---|---|---|---|---|---|---|",
+        plan.limits_frames,
+        crate::physics::simd::Level::detect().name(),
+    );
+    for r in &rows {
+        let [render, noise, frame] = r.ratios();
+        let _ = writeln!(
+            md,
+            "| {} × {} | {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {render:.1}× | {noise:.1}× | {frame:.1}× |",
+            r.width, r.height, r.threads, r.bounds[1], r.bounds[3], r.bounds[4], r.render_us, r.noise_us, r.frame_us,
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nRecording (`irsim record`'s loop, 16-bit PNG, `fast` compression, {} frames) against the same case \
+         headless, in this run:\n\n| case | headless frames/s | recording frames/s | ratio |\n|---|---|---|---|",
+        plan.recording_frames
+    );
+    let dir = super::run::bench_dir("report-recording")?;
+    for (w, h, n) in [(256u32, 256u32, 1usize), (640, 512, 8)] {
+        let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
+        std::fs::write(&path, super::run::bench_scenario(w, h, n)).map_err(failed)?;
+        let scenario =
+            load_for_frames(&path, Some(plan.recording_frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
+        let headless = super::run::time_stages(&scenario, plan.recording_frames)?;
+        let fps = 1e6 / headless.frame_us;
+        let done = super::run::time_recording(&path, &scenario, plan.recording_frames, None, &dir.join("out"))?;
+        let _ = writeln!(
+            md,
+            "| {w} × {h}, {n} target{} | {fps:.0} | {:.0} | {:.2} |",
+            if n > 1 { "s" } else { "" },
+            done.frames_per_s,
+            done.frames_per_s / fps
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = writeln!(
+        md,
+        "\nOn a machine with few cores the recording is bound by the CPU it shares with the simulation (PNG \
+         encoding, creating the files): README, \"Recording labelled sequences\".\n"
+    );
     Ok(())
 }
 

@@ -760,23 +760,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
         let scenario = with_quality(scenario, a.quality)?;
         let (fps, details) = if recording {
-            // the recorder's own loop, as `irsim record` reports it: set-up is not counted on either side
-            let args = RecordArgs {
-                scenario: path.clone(),
-                out: dir.join("out"),
-                frames: Some(frames),
-                seed: None,
-                force: true,
-                no_noise: false,
-                no_vibration: false,
-                format: FrameFormat::Png16,
-                png_compression: PngCompression::Fast,
-                masks: false,
-                quiet: true,
-                quality: a.quality,
-            };
-            let plan = record_plan(&args, frames);
-            let done = record_scenario(&scenario, &plan, &Arc::new(AtomicBool::new(false)), &mut |_, _| {})?;
+            let done = time_recording(&path, &scenario, frames, a.quality, &dir.join("out"))?;
             let ratio = headless_256.map_or_else(String::new, |h: f64| {
                 format!("  ({:.2} of the rate without disk writes)", done.frames_per_s / h)
             });
@@ -798,6 +782,37 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     }
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
+}
+
+/// Records `scenario` (loaded from `path`) as `irsim record` does, 16-bit PNG at the default compression, into
+/// `out` (replaced), and reports the recorder's own loop rate: set-up is not counted, the last files and their
+/// sync are.
+///
+/// # Errors
+/// [`CliError`] from the recording.
+pub(super) fn time_recording(
+    path: &Path,
+    scenario: &CheckedScenario,
+    frames: u64,
+    quality: Option<QualityPreset>,
+    out: &Path,
+) -> Result<RecordDone, CliError> {
+    let args = RecordArgs {
+        scenario: path.to_path_buf(),
+        out: out.to_path_buf(),
+        frames: Some(frames),
+        seed: None,
+        force: true,
+        no_noise: false,
+        no_vibration: false,
+        format: FrameFormat::Png16,
+        png_compression: PngCompression::Fast,
+        masks: false,
+        quiet: true,
+        quality,
+    };
+    let plan = record_plan(&args, frames);
+    record_scenario(scenario, &plan, &Arc::new(AtomicBool::new(false)), &mut |_, _| {})
 }
 
 /// What a run's settings resolved to, for the manifest: every `[quality]` switch, and the sky blur route the
