@@ -314,7 +314,7 @@ pub(super) fn measure_limits(frames: u64, each: &mut dyn FnMut(&LimitsRow)) -> R
     Ok(rows)
 }
 
-/// `irsim bench --limits`: [`measure_limits`] printed as a table.
+/// `irsim bench --limits`: the per-pixel lower bounds beside the pipeline's stages, printed as a table.
 ///
 /// # Errors
 /// [`CliError`] if the scenario cannot be written or run, or the output cannot be written.
