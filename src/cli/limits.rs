@@ -256,6 +256,11 @@ impl LimitsRow {
         self.bounds[Bound::ALL.iter().position(|&x| x == b).expect("a bound")]
     }
 
+    /// The bilinear, readout and fused bounds, µs per frame.
+    pub fn bilinear_readout_fused(&self) -> [f64; 3] {
+        [self.bound(Bound::Bilinear), self.bound(Bound::Readout), self.bound(Bound::Fused)]
+    }
+
     /// Render / bilinear bound, noise / readout bound, frame / fused bound.
     pub fn ratios(&self) -> [f64; 3] {
         [
@@ -268,11 +273,14 @@ impl LimitsRow {
 
 /// Times the per-pixel lower bounds beside `irsim bench`'s built-in case (one target, `standard`) at 256×256 and
 /// 640×512 on 1 and 2 threads (as many as the machine has), `frames` frames each; `each` sees every row as it is
-/// measured.
+/// measured (its error stops the measurement).
 ///
 /// # Errors
-/// [`CliError`] if the scenario cannot be written or run.
-pub(super) fn measure_limits(frames: u64, each: &mut dyn FnMut(&LimitsRow)) -> Result<Vec<LimitsRow>, CliError> {
+/// [`CliError`] if the scenario cannot be written or run, or from `each`.
+pub(super) fn measure_limits(
+    frames: u64,
+    each: &mut dyn FnMut(&LimitsRow) -> Result<(), CliError>,
+) -> Result<Vec<LimitsRow>, CliError> {
     let failed = |e: String| CliError::Failed(e);
     let dir = bench_dir("limits")?;
     let threads_max = std::thread::available_parallelism().map_or(1, |n| n.get()).min(2);
@@ -306,7 +314,7 @@ pub(super) fn measure_limits(frames: u64, each: &mut dyn FnMut(&LimitsRow)) -> R
                 frame_us: split.frame_us,
                 samplers,
             };
-            each(&row);
+            each(&row)?;
             rows.push(row);
         }
     }
@@ -327,7 +335,6 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
     super::say(
         "size      threads | store bilinear normal readout  fused | render  noise  frame | render/bilinear noise/readout frame/fused",
     )?;
-    let mut printed = Ok(());
     measure_limits(frames, &mut |row| {
         eprintln!("  the pipeline's normal samplers alone, µs per frame: {}", row.samplers.join(", "));
         let cols: Vec<String> = row.bounds.iter().map(|b| format!("{b:.0}")).collect();
@@ -345,11 +352,8 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
             row.noise_us,
             row.frame_us,
         );
-        if printed.is_ok() {
-            printed = super::say(&line);
-        }
+        super::say(&line)
     })?;
-    printed?;
     super::say("(µs per frame; a frame's time includes every stage and the schedule's own)")
 }
 

@@ -17,8 +17,9 @@
 //! O(n² log n), in f64, two rows per complex FFT.
 //!
 //! Overlapping (or touching) regions of several targets are merged into one solve. Regions are clipped to the
-//! frame; a region thinner than 3 pixels has no interior and is left as it is in the solved modes. After the
-//! largest region has been seen once, [`PoissonFusion::fuse`] allocates nothing.
+//! frame; a region thinner than 3 pixels has no interior and is left as it is in the solved modes. Separate
+//! regions are solved in parallel, each on its own buffers. Once the largest region and the most regions at once
+//! have been seen, [`PoissonFusion::fuse`] allocates nothing.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -164,6 +165,9 @@ pub struct PoissonFusion {
     rects: Vec<PixelRect>,
     /// One set of buffers per region: the regions are solved in parallel.
     scratch: Vec<Scratch>,
+    /// What every set of buffers is sized for: the largest region's area, and the longest transform buffer and
+    /// scratch of the planned sizes.
+    sized_for: (usize, usize, usize),
     /// Looked at between sweeps of the iterative solvers: when set, they stop at once.
     stop: Option<Arc<AtomicBool>>,
 }
@@ -206,6 +210,7 @@ impl PoissonFusion {
             dst: HashMap::new(),
             rects: Vec::new(),
             scratch: vec![Scratch::default()],
+            sized_for: (0, 0, 0),
             stop: None,
         }
     }
@@ -216,16 +221,29 @@ impl PoissonFusion {
         &self.rects
     }
 
-    /// Plans transforms and sizes buffers for regions up to `max_side × max_side`, so later calls do not allocate.
+    /// Plans transforms and sizes buffers for regions up to `max_side × max_side`, so later calls with one
+    /// region do not allocate (each further region at once gets buffers of the same size when first needed).
     pub fn with_capacity(max_side: usize) -> Self {
         let mut s = Self::new();
         for n in 1..=max_side.saturating_sub(2) {
-            let d = s.plan(n);
-            s.scratch[0].fit(&d);
+            s.plan(n);
         }
-        s.scratch[0].reserve(max_side * max_side);
+        s.sized_for.0 = max_side * max_side;
+        s.size_buffers(1);
         s.rects.reserve(64);
         s
+    }
+
+    /// Gives the first `sets` sets of buffers the size in `sized_for` (allocating only where one falls short).
+    fn size_buffers(&mut self, sets: usize) {
+        if self.scratch.len() < sets {
+            self.scratch.resize_with(sets, Scratch::default);
+        }
+        let (area, buf, scratch) = self.sized_for;
+        for sc in &mut self.scratch[..sets] {
+            sc.reserve(area);
+            sc.fit(buf, scratch);
+        }
     }
 
     fn plan(&mut self, n: usize) -> Arc<Dst1> {
@@ -234,6 +252,8 @@ impl PoissonFusion {
         }
         let m = 2 * (n + 1);
         let fft = self.planner.plan_fft_forward(m);
+        self.sized_for.1 = self.sized_for.1.max(m);
+        self.sized_for.2 = self.sized_for.2.max(fft.get_inplace_scratch_len());
         let c = std::f64::consts::PI / (n + 1) as f64;
         let eigen = (0..n).map(|k| 2.0 - 2.0 * (c * (k + 1) as f64).cos()).collect();
         let d = Arc::new(Dst1 { n, fft, eigen });
@@ -271,9 +291,11 @@ impl PoissonFusion {
             }
         }
         let regions = self.rects.len();
-        if self.scratch.len() < regions {
-            self.scratch.resize_with(regions, Scratch::default);
-        }
+        // every set of buffers sized for the largest region and transform so far: which region a set gets
+        // changes from frame to frame, and none then allocates again
+        let largest = self.rects.iter().map(|r| r.width() * r.height()).max().unwrap_or(0);
+        self.sized_for.0 = self.sized_for.0.max(largest);
+        self.size_buffers(regions);
         let (dst, stop, rects) = (&self.dst, self.stop.as_deref(), &self.rects);
         let frame_in: &Frame = frame;
         self.scratch[..regions].par_iter_mut().zip(rects.par_iter()).with_max_len(1).for_each(|(sc, &rect)| {
@@ -381,14 +403,14 @@ impl PoissonFusion {
 }
 
 impl Scratch {
-    /// Sizes the transform's buffers for `d`.
-    fn fit(&mut self, d: &Dst1) {
+    /// Sizes the transforms' buffers: `buf` and `scratch` complex values at least.
+    fn fit(&mut self, buf: usize, scratch: usize) {
         let zero = Complex::new(0.0, 0.0);
-        if self.fft_scratch.len() < d.fft.get_inplace_scratch_len() {
-            self.fft_scratch.resize(d.fft.get_inplace_scratch_len(), zero);
+        if self.fft_scratch.len() < scratch {
+            self.fft_scratch.resize(scratch, zero);
         }
-        if self.fft_buf.len() < 2 * (d.n + 1) {
-            self.fft_buf.resize(2 * (d.n + 1), zero);
+        if self.fft_buf.len() < buf {
+            self.fft_buf.resize(buf, zero);
         }
     }
 
@@ -456,8 +478,9 @@ impl Scratch {
     /// Solves `(4I − adjacency) x = work` on an `nx × ny` grid with zero Dirichlet boundary, in place.
     fn solve_direct(&mut self, dst_x: &Dst1, dst_y: &Dst1) {
         let (nx, ny) = (dst_x.n, dst_y.n);
-        self.fit(dst_x);
-        self.fit(dst_y);
+        for d in [dst_x, dst_y] {
+            self.fit(2 * (d.n + 1), d.fft.get_inplace_scratch_len());
+        }
         let n = nx * ny;
         let (work, tmp) = (&mut self.work[..n], &mut self.work2[..n]);
         let (buf, scratch) = (&mut self.fft_buf, &mut self.fft_scratch);
