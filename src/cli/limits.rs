@@ -263,11 +263,8 @@ impl LimitsRow {
 
     /// Render / bilinear bound, noise / readout bound, frame / fused bound.
     pub fn ratios(&self) -> [f64; 3] {
-        [
-            self.render_us / self.bound(Bound::Bilinear),
-            self.noise_us / self.bound(Bound::Readout),
-            self.frame_us / self.bound(Bound::Fused),
-        ]
+        let [bilinear, readout, fused] = self.bilinear_readout_fused();
+        [self.render_us / bilinear, self.noise_us / readout, self.frame_us / fused]
     }
 }
 

@@ -165,11 +165,18 @@ pub struct PoissonFusion {
     rects: Vec<PixelRect>,
     /// One set of buffers per region: the regions are solved in parallel.
     scratch: Vec<Scratch>,
-    /// What every set of buffers is sized for: the largest region's area, and the longest transform buffer and
-    /// scratch of the planned sizes.
-    sized_for: (usize, usize, usize),
+    /// What every set of buffers is sized for.
+    sized_for: BufferSizes,
     /// Looked at between sweeps of the iterative solvers: when set, they stop at once.
     stop: Option<Arc<AtomicBool>>,
+}
+
+/// The largest region's area, and the longest transform buffer and scratch of the planned sizes.
+#[derive(Debug, Clone, Copy, Default)]
+struct BufferSizes {
+    area: usize,
+    fft_buf: usize,
+    fft_scratch: usize,
 }
 
 /// The buffers of one region's solve.
@@ -210,7 +217,7 @@ impl PoissonFusion {
             dst: HashMap::new(),
             rects: Vec::new(),
             scratch: vec![Scratch::default()],
-            sized_for: (0, 0, 0),
+            sized_for: BufferSizes::default(),
             stop: None,
         }
     }
@@ -228,7 +235,7 @@ impl PoissonFusion {
         for n in 1..=max_side.saturating_sub(2) {
             s.plan(n);
         }
-        s.sized_for.0 = max_side * max_side;
+        s.sized_for.area = max_side * max_side;
         s.size_buffers(1);
         s.rects.reserve(64);
         s
@@ -239,10 +246,10 @@ impl PoissonFusion {
         if self.scratch.len() < sets {
             self.scratch.resize_with(sets, Scratch::default);
         }
-        let (area, buf, scratch) = self.sized_for;
+        let size = self.sized_for;
         for sc in &mut self.scratch[..sets] {
-            sc.reserve(area);
-            sc.fit(buf, scratch);
+            sc.reserve(size.area);
+            sc.fit(size.fft_buf, size.fft_scratch);
         }
     }
 
@@ -252,8 +259,8 @@ impl PoissonFusion {
         }
         let m = 2 * (n + 1);
         let fft = self.planner.plan_fft_forward(m);
-        self.sized_for.1 = self.sized_for.1.max(m);
-        self.sized_for.2 = self.sized_for.2.max(fft.get_inplace_scratch_len());
+        self.sized_for.fft_buf = self.sized_for.fft_buf.max(m);
+        self.sized_for.fft_scratch = self.sized_for.fft_scratch.max(fft.get_inplace_scratch_len());
         let c = std::f64::consts::PI / (n + 1) as f64;
         let eigen = (0..n).map(|k| 2.0 - 2.0 * (c * (k + 1) as f64).cos()).collect();
         let d = Arc::new(Dst1 { n, fft, eigen });
@@ -294,7 +301,7 @@ impl PoissonFusion {
         // every set of buffers sized for the largest region and transform so far: which region a set gets
         // changes from frame to frame, and none then allocates again
         let largest = self.rects.iter().map(|r| r.width() * r.height()).max().unwrap_or(0);
-        self.sized_for.0 = self.sized_for.0.max(largest);
+        self.sized_for.area = self.sized_for.area.max(largest);
         self.size_buffers(regions);
         let (dst, stop, rects) = (&self.dst, self.stop.as_deref(), &self.rects);
         let frame_in: &Frame = frame;

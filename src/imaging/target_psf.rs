@@ -106,10 +106,9 @@ pub fn render_target(
         TargetMethod::Auto => (spec.node_spacing_px, spec.seven_point_max_px),
         TargetMethod::Reference => (0.05, 0.0),
     };
-    let (nodes, rings) = quadrature_nodes(ellipse, psf, spacing, seven_point_max);
-    for &(x, y, weight) in &nodes {
+    let rings = quadrature_nodes(ellipse, psf, spacing, seven_point_max, |x, y, weight| {
         scatter(psf, x, y, weight, rect, out);
-    }
+    });
     if rings {
         fill_deep_pixels(ellipse, psf, rect, out);
     }
@@ -123,24 +122,32 @@ pub fn render_target(
     peak
 }
 
-/// The quadrature's nodes `(x, y, weight)` (px, px, share of the area in px²; unit amplitude), and whether
-/// they are rings (which leave out the nodes that reach only the deep pixels, see [`fill_deep_pixels`]).
-fn quadrature_nodes(e: &ImageEllipse, psf: &Psf, spacing: f64, seven_point_max: f64) -> (Vec<(f64, f64, f32)>, bool) {
+/// Gives `node(x, y, weight)` each of the quadrature's nodes in turn (px, px, share of the area in px²; unit
+/// amplitude); returns whether they were rings (which leave out the nodes that reach only the deep pixels, see
+/// [`fill_deep_pixels`]).
+fn quadrature_nodes(
+    e: &ImageEllipse,
+    psf: &Psf,
+    spacing: f64,
+    seven_point_max: f64,
+    mut node: impl FnMut(f64, f64, f32),
+) -> bool {
     let area = e.area_px2();
     let (s, c) = e.angle_rad.sin_cos();
     let at = |u: f64, v: f64| (e.center.x + u * e.a * c - v * e.b * s, e.center.y + u * e.a * s + v * e.b * c);
     if e.a < 0.01 {
-        return (vec![(e.center.x, e.center.y, area as f32)], false);
+        node(e.center.x, e.center.y, area as f32);
+        return false;
     }
     if e.a <= seven_point_max {
-        let mut nodes = vec![(e.center.x, e.center.y, (0.25 * area) as f32)];
+        node(e.center.x, e.center.y, (0.25 * area) as f32);
         let r = (2.0f64 / 3.0).sqrt();
         for k in 0..6 {
             let phi = std::f64::consts::FRAC_PI_3 * k as f64;
             let (x, y) = at(r * phi.cos(), r * phi.sin());
-            nodes.push((x, y, (0.125 * area) as f32));
+            node(x, y, (0.125 * area) as f32);
         }
-        return (nodes, false);
+        return false;
     }
     // rings of width `spacing` along the major axis; on ring i (unit radii r0..r1) points `spacing` apart at the
     // ring's area-weighted mean radius
@@ -163,8 +170,7 @@ fn quadrature_nodes(e: &ImageEllipse, psf: &Psf, spacing: f64, seven_point_max: 
     while count(spacing).1 > MAX_NODES {
         spacing *= 1.5;
     }
-    let (rings, total) = count(spacing);
-    let mut nodes = Vec::with_capacity(total);
+    let rings = count(spacing).0;
     for i in 0..rings {
         let (r, fraction, r0) = ring(i, rings);
         if !needed(r0) {
@@ -177,10 +183,10 @@ fn quadrature_nodes(e: &ImageEllipse, psf: &Psf, spacing: f64, seven_point_max: 
         for k in 0..n {
             let phi = std::f64::consts::TAU * (k as f64 + offset) / n as f64;
             let (x, y) = at(r * phi.cos(), r * phi.sin());
-            nodes.push((x, y, weight));
+            node(x, y, weight);
         }
     }
-    (nodes, true)
+    true
 }
 
 /// Sets the pixels of `rect` deeper inside the ellipse than the PSF's reach to 1: the whole (unit-integral)
