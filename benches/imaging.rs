@@ -157,6 +157,32 @@ fn fusion(c: &mut Criterion) {
 
 /// The optics PSF of an F/1 LWIR camera with 17 µm pixels (radius 4 px, rank 3) on a textured 256² frame, per
 /// application method.
+/// 16-bit PNG encoding of a noisy sky frame: this crate's Huffman-only encoder (`fast`), the `png` crate's
+/// fast deflate it replaced, and stored (no deflate).
+fn png16(c: &mut Criterion) {
+    use irsim::imaging::frame::PngCompression;
+    use irsim::imaging::png16::Png16Encoder;
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for (w, h) in [(256, 256), (640, 512)] {
+        let px = (0..w * h).map(|i| 3000.0 + (i / w) as f32 * 0.8 + 12.0 * rng.random::<f32>()).collect();
+        let frame = Frame::from_pixels(w, h, px);
+        let mut group = c.benchmark_group(format!("png16_{w}x{h}"));
+        group.throughput(Throughput::Bytes((w * h * 2) as u64));
+        let (mut enc, mut out, mut samples) = (Png16Encoder::new(), Vec::new(), Vec::new());
+        group.bench_function("fast", |b| b.iter(|| enc.encode(black_box(frame.pixels()), w, h, 16383, &mut out)));
+        for (name, level) in [("png_crate_fast", PngCompression::Fast), ("stored", PngCompression::None)] {
+            group.bench_function(name, |b| {
+                b.iter(|| {
+                    out.clear();
+                    frame.png16_samples(16383, &mut samples);
+                    frame.write_png16_samples(black_box(&samples), level, &mut out).unwrap();
+                })
+            });
+        }
+        group.finish();
+    }
+}
+
 fn psf(c: &mut Criterion) {
     use irsim::imaging::psf::{ConvolutionMethod, Convolver, Psf, PsfOptics, PsfSpec};
     use irsim::physics::planck::{Band, Measure};
@@ -190,5 +216,5 @@ fn psf(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, raycast, noise, fusion, psf);
+criterion_group!(benches, raycast, noise, fusion, psf, png16);
 criterion_main!(benches);

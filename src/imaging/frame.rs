@@ -159,6 +159,18 @@ impl Frame {
         compression: PngCompression,
         out: W,
     ) -> image::ImageResult<()> {
+        if compression == PngCompression::Fast {
+            let mut bytes = Vec::new();
+            crate::imaging::png16::Png16Encoder::new().encode(
+                &self.pixels,
+                self.width,
+                self.height,
+                max_level,
+                &mut bytes,
+            );
+            let mut out = out;
+            return out.write_all(&bytes).map_err(image::ImageError::IoError);
+        }
         let mut samples = Vec::new();
         self.png16_samples(max_level, &mut samples);
         self.write_png16_samples(&samples, compression, out)
@@ -169,11 +181,20 @@ impl Frame {
     pub fn png16_samples(&self, max_level: u16, samples: &mut Vec<u16>) {
         let max = f32::from(max_level);
         samples.clear();
-        // through i32 (one vector conversion); `max` first so that NaN becomes 0, as `quantize` has it
-        samples.extend(self.pixels.iter().map(|&v| ((v.max(0.0).min(max) + 0.5) as i32 as u16).to_be()));
+        samples.resize(self.pixels.len(), 0);
+        crate::physics::simd::widest(
+            #[inline(always)]
+            || {
+                for (s, &v) in samples.iter_mut().zip(&self.pixels) {
+                    *s = crate::imaging::png16::quantize(v, max).to_be();
+                }
+            },
+        );
     }
 
-    /// Writes the samples made by [`Frame::png16_samples`] as a 16-bit grayscale PNG of this frame's size.
+    /// Writes the samples made by [`Frame::png16_samples`] as a 16-bit grayscale PNG of this frame's size,
+    /// through the `png` crate (for [`PngCompression::Fast`], its own fast deflate, which
+    /// [`crate::imaging::png16`] replaces in [`Frame::write_png16_with`]; kept for comparison).
     ///
     /// # Errors
     /// The encoder's error, e.g. on a failed write.
@@ -220,7 +241,8 @@ impl Frame {
 pub enum PngCompression {
     /// Stored, no deflate (the largest files, the least CPU).
     None,
-    /// A fast deflate with the `Sub` filter (the default).
+    /// The `Sub` filter and a Huffman-only deflate made for 16-bit frames (the default; see
+    /// [`crate::imaging::png16`]).
     #[default]
     Fast,
     /// zlib's default level with adaptive filters.

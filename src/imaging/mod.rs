@@ -8,6 +8,7 @@ pub mod background;
 pub mod camera;
 pub mod frame;
 pub mod fusion;
+pub mod png16;
 pub mod prefilter;
 pub mod psd;
 pub mod psf;

@@ -27,6 +27,7 @@ use serde::Serialize;
 
 use crate::imaging::agc::{Agc, AgcSpec};
 use crate::imaging::frame::{Frame, PngCompression};
+use crate::imaging::png16::Png16Encoder;
 use crate::labels::FrameLabels;
 
 /// How frames are written.
@@ -260,25 +261,34 @@ struct Done {
 /// Encodes `frame` in `format` into bytes.
 pub fn encode(frame: &Frame, format: FrameFormat, max_level: u16, png: PngCompression) -> Vec<u8> {
     let mut bytes = Vec::new();
-    encode_into(frame, format, max_level, png, &mut Vec::new(), &mut bytes);
+    encode_into(frame, format, max_level, png, &mut EncodeScratch::default(), &mut bytes);
     bytes
 }
 
-/// [`encode`] into `bytes` (replacing its contents), with `samples` as scratch: an encoder thread keeps both
-/// from frame to frame.
+/// An encoder thread's buffers, kept from frame to frame.
+#[derive(Debug, Default)]
+pub struct EncodeScratch {
+    samples: Vec<u16>,
+    png16: Png16Encoder,
+}
+
+/// [`encode`] into `bytes` (replacing its contents), with `scratch` kept by the caller from frame to frame.
 pub fn encode_into(
     frame: &Frame,
     format: FrameFormat,
     max_level: u16,
     png: PngCompression,
-    samples: &mut Vec<u16>,
+    scratch: &mut EncodeScratch,
     bytes: &mut Vec<u8>,
 ) {
     bytes.clear();
     match format {
+        FrameFormat::Png16 if png == PngCompression::Fast => {
+            scratch.png16.encode(frame.pixels(), frame.width(), frame.height(), max_level, bytes);
+        }
         FrameFormat::Png16 => {
-            frame.png16_samples(max_level, samples);
-            frame.write_png16_samples(samples, png, &mut *bytes).expect("writing to memory");
+            frame.png16_samples(max_level, &mut scratch.samples);
+            frame.write_png16_samples(&scratch.samples, png, &mut *bytes).expect("writing to memory");
         }
         FrameFormat::Png8 => frame.write_png8(f32::from(max_level), &mut *bytes).expect("writing to memory"),
         // the AGC has already mapped the frame to 0–255
@@ -372,7 +382,7 @@ impl Recorder {
                 let dir = dir.to_path_buf();
                 std::thread::spawn(move || {
                     // the encoder's buffers, kept from frame to frame
-                    let (mut samples, mut bytes) = (Vec::new(), Vec::new());
+                    let (mut scratch, mut bytes) = (EncodeScratch::default(), Vec::new());
                     loop {
                         let job = match rx.lock() {
                             Ok(guard) => match guard.recv() {
@@ -391,7 +401,7 @@ impl Recorder {
                             write_renamed(&tmp, path, bytes, false)
                         };
                         let frame_path = dir.join("frames").join(format!("{:06}.{}", job.index, format.extension()));
-                        encode_into(&job.frame, format, max_level, png, &mut samples, &mut bytes);
+                        encode_into(&job.frame, format, max_level, png, &mut scratch, &mut bytes);
                         let mut result = unsynced(&frame_path, &bytes);
                         let mut files = vec![frame_path];
                         if let (Ok(()), Some(mask)) = (&result, &job.mask) {

@@ -1,0 +1,526 @@
+//! A fast encoder for 16-bit grayscale PNG frames: one pass to quantize and filter, one Huffman-only deflate
+//! block.
+//!
+//! A sensor frame is a smooth sky under noise. After PNG's `Sub` filter (each byte minus the byte two to its
+//! left, so high bytes from high bytes and low bytes from low bytes) the high bytes are nearly all 0 or 255 and
+//! the low bytes spread over the noise's width; repeated strings are rare, so a match search (what deflate
+//! spends most of its time on) finds little. This encoder skips it: the filtered bytes are coded with one
+//! dynamic Huffman table made for the frame from a count of its bytes on a sample of its rows, written 4 codes
+//! to a 64-bit store. Any inflater reads the result: it is an ordinary zlib stream (RFC 1950/1951) inside an
+//! ordinary PNG (one IHDR, one IDAT, IEND).
+//!
+//! Where the table would code the frame in more bytes than storing it (no frame a sensor makes, but any input
+//! can), the frame is written as stored blocks instead. The pixels are those of [`Frame::png16_samples`]:
+//! clamped to `[0, max_level]`, rounded half up, NaN as 0.
+//!
+//! [`Frame::png16_samples`]: crate::imaging::frame::Frame::png16_samples
+
+/// The longest code: 4 codes of at most 14 bits and the ≤ 7 bits waiting fit in one 64-bit word.
+const MAX_CODE_BITS: u32 = 14;
+/// Literals 0–255 and the end of block.
+const SYMBOLS: usize = 257;
+const END_OF_BLOCK: usize = 256;
+/// About this many filtered bytes are counted to make a frame's table (every k-th row, k fixed by the size).
+const SAMPLE_BYTES: usize = 8 * 1024;
+/// PNG's `Sub` filter type, the first byte of every row.
+const FILTER_SUB: u8 = 1;
+/// A stored deflate block holds at most this many bytes.
+const STORED_BLOCK_MAX: usize = 65_535;
+
+/// The encoder's buffers, kept from frame to frame: once the largest frame has been seen, encoding allocates
+/// nothing beyond what `out` needs.
+#[derive(Debug, Default, Clone)]
+pub struct Png16Encoder {
+    /// One row's quantized samples.
+    row: Vec<u16>,
+    /// The zlib stream's uncompressed data: each row's filter byte and filtered samples.
+    filtered: Vec<u8>,
+    /// The deflate bit stream, written 8 bytes at a time (its length is only ever grown, never cleared).
+    bits: Vec<u8>,
+}
+
+impl Png16Encoder {
+    /// An encoder with empty buffers.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Writes `pixels`, a row-major `width` × `height` frame, into `out` (replacing its contents) as a 16-bit
+    /// grayscale PNG of the levels `[0, max_level]`.
+    ///
+    /// # Panics
+    /// If `pixels` does not hold `width · height` values, or either side is 0 or over 2³¹ − 1 (PNG's limits).
+    pub fn encode(&mut self, pixels: &[f32], width: usize, height: usize, max_level: u16, out: &mut Vec<u8>) {
+        assert!(width > 0 && height > 0 && width <= i32::MAX as usize && height <= i32::MAX as usize);
+        assert_eq!(pixels.len(), width * height, "pixels for a {width}x{height} frame");
+        self.filter(pixels, width, max_level);
+        out.clear();
+        out.extend_from_slice(b"\x89PNG\r\n\x1a\n");
+        let mut ihdr = [0u8; 13];
+        ihdr[0..4].copy_from_slice(&(width as u32).to_be_bytes());
+        ihdr[4..8].copy_from_slice(&(height as u32).to_be_bytes());
+        // bit depth 16, grayscale, deflate, adaptive filtering, no interlace
+        ihdr[8..13].copy_from_slice(&[16, 0, 0, 0, 0]);
+        chunk(out, b"IHDR", &ihdr);
+        // IDAT: its length is filled in once the stream is written
+        let idat = out.len();
+        out.extend_from_slice(&[0, 0, 0, 0]);
+        out.extend_from_slice(b"IDAT");
+        // zlib header: deflate with a 32 KiB window, the fastest level, no dictionary ((0x78·256 + 0x01) % 31 == 0)
+        out.extend_from_slice(&[0x78, 0x01]);
+        let coded = self.deflate_huffman();
+        if coded <= stored_size(self.filtered.len()) {
+            out.extend_from_slice(&self.bits[..coded]);
+        } else {
+            write_stored(&self.filtered, out);
+        }
+        out.extend_from_slice(&simd_adler32::adler32(&self.filtered.as_slice()).to_be_bytes());
+        let length = out.len() - idat - 8;
+        let length = u32::try_from(length).expect("an IDAT chunk under 4 GiB");
+        out[idat..idat + 4].copy_from_slice(&length.to_be_bytes());
+        let crc = crc32fast::hash(&out[idat + 4..]);
+        out.extend_from_slice(&crc.to_be_bytes());
+        chunk(out, b"IEND", &[]);
+    }
+
+    /// Quantizes and `Sub`-filters the frame into `self.filtered`.
+    fn filter(&mut self, pixels: &[f32], width: usize, max_level: u16) {
+        let stride = 1 + 2 * width;
+        let height = pixels.len() / width;
+        self.filtered.resize(stride * height, 0);
+        self.row.resize(width, 0);
+        let max = f32::from(max_level);
+        let (row, filtered) = (&mut self.row, &mut self.filtered);
+        crate::physics::simd::widest(
+            #[inline(always)]
+            || {
+                for (src, dst) in pixels.chunks_exact(width).zip(filtered.chunks_exact_mut(stride)) {
+                    for (q, &v) in row.iter_mut().zip(src) {
+                        *q = quantize(v, max);
+                    }
+                    dst[0] = FILTER_SUB;
+                    let dst = &mut dst[1..];
+                    // the pixel left of the first is 0: its bytes go as they are
+                    dst[0] = (row[0] >> 8) as u8;
+                    dst[1] = row[0] as u8;
+                    for ((d, &v), &left) in dst[2..].chunks_exact_mut(2).zip(&row[1..]).zip(&row[..width - 1]) {
+                        d[0] = ((v >> 8) as u8).wrapping_sub((left >> 8) as u8);
+                        d[1] = (v as u8).wrapping_sub(left as u8);
+                    }
+                }
+            },
+        );
+    }
+
+    /// Codes `self.filtered` as one final dynamic-Huffman deflate block into `self.bits`; returns its length in
+    /// bytes.
+    fn deflate_huffman(&mut self) -> usize {
+        let data = &self.filtered;
+        let lengths = code_lengths(&sample_counts(data, 1 + 2 * self.row.len()));
+        let codes = canonical_codes(&lengths);
+        // each symbol's code, bit-reversed as deflate sends Huffman codes, and its length
+        let mut code = [0u64; SYMBOLS];
+        let mut len = [0u32; SYMBOLS];
+        for (i, (&c, &l)) in codes.iter().zip(&lengths).enumerate() {
+            (code[i], len[i]) = (u64::from(c), u32::from(l));
+        }
+        // the header, the data at ≤ 14 bits a byte, the end of block, and the 8-byte stores' overrun
+        let bound = 256 + data.len() * MAX_CODE_BITS as usize / 8 + 16;
+        if self.bits.len() < bound {
+            self.bits.resize(bound, 0);
+        }
+        let mut w = BitWriter { out: &mut self.bits[..bound], pos: 0, buf: 0, nbits: 0 };
+        write_header(&mut w, &lengths);
+        #[cfg(target_arch = "x86_64")]
+        if bmi2() {
+            // SAFETY: the CPU has BMI2, checked by `bmi2`
+            unsafe { code_bytes_bmi2(data, &code, &len, &mut w) };
+        } else {
+            code_bytes(data, &code, &len, &mut w);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        code_bytes(data, &code, &len, &mut w);
+        w.put(code[END_OF_BLOCK], len[END_OF_BLOCK]);
+        w.finish()
+    }
+}
+
+/// Whether [`code_bytes_bmi2`] may run: the CPU has BMI2 and `IRSIM_SIMD` does not ask for the baseline.
+#[cfg(target_arch = "x86_64")]
+fn bmi2() -> bool {
+    static BMI2: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *BMI2.get_or_init(|| {
+        std::arch::is_x86_feature_detected!("bmi2")
+            && crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline
+    })
+}
+
+/// Each byte of `data` as its code, four codes to a store.
+#[inline(always)]
+fn code_bytes(data: &[u8], code: &[u64; SYMBOLS], len: &[u32; SYMBOLS], w: &mut BitWriter<'_>) {
+    let mut quads = data.chunks_exact(4);
+    for q in &mut quads {
+        let (a, b, c, d) = (q[0] as usize, q[1] as usize, q[2] as usize, q[3] as usize);
+        let (la, lb, lc) = (len[a], len[b], len[c]);
+        let bits = code[a] | (code[b] << la) | (code[c] << (la + lb)) | (code[d] << (la + lb + lc));
+        w.put(bits, la + lb + lc + len[d]);
+    }
+    for &byte in quads.remainder() {
+        w.put(code[byte as usize], len[byte as usize]);
+    }
+}
+
+/// [`code_bytes`] compiled with BMI2's shifts by any register (the same bits; a quarter fewer instructions).
+///
+/// # Safety
+/// The CPU must have BMI2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "bmi2")]
+unsafe fn code_bytes_bmi2(data: &[u8], code: &[u64; SYMBOLS], len: &[u32; SYMBOLS], w: &mut BitWriter<'_>) {
+    code_bytes(data, code, len, w);
+}
+
+/// Clamped to `[0, max]`, rounded half up, NaN as 0: [`Frame::png16_samples`]'s sample.
+///
+/// [`Frame::png16_samples`]: crate::imaging::frame::Frame::png16_samples
+#[inline(always)]
+pub fn quantize(v: f32, max: f32) -> u16 {
+    // `max` (the float maximum) returns 0 for NaN; the value is then in [0.5, max + 0.5], so the truncating
+    // conversion cannot overflow
+    let c = v.max(0.0).min(max) + 0.5;
+    // SAFETY: `c` is finite and within [0.5, 65535.5], inside i32's range
+    (unsafe { c.to_int_unchecked::<i32>() }) as u16
+}
+
+/// The counts of the byte values in every k-th row (k making about [`SAMPLE_BYTES`] bytes), plus one for every
+/// symbol so that any byte has a code. The rows are `stride` bytes long.
+fn sample_counts(data: &[u8], stride: usize) -> [u32; SYMBOLS] {
+    let rows = data.len() / stride;
+    let every = (data.len() / SAMPLE_BYTES).clamp(1, rows.max(1));
+    // four tables, so that a run of equal bytes does not wait on its own increments
+    let mut parts = [[0u32; 256]; 4];
+    for row in data.chunks_exact(stride).step_by(every) {
+        let mut quads = row.chunks_exact(4);
+        for q in &mut quads {
+            parts[0][q[0] as usize] += 1;
+            parts[1][q[1] as usize] += 1;
+            parts[2][q[2] as usize] += 1;
+            parts[3][q[3] as usize] += 1;
+        }
+        for &b in quads.remainder() {
+            parts[0][b as usize] += 1;
+        }
+    }
+    let mut counts = [1u32; SYMBOLS];
+    for (i, c) in counts.iter_mut().take(256).enumerate() {
+        *c += parts[0][i] + parts[1][i] + parts[2][i] + parts[3][i];
+    }
+    counts
+}
+
+/// Huffman code lengths for `counts` (every count ≥ 1), none longer than [`MAX_CODE_BITS`]: the optimal
+/// lengths, with the counts halved until the longest fits (a handful of bytes' cost on a frame).
+fn code_lengths(counts: &[u32; SYMBOLS]) -> [u8; SYMBOLS] {
+    let mut counts = *counts;
+    loop {
+        let lengths = huffman_lengths(&counts);
+        if lengths.iter().all(|&l| u32::from(l) <= MAX_CODE_BITS) {
+            return lengths;
+        }
+        for c in &mut counts {
+            *c = (*c >> 1).max(1);
+        }
+    }
+}
+
+/// Optimal (unlimited) Huffman code lengths by the two-queue method: the leaves sorted by count (ties by
+/// symbol), the merged trees made in order of weight, the two lightest of both queues merged until one tree is
+/// left. The lengths depend on the counts alone.
+fn huffman_lengths(counts: &[u32; SYMBOLS]) -> [u8; SYMBOLS] {
+    const NODES: usize = 2 * SYMBOLS - 1;
+    let mut leaves = [0u64; SYMBOLS];
+    for (l, (i, &c)) in leaves.iter_mut().zip(counts.iter().enumerate()) {
+        *l = (u64::from(c) << 9) | i as u64;
+    }
+    leaves.sort_unstable();
+    // node k < SYMBOLS is the k-th lightest leaf; node SYMBOLS + j the j-th merged tree
+    let mut weight = [0u64; NODES];
+    let mut parent = [0u16; NODES];
+    for (w, &l) in weight.iter_mut().zip(&leaves) {
+        *w = l >> 9;
+    }
+    let (mut leaf, mut tree, mut made) = (0usize, SYMBOLS, SYMBOLS);
+    // the lighter front of the two queues (a leaf on a tie, which keeps the trees shallow)
+    let lightest = |leaf: &mut usize, tree: &mut usize, made: usize, weight: &[u64; NODES]| {
+        if *leaf < SYMBOLS && (*tree >= made || weight[*leaf] <= weight[*tree]) {
+            *leaf += 1;
+            *leaf - 1
+        } else {
+            *tree += 1;
+            *tree - 1
+        }
+    };
+    while made < NODES {
+        let a = lightest(&mut leaf, &mut tree, made, &weight);
+        let b = lightest(&mut leaf, &mut tree, made, &weight);
+        weight[made] = weight[a] + weight[b];
+        parent[a] = made as u16;
+        parent[b] = made as u16;
+        made += 1;
+    }
+    // a node's depth is its parent's plus one; parents come after their children, so go from the root down
+    let mut depth = [0u8; NODES];
+    for n in (0..NODES - 1).rev() {
+        depth[n] = depth[parent[n] as usize].saturating_add(1);
+    }
+    let mut lengths = [0u8; SYMBOLS];
+    for (k, &l) in leaves.iter().enumerate() {
+        lengths[(l & 511) as usize] = depth[k];
+    }
+    lengths
+}
+
+/// The canonical codes of RFC 1951 §3.2.2 for `lengths`, each bit-reversed (deflate sends a Huffman code's
+/// most significant bit first, into a stream packed from the least significant bit).
+fn canonical_codes<const N: usize>(lengths: &[u8; N]) -> [u16; N] {
+    let mut count = [0u16; 16];
+    for &l in lengths {
+        count[l as usize] += 1;
+    }
+    count[0] = 0;
+    let mut next = [0u16; 16];
+    let mut code = 0u16;
+    for bits in 1..16 {
+        code = (code + count[bits - 1]) << 1;
+        next[bits] = code;
+    }
+    let mut codes = [0u16; N];
+    for (c, &l) in codes.iter_mut().zip(lengths) {
+        if l > 0 {
+            *c = next[l as usize].reverse_bits() >> (16 - l);
+            next[l as usize] += 1;
+        }
+    }
+    codes
+}
+
+/// The block header: final, dynamic; 257 literal/length codes, 2 distance codes (both 1 bit: none is used, and
+/// a complete code is what every inflater takes); the code-length code gives each length 0–15 four bits.
+fn write_header(w: &mut BitWriter<'_>, lengths: &[u8; SYMBOLS]) {
+    // BFINAL = 1, BTYPE = 2
+    w.put(0b101, 3);
+    // HLIT = 257 − 257, HDIST = 2 − 1, HCLEN = 19 − 4
+    w.put(0, 5);
+    w.put(1, 5);
+    w.put(15, 4);
+    // the code-length code's lengths, in RFC 1951's order 16, 17, 18, 0, 8, 7, 9, 6, 10, 5, 11, 4, 12, 3, 13, 2,
+    // 14, 1, 15: 16–18 unused, 0–15 four bits each
+    w.put(0, 9);
+    for _ in 0..16 {
+        w.put(4, 3);
+    }
+    // with sixteen 4-bit codes, length value v's code is v itself, bit-reversed
+    let code = |v: u8| u64::from(v.reverse_bits() >> 4);
+    for &l in lengths {
+        w.put(code(l), 4);
+    }
+    w.put(code(1), 4);
+    w.put(code(1), 4);
+}
+
+/// A deflate bit stream written into a buffer that has room for 8 bytes past the last one written.
+struct BitWriter<'a> {
+    out: &'a mut [u8],
+    pos: usize,
+    buf: u64,
+    nbits: u32,
+}
+
+impl BitWriter<'_> {
+    /// Appends the low `n` bits of `bits` (`n` ≤ 56; no bits above them set).
+    #[inline(always)]
+    fn put(&mut self, bits: u64, n: u32) {
+        self.buf |= bits << self.nbits;
+        self.nbits += n;
+        self.out[self.pos..self.pos + 8].copy_from_slice(&self.buf.to_le_bytes());
+        // at most 7 bits wait between calls, so `nbits` ≤ 63 and `whole` ≤ 56
+        debug_assert!(self.nbits < 64);
+        let whole = self.nbits & !7;
+        self.pos += (whole >> 3) as usize;
+        self.buf >>= whole;
+        self.nbits -= whole;
+    }
+
+    /// Pads to a whole byte; returns the stream's length in bytes.
+    fn finish(self) -> usize {
+        self.pos + usize::from(self.nbits > 0)
+    }
+}
+
+/// The length of `n` bytes as stored deflate blocks.
+fn stored_size(n: usize) -> usize {
+    n + 5 * n.div_ceil(STORED_BLOCK_MAX).max(1)
+}
+
+/// `data` as stored deflate blocks (each: a header byte, its length and the length's complement, the bytes).
+fn write_stored(data: &[u8], out: &mut Vec<u8>) {
+    let mut blocks = data.chunks(STORED_BLOCK_MAX).peekable();
+    if blocks.peek().is_none() {
+        out.extend_from_slice(&[1, 0, 0, 0xff, 0xff]);
+    }
+    while let Some(block) = blocks.next() {
+        out.push(u8::from(blocks.peek().is_none()));
+        let n = block.len() as u16;
+        out.extend_from_slice(&n.to_le_bytes());
+        out.extend_from_slice(&(!n).to_le_bytes());
+        out.extend_from_slice(block);
+    }
+}
+
+/// A PNG chunk: length, type, data, CRC of type and data.
+fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
+    out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+    let start = out.len();
+    out.extend_from_slice(kind);
+    out.extend_from_slice(data);
+    let crc = crc32fast::hash(&out[start..]);
+    out.extend_from_slice(&crc.to_be_bytes());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn decode(bytes: &[u8]) -> (u32, u32, Vec<u16>) {
+        let img = image::load_from_memory(bytes).expect("a PNG image reads back").into_luma16();
+        (img.width(), img.height(), img.into_raw())
+    }
+
+    fn reference(pixels: &[f32], max: u16) -> Vec<u16> {
+        pixels.iter().map(|&v| quantize(v, f32::from(max))).collect()
+    }
+
+    /// A smooth sky under noise, as frames are.
+    fn sky(w: usize, h: usize, sigma: f32, seed: u32) -> Vec<f32> {
+        let mut s = seed.wrapping_mul(2_654_435_761) | 1;
+        (0..w * h)
+            .map(|i| {
+                s ^= s << 13;
+                s ^= s >> 17;
+                s ^= s << 5;
+                let u = (s >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
+                3000.0 + (i / w) as f32 * 3.0 + (i % w) as f32 * 0.5 + u * sigma * 3.46
+            })
+            .collect()
+    }
+
+    #[test]
+    fn frames_read_back_exactly_through_other_decoders() {
+        let mut enc = Png16Encoder::new();
+        let mut out = Vec::new();
+        for &(w, h, sigma) in &[(256, 256, 8.0), (640, 512, 3.0), (1, 1, 0.0), (1, 7, 5.0), (7, 1, 5.0), (3, 5, 900.0)]
+        {
+            let px = sky(w, h, sigma, (w * h) as u32);
+            enc.encode(&px, w, h, 16383, &mut out);
+            assert_eq!(decode(&out), (w as u32, h as u32, reference(&px, 16383)), "{w}x{h}");
+            // another inflater (miniz_oxide, through flate2) reads the IDAT's stream into the filtered rows
+            let idat = out.windows(4).position(|t| t == b"IDAT").unwrap();
+            let n = u32::from_be_bytes(out[idat - 4..idat].try_into().unwrap()) as usize;
+            let mut inflated = Vec::new();
+            std::io::Read::read_to_end(
+                &mut flate2::read::ZlibDecoder::new(&out[idat + 4..idat + 4 + n]),
+                &mut inflated,
+            )
+            .unwrap();
+            assert_eq!(inflated, enc.filtered, "{w}x{h}");
+        }
+    }
+
+    #[test]
+    fn hostile_values_clamp_and_incompressible_frames_are_stored() {
+        let mut enc = Png16Encoder::new();
+        let mut out = Vec::new();
+        let px = [0.0, 1.4, 1.5, 65535.0, 70000.0, -5.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
+        enc.encode(&px, 3, 3, 65535, &mut out);
+        assert_eq!(decode(&out).2, vec![0, 1, 2, 65535, 65535, 0, 0, 65535, 0]);
+        // uniform random bytes: the Huffman table cannot beat storing them
+        let mut s = 12_345u32;
+        let px: Vec<f32> = (0..300 * 300)
+            .map(|_| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (s >> 16) as f32
+            })
+            .collect();
+        enc.encode(&px, 300, 300, 65535, &mut out);
+        assert_eq!(decode(&out).2, reference(&px, 65535));
+        assert!(out.len() < 300 * 300 * 2 + 301 + 200, "{} bytes", out.len());
+    }
+
+    #[test]
+    fn a_constant_frame_costs_about_a_bit_a_byte() {
+        let mut enc = Png16Encoder::new();
+        let mut out = Vec::new();
+        let px = vec![1234.0; 256 * 256];
+        enc.encode(&px, 256, 256, 16383, &mut out);
+        assert_eq!(decode(&out).2, reference(&px, 16383));
+        // a bit for each byte, the rows' filter bytes and first pixels, the header
+        assert!(out.len() < 256 * 513 / 8 + 256 * 5 + 400, "{} bytes", out.len());
+    }
+
+    #[test]
+    fn code_lengths_are_complete_and_limited() {
+        // counts spanning many octaves force the limit
+        let mut counts = [1u32; SYMBOLS];
+        for (i, c) in counts.iter_mut().enumerate().take(30) {
+            *c = 1 << (i.min(30));
+        }
+        for counts in [counts, [1u32; SYMBOLS], sample_counts(&[0u8; 1000], 10)] {
+            let lengths = code_lengths(&counts);
+            let kraft: f64 = lengths.iter().map(|&l| 0.5f64.powi(i32::from(l))).sum();
+            assert!((kraft - 1.0).abs() < 1e-12, "Kraft sum {kraft}");
+            assert!(lengths.iter().all(|&l| (1..=MAX_CODE_BITS as u8).contains(&l)));
+        }
+        // optimal where no limit binds: cost equals a textbook Huffman's on a small case
+        let mut small = [1u32; SYMBOLS];
+        small[0] = 1000;
+        small[1] = 500;
+        let l = huffman_lengths(&small);
+        assert_eq!((l[0], l[1]), (1, 2));
+    }
+
+    #[test]
+    fn code_lengths_cost_what_huffman_merging_costs() {
+        // a Huffman code's cost Σ count·length is the sum of the weights of the trees merged to make it
+        let mut s = 7u64;
+        for round in 0..20 {
+            let mut counts = [1u32; SYMBOLS];
+            for c in &mut counts {
+                s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+                *c = 1 + ((s >> 33) % [2, 50, 10_000, 1_000_000][round % 4]) as u32;
+            }
+            let lengths = huffman_lengths(&counts);
+            let cost: u64 = counts.iter().zip(&lengths).map(|(&c, &l)| u64::from(c) * u64::from(l)).sum();
+            let mut heap: std::collections::BinaryHeap<std::cmp::Reverse<u64>> =
+                counts.iter().map(|&c| std::cmp::Reverse(u64::from(c))).collect();
+            let mut merged = 0;
+            while heap.len() > 1 {
+                let (a, b) = (heap.pop().unwrap().0, heap.pop().unwrap().0);
+                merged += a + b;
+                heap.push(std::cmp::Reverse(a + b));
+            }
+            assert_eq!(cost, merged, "round {round}");
+        }
+    }
+
+    #[test]
+    fn buffers_are_reused() {
+        let mut enc = Png16Encoder::new();
+        let mut out = Vec::new();
+        let px = sky(64, 48, 4.0, 1);
+        enc.encode(&px, 64, 48, 16383, &mut out);
+        let first = out.clone();
+        enc.encode(&sky(200, 100, 4.0, 2), 200, 100, 16383, &mut out);
+        enc.encode(&px, 64, 48, 16383, &mut out);
+        assert_eq!(out, first, "the same frame encodes to the same bytes after a larger one");
+    }
+}
