@@ -16,7 +16,7 @@ use crate::scenario::load::{load_for_frames, located};
 use crate::scenario::{CheckedScenario, QualityPreset, QualitySpec, load};
 use crate::sim::{
     FrameReady, RunOptions, SensorFrame, SimClock, StageTimings, drain_frames, headless_app, set_stop_flag, step,
-    with_workers_awake,
+    with_workers_awake_and,
 };
 
 /// Flags of `irsim record`.
@@ -408,6 +408,8 @@ pub fn record_scenario(
     let mut rec = Recorder::new(&plan.out, (plan.format, plan.png), plan.masks, max_level, threads, manifest, frames)
         .map_err(|e| CliError::Failed(e.to_string()))?;
     set_stop_flag(&mut app, Arc::clone(stop));
+    // the pool's workers encode waiting frames when the frame's stages leave them idle
+    let idle = rec.idle_work();
     let started = Instant::now();
     let mut interrupted = false;
     for _ in 0..frames {
@@ -420,7 +422,7 @@ pub fn record_scenario(
         }
         // A bug must not leave the directory claiming to run: record it as the failure and stop there.
         let ready = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            with_workers_awake(|| app.update());
+            with_workers_awake_and(Some(&idle), || app.update());
             drain_frames(&mut app).pop()
         })) {
             Ok(Some(ready)) => ready,

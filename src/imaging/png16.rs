@@ -24,6 +24,9 @@ const END_OF_BLOCK: usize = 256;
 const SAMPLE_BYTES: usize = 8 * 1024;
 /// PNG's `Sub` filter type, the first byte of every row.
 const FILTER_SUB: u8 = 1;
+/// [`Png16Encoder::encode_pausing`] pauses after about this many bytes of filtered data made or coded (about
+/// 10 µs of work here).
+pub const PAUSE_BYTES: usize = 16 * 1024;
 /// A stored deflate block holds at most this many bytes.
 const STORED_BLOCK_MAX: usize = 65_535;
 
@@ -51,9 +54,26 @@ impl Png16Encoder {
     /// # Panics
     /// If `pixels` does not hold `width · height` values, or either side is 0 or over 2³¹ − 1 (PNG's limits).
     pub fn encode(&mut self, pixels: &[f32], width: usize, height: usize, max_level: u16, out: &mut Vec<u8>) {
+        self.encode_pausing(pixels, width, height, max_level, out, &mut || {});
+    }
+
+    /// [`Png16Encoder::encode`], calling `pause` after every [`PAUSE_BYTES`] or so of the frame's work, so
+    /// that a thread encoding between other work can look for it (a worker of a pool runs waiting tasks there).
+    ///
+    /// # Panics
+    /// As [`Png16Encoder::encode`].
+    pub fn encode_pausing(
+        &mut self,
+        pixels: &[f32],
+        width: usize,
+        height: usize,
+        max_level: u16,
+        out: &mut Vec<u8>,
+        pause: &mut dyn FnMut(),
+    ) {
         assert!(width > 0 && height > 0 && width <= i32::MAX as usize && height <= i32::MAX as usize);
         assert_eq!(pixels.len(), width * height, "pixels for a {width}x{height} frame");
-        self.filter(pixels, width, max_level);
+        self.filter(pixels, width, max_level, pause);
         out.clear();
         out.extend_from_slice(b"\x89PNG\r\n\x1a\n");
         let mut ihdr = [0u8; 13];
@@ -68,7 +88,7 @@ impl Png16Encoder {
         out.extend_from_slice(b"IDAT");
         // zlib header: deflate with a 32 KiB window, the fastest level, no dictionary ((0x78·256 + 0x01) % 31 == 0)
         out.extend_from_slice(&[0x78, 0x01]);
-        let coded = self.deflate_huffman();
+        let coded = self.deflate_huffman(pause);
         if coded <= stored_size(self.filtered.len()) {
             out.extend_from_slice(&self.bits[..coded]);
         } else {
@@ -84,37 +104,22 @@ impl Png16Encoder {
     }
 
     /// Quantizes and `Sub`-filters the frame into `self.filtered`.
-    fn filter(&mut self, pixels: &[f32], width: usize, max_level: u16) {
+    fn filter(&mut self, pixels: &[f32], width: usize, max_level: u16, pause: &mut dyn FnMut()) {
         let stride = 1 + 2 * width;
         let height = pixels.len() / width;
         self.filtered.resize(stride * height, 0);
         self.row.resize(width, 0);
         let max = f32::from(max_level);
-        let (row, filtered) = (&mut self.row, &mut self.filtered);
-        crate::physics::simd::widest(
-            #[inline(always)]
-            || {
-                for (src, dst) in pixels.chunks_exact(width).zip(filtered.chunks_exact_mut(stride)) {
-                    for (q, &v) in row.iter_mut().zip(src) {
-                        *q = quantize(v, max);
-                    }
-                    dst[0] = FILTER_SUB;
-                    let dst = &mut dst[1..];
-                    // the pixel left of the first is 0: its bytes go as they are
-                    dst[0] = (row[0] >> 8) as u8;
-                    dst[1] = row[0] as u8;
-                    for ((d, &v), &left) in dst[2..].chunks_exact_mut(2).zip(&row[1..]).zip(&row[..width - 1]) {
-                        d[0] = ((v >> 8) as u8).wrapping_sub((left >> 8) as u8);
-                        d[1] = (v as u8).wrapping_sub(left as u8);
-                    }
-                }
-            },
-        );
+        let band = (PAUSE_BYTES / stride).max(1);
+        for (src, dst) in pixels.chunks(band * width).zip(self.filtered.chunks_mut(band * stride)) {
+            filter_rows(src, dst, &mut self.row, max);
+            pause();
+        }
     }
 
     /// Codes `self.filtered` as one final dynamic-Huffman deflate block into `self.bits`; returns its length in
     /// bytes.
-    fn deflate_huffman(&mut self) -> usize {
+    fn deflate_huffman(&mut self, pause: &mut dyn FnMut()) -> usize {
         let data = &self.filtered;
         let lengths = code_lengths(&sample_counts(data, 1 + 2 * self.row.len()));
         let codes = canonical_codes(&lengths);
@@ -131,18 +136,47 @@ impl Png16Encoder {
         }
         let mut w = BitWriter { out: &mut self.bits[..bound], pos: 0, buf: 0, nbits: 0 };
         write_header(&mut w, &lengths);
-        #[cfg(target_arch = "x86_64")]
-        if bmi2() {
-            // SAFETY: the CPU has BMI2, checked by `bmi2`
-            unsafe { code_bytes_bmi2(data, &code, &len, &mut w) };
-        } else {
-            code_bytes(data, &code, &len, &mut w);
+        // a multiple of 4: only the last piece has bytes left over from the quads
+        for piece in data.chunks(PAUSE_BYTES) {
+            #[cfg(target_arch = "x86_64")]
+            if bmi2() {
+                // SAFETY: the CPU has BMI2, checked by `bmi2`
+                unsafe { code_bytes_bmi2(piece, &code, &len, &mut w) };
+            } else {
+                code_bytes(piece, &code, &len, &mut w);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            code_bytes(piece, &code, &len, &mut w);
+            pause();
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        code_bytes(data, &code, &len, &mut w);
         w.put(code[END_OF_BLOCK], len[END_OF_BLOCK]);
         w.finish()
     }
+}
+
+/// Quantizes and `Sub`-filters whole rows of `pixels` into `filtered` (each row its filter byte and samples),
+/// with `row` (one row long) as scratch.
+fn filter_rows(pixels: &[f32], filtered: &mut [u8], row: &mut [u16], max: f32) {
+    let width = row.len();
+    crate::physics::simd::widest(
+        #[inline(always)]
+        || {
+            for (src, dst) in pixels.chunks_exact(width).zip(filtered.chunks_exact_mut(1 + 2 * width)) {
+                for (q, &v) in row.iter_mut().zip(src) {
+                    *q = quantize(v, max);
+                }
+                dst[0] = FILTER_SUB;
+                let dst = &mut dst[1..];
+                // the pixel left of the first is 0: its bytes go as they are
+                dst[0] = (row[0] >> 8) as u8;
+                dst[1] = row[0] as u8;
+                for ((d, &v), &left) in dst[2..].chunks_exact_mut(2).zip(&row[1..]).zip(&row[..width - 1]) {
+                    d[0] = ((v >> 8) as u8).wrapping_sub((left >> 8) as u8);
+                    d[1] = (v as u8).wrapping_sub(left as u8);
+                }
+            }
+        },
+    );
 }
 
 /// Whether [`code_bytes_bmi2`] may run: the CPU has BMI2 and `IRSIM_SIMD` does not ask for the baseline.

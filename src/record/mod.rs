@@ -1,5 +1,15 @@
-//! Recording a run: frames encoded on worker threads, labels, MOT ground truth and a manifest, all written
+//! Recording a run: frames encoded in rayon's pool, labels, MOT ground truth and a manifest, all written
 //! atomically (a temporary file renamed into place).
+//!
+//! A frame's encoding and writing is done by the threads of the simulation's own pool, not by threads of their
+//! own: on a machine with few cores, threads of their own competed with the pool's workers for the cores, and a
+//! worker waiting for its share of a parallel stage spun while an encoder held its core. Frames wait in an
+//! [`EncodeQueue`]; a worker that the frame's stages leave idle encodes one (see
+//! [`crate::sim::with_workers_awake_and`]), looking for the pool's jobs every [`PAUSE_BYTES`] of the frame, and
+//! the simulation's thread encodes one itself when too many wait. Outside a pool, each frame is a task of
+//! rayon's global pool.
+//!
+//! [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
 //!
 //! Frames are committed in order: the labels on disk always describe exactly the frames on disk. Labels,
 //! the MOT file and the manifest are rewritten at checkpoints (every second) and at the end, so an
@@ -16,11 +26,11 @@
 //! behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
+use std::collections::VecDeque;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
 use std::time::Instant;
 
 use serde::Serialize;
@@ -241,7 +251,7 @@ pub fn prepare_dir(dir: &Path, force: bool) -> Result<DirLock, RecordError> {
     Ok(lock)
 }
 
-/// One frame for the workers.
+/// One frame for an encoding task.
 struct Job {
     index: u64,
     frame: Frame,
@@ -256,6 +266,120 @@ struct Done {
     labels: FrameLabels,
     frame: Frame,
     files: Vec<PathBuf>,
+}
+
+/// What every encoding task of a recording shares.
+struct TaskSpec {
+    dir: PathBuf,
+    format: FrameFormat,
+    png: PngCompression,
+    max_level: u16,
+}
+
+thread_local! {
+    /// The encoder's buffers of this thread, kept from frame to frame (allocation only while they grow).
+    static SCRATCH: std::cell::RefCell<(EncodeScratch, Vec<u8>)> = std::cell::RefCell::default();
+}
+
+/// Frames waiting to be encoded and written, shared by the recorder and the threads that encode them.
+pub struct EncodeQueue {
+    spec: TaskSpec,
+    jobs: Mutex<VecDeque<Job>>,
+    done: Sender<Done>,
+}
+
+impl EncodeQueue {
+    /// Encodes and writes the oldest waiting frame on this thread, pausing for the pool's jobs (where this
+    /// thread is in a pool) every [`crate::imaging::png16::PAUSE_BYTES`]; false if no frame waits.
+    pub fn run_one(&self) -> bool {
+        let job = self.jobs.lock().unwrap_or_else(std::sync::PoisonError::into_inner).pop_front();
+        let Some(job) = job else { return false };
+        run_task(&self.spec, job, &self.done);
+        true
+    }
+
+    fn push(&self, job: Job) {
+        self.jobs.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push_back(job);
+    }
+}
+
+/// One frame's task: encodes it and its mask, writes them, and sends them back with their fate. A panic is
+/// caught and sent back as the frame's error (a task of the pool must not unwind into it).
+fn run_task(spec: &TaskSpec, job: Job, tx: &Sender<Done>) {
+    let index = job.index;
+    let work = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        SCRATCH.with(|cell| match cell.try_borrow_mut() {
+            Ok(mut scratch) => {
+                let (scratch, bytes) = &mut *scratch;
+                write_job(spec, &job, scratch, bytes)
+            }
+            // a task run inside another's pause (not reached: the pool's jobs do not encode), but never a panic
+            Err(_) => write_job(spec, &job, &mut EncodeScratch::default(), &mut Vec::new()),
+        })
+    }));
+    let done = match work {
+        Ok((result, files)) => Done { index, result, labels: job.labels, frame: job.frame, files },
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_owned())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            let error = RecordError::Io {
+                path: spec.dir.display().to_string(),
+                message: format!("internal error encoding frame {index}: {what} (please report it)"),
+            };
+            Done { index, result: Err(error), labels: job.labels, frame: job.frame, files: Vec::new() }
+        }
+    };
+    // the recorder is gone only if its thread panicked; nothing is left to tell then
+    let _ = tx.send(done);
+}
+
+/// Encodes and writes a job's frame and mask; returns the outcome and the files written.
+fn write_job(
+    spec: &TaskSpec,
+    job: &Job,
+    scratch: &mut EncodeScratch,
+    bytes: &mut Vec<u8>,
+) -> (Result<(), RecordError>, Vec<PathBuf>) {
+    // each file appears under its name complete (renamed into place); it is made durable with the others at
+    // the next checkpoint, before the labels that list it
+    let unsynced = |path: &Path, bytes: &[u8]| {
+        let tmp = path.with_extension(format!("{}.tmp", path.extension().and_then(|e| e.to_str()).unwrap_or("")));
+        write_renamed(&tmp, path, bytes, false)
+    };
+    let frame_path = spec.dir.join("frames").join(format!("{:06}.{}", job.index, spec.format.extension()));
+    encode_pausing(&job.frame, spec, scratch, bytes, &mut || {
+        rayon::yield_now();
+    });
+    let mut result = unsynced(&frame_path, bytes);
+    let mut files = vec![frame_path];
+    if let (Ok(()), Some(mask)) = (&result, &job.mask) {
+        let m = Frame::from_pixels(job.frame.width(), job.frame.height(), mask.iter().map(|&v| f32::from(v)).collect());
+        bytes.clear();
+        m.write_png8(255.0, &mut *bytes).expect("writing to memory");
+        let mask_path = spec.dir.join("masks").join(format!("{:06}.png", job.index));
+        result = unsynced(&mask_path, bytes);
+        files.push(mask_path);
+    }
+    (result, files)
+}
+
+/// [`encode_into`] for a task, the 16-bit PNG encoder calling `pause` as it goes.
+fn encode_pausing(
+    frame: &Frame,
+    spec: &TaskSpec,
+    scratch: &mut EncodeScratch,
+    bytes: &mut Vec<u8>,
+    pause: &mut dyn FnMut(),
+) {
+    if spec.format == FrameFormat::Png16 && spec.png == PngCompression::Fast {
+        bytes.clear();
+        scratch.png16.encode_pausing(frame.pixels(), frame.width(), frame.height(), spec.max_level, bytes, pause);
+    } else {
+        encode_into(frame, spec.format, spec.max_level, spec.png, scratch, bytes);
+    }
 }
 
 /// Encodes `frame` in `format` into bytes.
@@ -326,14 +450,18 @@ pub struct Progress {
     pub error: Option<String>,
 }
 
-/// The recorder: worker threads, ordered commit, checkpoints.
+/// The recorder: encoding tasks, ordered commit, checkpoints.
 pub struct Recorder {
     dir: PathBuf,
     format: FrameFormat,
     masks: bool,
-    jobs: Option<SyncSender<Job>>,
+    /// The frames waiting to be encoded.
+    queue: Arc<EncodeQueue>,
     done: Receiver<Done>,
-    workers: Vec<JoinHandle<()>>,
+    /// At most this many frames are handed out and not yet back.
+    max_in_flight: u64,
+    /// Frames back from their tasks (committed or waiting in `pending`).
+    returned: u64,
     pending: BTreeMap<u64, FrameLabels>,
     committed: u64,
     sent: u64,
@@ -350,15 +478,15 @@ pub struct Recorder {
     manifest: serde_json::Value,
     frames_requested: u64,
     agc: Option<(Agc, u32)>,
-    /// Files the workers wrote since the last checkpoint's sync.
+    /// Files the tasks wrote since the last checkpoint's sync.
     unsynced: Vec<PathBuf>,
-    /// Frame buffers the workers are done with.
+    /// Frame buffers the tasks are done with.
     spare: Vec<Frame>,
 }
 
 impl Recorder {
-    /// Starts `threads` encoder workers writing into the prepared directory `dir`. `manifest` is the run's
-    /// description; the recorder adds `status`, `frames_requested`, `frames_written` and `error`.
+    /// A recorder writing into the prepared directory `dir`, its frames encoded by the threads of rayon's pool
+    /// (see the module's docs), at most `2 · threads` frames out at once. `manifest` is the run's description; the recorder adds `status`, `frames_requested`, `frames_written` and `error`.
     pub fn new(
         dir: &Path,
         (format, png): (FrameFormat, PngCompression),
@@ -371,66 +499,17 @@ impl Recorder {
         if masks {
             std::fs::create_dir_all(dir.join("masks")).map_err(|e| io_err(dir, e))?;
         }
-        let threads = threads.max(1);
-        let (job_tx, job_rx) = sync_channel::<Job>(threads * 2);
-        let (done_tx, done_rx) = sync_channel::<Done>(threads * 4 + 8);
-        let job_rx = Arc::new(Mutex::new(job_rx));
-        let workers = (0..threads)
-            .map(|_| {
-                let rx = Arc::clone(&job_rx);
-                let tx = done_tx.clone();
-                let dir = dir.to_path_buf();
-                std::thread::spawn(move || {
-                    // the encoder's buffers, kept from frame to frame
-                    let (mut scratch, mut bytes) = (EncodeScratch::default(), Vec::new());
-                    loop {
-                        let job = match rx.lock() {
-                            Ok(guard) => match guard.recv() {
-                                Ok(j) => j,
-                                Err(_) => break,
-                            },
-                            Err(_) => break,
-                        };
-                        // each file appears under its name complete (renamed into place); it is made durable
-                        // with the others at the next checkpoint, before the labels that list it
-                        let unsynced = |path: &Path, bytes: &[u8]| {
-                            let tmp = path.with_extension(format!(
-                                "{}.tmp",
-                                path.extension().and_then(|e| e.to_str()).unwrap_or("")
-                            ));
-                            write_renamed(&tmp, path, bytes, false)
-                        };
-                        let frame_path = dir.join("frames").join(format!("{:06}.{}", job.index, format.extension()));
-                        encode_into(&job.frame, format, max_level, png, &mut scratch, &mut bytes);
-                        let mut result = unsynced(&frame_path, &bytes);
-                        let mut files = vec![frame_path];
-                        if let (Ok(()), Some(mask)) = (&result, &job.mask) {
-                            let m = Frame::from_pixels(
-                                job.frame.width(),
-                                job.frame.height(),
-                                mask.iter().map(|&v| f32::from(v)).collect(),
-                            );
-                            bytes.clear();
-                            m.write_png8(255.0, &mut bytes).expect("writing to memory");
-                            let mask_path = dir.join("masks").join(format!("{:06}.png", job.index));
-                            result = unsynced(&mask_path, &bytes);
-                            files.push(mask_path);
-                        }
-                        let done = Done { index: job.index, result, labels: job.labels, frame: job.frame, files };
-                        if tx.send(done).is_err() {
-                            break;
-                        }
-                    }
-                })
-            })
-            .collect();
+        let (done_tx, done_rx) = channel::<Done>();
+        let spec = TaskSpec { dir: dir.to_path_buf(), format, png, max_level };
+        let queue = Arc::new(EncodeQueue { spec, jobs: Mutex::new(VecDeque::new()), done: done_tx });
         let mut rec = Self {
             dir: dir.to_path_buf(),
             format,
             masks,
-            jobs: Some(job_tx),
+            queue,
             done: done_rx,
-            workers,
+            max_in_flight: 2 * threads.max(1) as u64,
+            returned: 0,
             pending: BTreeMap::new(),
             committed: 0,
             sent: 0,
@@ -461,7 +540,7 @@ impl Recorder {
         self.error.get_or_insert(RecordError::Io { path: self.dir.display().to_string(), message });
     }
 
-    /// A frame buffer the workers have finished with, for the next frame.
+    /// A frame buffer the tasks have finished with, for the next frame.
     pub fn take_spare(&mut self) -> Option<Frame> {
         self.spare.pop()
     }
@@ -476,28 +555,30 @@ impl Recorder {
         self.error.is_some()
     }
 
-    /// Hands a frame to the workers (blocks while they are all busy).
+    /// Queues a frame to be encoded; while more than twice `threads` frames are out, encodes waiting frames on
+    /// this thread or waits for one to come back.
     pub fn push(&mut self, mut frame: Frame, mask: Option<Vec<u8>>, labels: FrameLabels) {
         if self.error.is_some() {
             return;
         }
-        // the AGC's state runs over the frames in order, so it is applied here, not in the workers
+        // the AGC's state runs over the frames in order, so it is applied here, not in the tasks
         if let Some((agc, max_level)) = &mut self.agc {
             agc.apply(frame.pixels_mut(), *max_level);
         }
         let job = Job { index: self.sent, frame, mask: if self.masks { mask } else { None }, labels };
         self.sent += 1;
-        // collect finished work first so the done channel never fills
-        self.collect(false);
-        if let Some(tx) = &self.jobs
-            && tx.send(job).is_err()
-        {
-            self.error = Some(RecordError::Io {
-                path: self.dir.display().to_string(),
-                message: "encoder threads stopped".into(),
+        self.queue.push(job);
+        if rayon::current_thread_index().is_none() {
+            // outside a pool no waiting worker looks at the queue: a task of the global pool takes the frame
+            let queue = Arc::clone(&self.queue);
+            rayon::spawn(move || {
+                queue.run_one();
             });
         }
-        self.collect(false);
+        self.collect();
+        while self.sent - self.returned > self.max_in_flight {
+            self.wait_for_one();
+        }
         if self.last_checkpoint.elapsed().as_secs_f64() >= 1.0
             && let Err(e) = self.checkpoint("running")
         {
@@ -505,27 +586,62 @@ impl Recorder {
         }
     }
 
+    /// The frames waiting to be encoded, for [`crate::sim::with_workers_awake_and`]'s idle work.
+    pub fn idle_work(&self) -> crate::sim::IdleWork {
+        let queue = Arc::clone(&self.queue);
+        Arc::new(move || queue.run_one())
+    }
+
+    /// Waits until at least one more frame is back: encodes a waiting frame on this thread, or, when none waits
+    /// (every frame out is being encoded), sleeps on the channel until one comes back.
+    fn wait_for_one(&mut self) {
+        let before = self.returned;
+        while self.returned == before {
+            self.collect();
+            if self.returned != before || self.queue.run_one() {
+                continue;
+            }
+            if let Ok(done) = self.done.recv() {
+                self.take(done);
+            }
+            self.collect();
+        }
+    }
+
+    /// Waits until every frame handed out is back.
+    fn wait_for_all(&mut self) {
+        while self.returned < self.sent {
+            self.wait_for_one();
+        }
+    }
+
     /// Takes finished frames off the done channel and commits the contiguous ones.
-    fn collect(&mut self, block: bool) {
-        loop {
-            let done = if block { self.done.recv().ok() } else { self.done.try_recv().ok() };
-            let Some(done) = done else { break };
-            self.unsynced.extend(done.files);
-            if self.spare.len() < 8 {
-                self.spare.push(done.frame);
+    fn collect(&mut self) {
+        while let Ok(done) = self.done.try_recv() {
+            self.take(done);
+        }
+        self.commit();
+    }
+
+    /// Files a frame back from its task.
+    fn take(&mut self, done: Done) {
+        self.returned += 1;
+        self.unsynced.extend(done.files);
+        if self.spare.len() < 8 {
+            self.spare.push(done.frame);
+        }
+        match done.result {
+            Ok(()) => {
+                self.pending.insert(done.index, done.labels);
             }
-            match done.result {
-                Ok(()) => {
-                    self.pending.insert(done.index, done.labels);
-                }
-                Err(e) => {
-                    self.error.get_or_insert(e);
-                }
-            }
-            if block && self.pending.len() as u64 + self.committed >= self.sent {
-                break;
+            Err(e) => {
+                self.error.get_or_insert(e);
             }
         }
+    }
+
+    /// Commits the frames back in order.
+    fn commit(&mut self) {
         while let Some(labels) = self.pending.remove(&self.committed) {
             self.labels_text.push_str(&serde_json::to_string(&labels).expect("labels serialize"));
             self.labels_text.push('\n');
@@ -604,17 +720,14 @@ impl Recorder {
         }
     }
 
-    /// Waits for the workers, commits what completed, removes frames beyond the committed ones, and writes
+    /// Waits for the tasks, commits what completed, removes frames beyond the committed ones, and writes
     /// the final labels and manifest. `interrupted` marks a run stopped by the user.
     ///
     /// # Errors
     /// The first write error of the run (the final files are still written if possible).
     pub fn finish(mut self, interrupted: bool) -> Result<Progress, RecordError> {
-        self.jobs = None;
-        for w in std::mem::take(&mut self.workers) {
-            let _ = w.join();
-        }
-        self.collect(false);
+        self.wait_for_all();
+        self.collect();
         // frames written after a gap (a failed frame) have no labels: remove them
         self.truncate_to(self.committed);
         let status = if self.error.is_some() {
@@ -651,6 +764,14 @@ impl Recorder {
             Some(e) => Err(e),
             None => final_write.map(|()| progress),
         }
+    }
+}
+
+impl Drop for Recorder {
+    /// A recorder dropped without [`Recorder::finish`] (a caller's early return) still waits for its tasks, so
+    /// that no file is written into the directory after it is gone.
+    fn drop(&mut self) {
+        self.wait_for_all();
     }
 }
 
@@ -694,6 +815,57 @@ mod tests {
         assert_eq!(m["status"], "interrupted");
         assert_eq!(m["frames_written"], 3);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The three ways frames get encoded write the same files: by the pool's idle workers while frames are made
+    /// (`with_workers_awake_and`), by the recording thread itself (a pool of one), and by tasks of the global pool
+    /// (a recorder outside any pool).
+    #[test]
+    fn frames_are_the_same_whoever_encodes_them() {
+        let record = |name: &str| {
+            let dir = std::env::temp_dir().join(format!("irsim-rec-{name}-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&dir);
+            let _lock = prepare_dir(&dir, false).unwrap();
+            let mut rec = Recorder::new(
+                &dir,
+                (FrameFormat::Png16, PngCompression::Fast),
+                true,
+                4095,
+                2,
+                serde_json::json!({}),
+                40,
+            )
+            .unwrap();
+            let idle = rec.idle_work();
+            for k in 0..40u64 {
+                let frame = crate::sim::with_workers_awake_and(Some(&idle), || {
+                    // some parallel work, as a frame's stages have
+                    use rayon::prelude::*;
+                    let px: Vec<f32> =
+                        (0..96 * 64).into_par_iter().map(|i| ((i as u64 * 7919 + k * 104_729) % 4096) as f32).collect();
+                    Frame::from_pixels(96, 64, px)
+                });
+                let mask = (0..96 * 64).map(|i| u8::from(i % 97 == 0)).collect();
+                rec.push(frame, Some(mask), labels(k));
+            }
+            let p = rec.finish(false).unwrap();
+            assert_eq!((p.status.as_str(), p.frames_written), ("complete", 40));
+            let mut files = Vec::new();
+            for sub in ["frames", "masks"] {
+                let mut names: Vec<_> = std::fs::read_dir(dir.join(sub)).unwrap().map(|e| e.unwrap().path()).collect();
+                names.sort();
+                files.extend(names.iter().map(|f| std::fs::read(f).unwrap()));
+            }
+            files.push(std::fs::read(dir.join("labels.jsonl")).unwrap());
+            std::fs::remove_dir_all(&dir).unwrap();
+            files
+        };
+        let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let a = two.install(|| record("two"));
+        assert_eq!(a.len(), 81);
+        assert_eq!(a, one.install(|| record("one")));
+        assert_eq!(a, record("outside"));
     }
 
     #[test]

@@ -85,10 +85,28 @@ pub fn frame_at(app: &mut App, k: u64) -> Option<FrameReady> {
 /// Runs `f` (one frame) with rayon's other workers kept awake: each takes a job that looks for work in the pool
 /// until `f` returns, so the frame's parallel stages find them ready instead of waking them from sleep (rayon
 /// puts an idle worker to sleep within microseconds; handing each frame to a pool thread and back cost about
-/// 110 µs here, a third of a 256×256 frame). A waiting worker calls the system's yield between looks, which lets another thread
-/// waiting for its core (the recorder's encoders) run, though the scheduler still gives the waiting worker its
-/// share. Outside a pool, or in a pool of one, `f` just runs.
+/// 110 µs here, a third of a 256×256 frame). A waiting worker calls the system's yield between looks. Outside a
+/// pool, or in a pool of one, `f` just runs.
 pub fn with_workers_awake<R>(f: impl FnOnce() -> R) -> R {
+    with_workers_awake_and(None, f)
+}
+
+/// Idle work for [`with_workers_awake_and`]: does one piece of work on the calling thread and says whether there
+/// was any.
+pub type IdleWork = std::sync::Arc<dyn Fn() -> bool + Send + Sync>;
+
+thread_local! {
+    /// Whether this thread is inside a waiting worker's idle work (whose pauses may run another waiting job).
+    static IN_IDLE_WORK: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// [`with_workers_awake`], the waiting workers doing `idle` (the recorder's frames to encode) when the pool has
+/// nothing for them, in place of the system's yield. Work that `idle` does should pause for the pool's jobs
+/// now and then (`rayon::yield_now`), so that the frame's parallel stages are not kept waiting by it. The
+/// waiting jobs are not scoped to `f`: when `f` returns they stop at their next look, and one in the middle
+/// of idle work finishes that piece without holding up the caller.
+pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R) -> R {
+    use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, Ordering};
     let (Some(owner), others) = (rayon::current_thread_index(), rayon::current_num_threads().saturating_sub(1)) else {
         return f();
@@ -96,31 +114,40 @@ pub fn with_workers_awake<R>(f: impl FnOnce() -> R) -> R {
     if others == 0 {
         return f();
     }
-    let done = AtomicBool::new(false);
-    rayon::in_place_scope(|s| {
-        for _ in 0..others {
-            s.spawn(|_| {
-                // the frame's own thread may run this job itself while it waits in a join: it must not wait here
-                if rayon::current_thread_index() == Some(owner) {
-                    return;
-                }
-                while !done.load(Ordering::Acquire) {
-                    if rayon::yield_now() != Some(rayon::Yield::Executed) {
-                        std::thread::yield_now();
-                    }
-                }
-            });
-        }
-        // set even if `f` panics: the scope waits for the waiting jobs before it passes the panic on
-        struct Done<'a>(&'a AtomicBool);
-        impl Drop for Done<'_> {
-            fn drop(&mut self) {
-                self.0.store(true, Ordering::Release);
+    let done = Arc::new(AtomicBool::new(false));
+    for _ in 0..others {
+        let (done, idle) = (Arc::clone(&done), idle.cloned());
+        rayon::spawn(move || {
+            // the frame's own thread may run this job itself while it waits in a join, and idle work pausing
+            // for the pool may run it: neither must wait here
+            if rayon::current_thread_index() == Some(owner) || IN_IDLE_WORK.get() {
+                return;
             }
+            while !done.load(Ordering::Acquire) {
+                if rayon::yield_now() == Some(rayon::Yield::Executed) {
+                    continue;
+                }
+                let worked = idle.as_ref().is_some_and(|work| {
+                    IN_IDLE_WORK.set(true);
+                    let worked = work();
+                    IN_IDLE_WORK.set(false);
+                    worked
+                });
+                if !worked {
+                    std::thread::yield_now();
+                }
+            }
+        });
+    }
+    // set even if `f` panics, so that the waiting jobs end
+    struct Done(Arc<AtomicBool>);
+    impl Drop for Done {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::Release);
         }
-        let _done = Done(&done);
-        f()
-    })
+    }
+    let _done = Done(done);
+    f()
 }
 
 /// The frame [`step`] read last (its buffer goes back to the [`FramePool`] when the next one arrives).
@@ -168,8 +195,8 @@ mod tests {
     #[test]
     fn a_panicking_frame_releases_the_waiting_workers() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
-        // the panic reaches the caller (a hang here is the failure: the scope would wait for the workers forever)
-        // the frame waits until the other thread has run part of it, which it can only reach by first taking
+        // the panic reaches the caller (a hang here is the failure: a waiting worker that never stopped would
+        // keep the pool's `install` from returning); the frame waits until the other thread has run part of it, which it can only reach by first taking
         // the waiting job (pushed before, at the end of the queue that thieves take from)
         let caught = pool.install(|| {
             std::panic::catch_unwind(|| {

@@ -38,8 +38,8 @@ pub use components::{
 };
 pub use fusion::{FusionPlugin, fuse_targets};
 pub use headless::{
-    BEVY_STEP, LatestFrame, build_app, current_frame, drain_frames, drain_frames_world, frame_at, headless_app,
-    run_systems_in_order, set_stop_flag, step, with_workers_awake,
+    BEVY_STEP, IdleWork, LatestFrame, build_app, current_frame, drain_frames, drain_frames_world, frame_at,
+    headless_app, run_systems_in_order, set_stop_flag, step, with_workers_awake, with_workers_awake_and,
 };
 pub use motion::{MotionPlugin, advance_trajectories};
 pub use noise::{NoisePlugin, read_out};
