@@ -989,8 +989,9 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
     let _ = std::fs::remove_dir_all(&dir);
     let _ = writeln!(
         md,
-        "\nOn a machine with few cores the recording is bound by the CPU it shares with the simulation (PNG \
-         encoding, creating the files): README, \"Recording labelled sequences\".\n"
+        "\nThe frames are encoded by the simulation's own pool, on the cores the frame's stages leave idle; on a \
+         machine with few cores the recording is bound by the CPU it shares with the simulation (encoding, \
+         writing the files): README, \"Recording labelled sequences\".\n"
     );
     Ok(())
 }
