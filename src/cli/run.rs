@@ -404,7 +404,8 @@ pub fn record_scenario(
         app.world_mut().resource_mut::<SimClock>().frame = plan.first_frame;
     }
     let max_level = scenario.sensor.model.adc.max_level() as u16;
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
+    // at most twice the pool's size of frames out at once (not the machine's cores: a smaller pool holds fewer)
+    let threads = rayon::current_num_threads().max(2);
     let mut rec = Recorder::new(&plan.out, (plan.format, plan.png), plan.masks, max_level, threads, manifest, frames)
         .map_err(|e| CliError::Failed(e.to_string()))?;
     set_stop_flag(&mut app, Arc::clone(stop));
@@ -422,7 +423,7 @@ pub fn record_scenario(
         }
         // A bug must not leave the directory claiming to run: record it as the failure and stop there.
         let ready = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            with_workers_awake_and(Some(&idle), || app.update());
+            with_workers_awake_and(idle.as_ref(), || app.update());
             drain_frames(&mut app).pop()
         })) {
             Ok(Some(ready)) => ready,

@@ -52,7 +52,8 @@ impl Png16Encoder {
     /// grayscale PNG of the levels `[0, max_level]`.
     ///
     /// # Panics
-    /// If `pixels` does not hold `width · height` values, or either side is 0 or over 2³¹ − 1 (PNG's limits).
+    /// If `pixels` does not hold `width · height` values, either side is 0 or over 2³¹ − 1, or the compressed
+    /// frame over 2³¹ − 1 bytes (PNG's limits).
     pub fn encode(&mut self, pixels: &[f32], width: usize, height: usize, max_level: u16, out: &mut Vec<u8>) {
         self.encode_pausing(pixels, width, height, max_level, out, &mut || {});
     }
@@ -96,7 +97,8 @@ impl Png16Encoder {
         }
         out.extend_from_slice(&simd_adler32::adler32(&self.filtered.as_slice()).to_be_bytes());
         let length = out.len() - idat - 8;
-        let length = u32::try_from(length).expect("an IDAT chunk under 4 GiB");
+        // PNG's limit on a chunk's length
+        let length = u32::try_from(length).ok().filter(|&n| n <= i32::MAX as u32).expect("an IDAT chunk under 2 GiB");
         out[idat..idat + 4].copy_from_slice(&length.to_be_bytes());
         let crc = crc32fast::hash(&out[idat + 4..]);
         out.extend_from_slice(&crc.to_be_bytes());
@@ -219,8 +221,9 @@ unsafe fn code_bytes_bmi2(data: &[u8], code: &[u64; SYMBOLS], len: &[u32; SYMBOL
 /// [`Frame::png16_samples`]: crate::imaging::frame::Frame::png16_samples
 #[inline(always)]
 pub fn quantize(v: f32, max: f32) -> u16 {
-    // `max` (the float maximum) returns 0 for NaN; the value is then in [0.5, max + 0.5], so the truncating
-    // conversion cannot overflow
+    // `max` is held to [0, 65535] (NaN to 0); `v.max(0.0)` returns 0 for NaN; the value is then in
+    // [0.5, 65535.5], so the truncating conversion cannot overflow
+    let max = if max >= 0.0 { max.min(65_535.0) } else { 0.0 };
     let c = v.max(0.0).min(max) + 0.5;
     // SAFETY: `c` is finite and within [0.5, 65535.5], inside i32's range
     (unsafe { c.to_int_unchecked::<i32>() }) as u16

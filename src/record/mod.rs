@@ -6,8 +6,8 @@
 //! worker waiting for its share of a parallel stage spun while an encoder held its core. Frames wait in an
 //! [`EncodeQueue`]; a worker that the frame's stages leave idle encodes one (see
 //! [`crate::sim::with_workers_awake_and`]), looking for the pool's jobs every [`PAUSE_BYTES`] of the frame, and
-//! the simulation's thread encodes one itself when too many wait. Outside a pool, each frame is a task of
-//! rayon's global pool.
+//! the simulation's thread encodes one itself when too many wait. Outside a pool, and for the formats whose
+//! encoders do not pause (all but 16-bit PNG at `fast`), each frame is a task of the pool instead.
 //!
 //! [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
 //!
@@ -16,7 +16,7 @@
 //! interruption (Ctrl-C, SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest
 //! whose `status` and `frames_written` say where the run stopped.
 //!
-//! Durability is paid once per checkpoint, not per file: an encoder thread writes a frame to a temporary file
+//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary file
 //! and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
 //! waiting for the disk; each checkpoint first makes everything written since the last one durable (one
 //! `syncfs` of the output's file system on Linux, a sync of each file elsewhere), then writes the labels. A
@@ -292,10 +292,21 @@ impl EncodeQueue {
     /// Encodes and writes the oldest waiting frame on this thread, pausing for the pool's jobs (where this
     /// thread is in a pool) every [`crate::imaging::png16::PAUSE_BYTES`]; false if no frame waits.
     pub fn run_one(&self) -> bool {
+        self.run_next(true)
+    }
+
+    /// The oldest waiting frame, encoded with pauses for the pool's jobs or without; false if none waits.
+    fn run_next(&self, pausing: bool) -> bool {
         let job = self.jobs.lock().unwrap_or_else(std::sync::PoisonError::into_inner).pop_front();
         let Some(job) = job else { return false };
-        run_task(&self.spec, job, &self.done);
+        run_task(&self.spec, job, &self.done, pausing);
         true
+    }
+
+    /// Whether the format's encoder pauses for the pool's jobs as it goes (16-bit PNG at `fast`); the others
+    /// would hold a waiting worker away from the frame's stages for a whole frame.
+    fn pauses(&self) -> bool {
+        self.spec.format == FrameFormat::Png16 && self.spec.png == PngCompression::Fast
     }
 
     fn push(&self, job: Job) {
@@ -305,16 +316,16 @@ impl EncodeQueue {
 
 /// One frame's task: encodes it and its mask, writes them, and sends them back with their fate. A panic is
 /// caught and sent back as the frame's error (a task of the pool must not unwind into it).
-fn run_task(spec: &TaskSpec, job: Job, tx: &Sender<Done>) {
+fn run_task(spec: &TaskSpec, job: Job, tx: &Sender<Done>, pausing: bool) {
     let index = job.index;
     let work = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         SCRATCH.with(|cell| match cell.try_borrow_mut() {
             Ok(mut scratch) => {
                 let (scratch, bytes) = &mut *scratch;
-                write_job(spec, &job, scratch, bytes)
+                write_job(spec, &job, scratch, bytes, pausing)
             }
-            // a task run inside another's pause (not reached: the pool's jobs do not encode), but never a panic
-            Err(_) => write_job(spec, &job, &mut EncodeScratch::default(), &mut Vec::new()),
+            // a frame encoded inside another's pause (a pool's job that records): fresh buffers, never a panic
+            Err(_) => write_job(spec, &job, &mut EncodeScratch::default(), &mut Vec::new(), pausing),
         })
     }));
     let done = match work {
@@ -342,6 +353,7 @@ fn write_job(
     job: &Job,
     scratch: &mut EncodeScratch,
     bytes: &mut Vec<u8>,
+    pausing: bool,
 ) -> (Result<(), RecordError>, Vec<PathBuf>) {
     // each file appears under its name complete (renamed into place); it is made durable with the others at
     // the next checkpoint, before the labels that list it
@@ -351,7 +363,9 @@ fn write_job(
     };
     let frame_path = spec.dir.join("frames").join(format!("{:06}.{}", job.index, spec.format.extension()));
     encode_pausing(&job.frame, spec, scratch, bytes, &mut || {
-        rayon::yield_now();
+        if pausing {
+            rayon::yield_now();
+        }
     });
     let mut result = unsynced(&frame_path, bytes);
     let mut files = vec![frame_path];
@@ -568,11 +582,13 @@ impl Recorder {
         let job = Job { index: self.sent, frame, mask: if self.masks { mask } else { None }, labels };
         self.sent += 1;
         self.queue.push(job);
-        if rayon::current_thread_index().is_none() {
-            // outside a pool no waiting worker looks at the queue: a task of the global pool takes the frame
+        if rayon::current_thread_index().is_none() || !self.queue.pauses() {
+            // outside a pool no waiting worker looks at the queue, and a format that does not pause is not
+            // waiting workers' work: a task of the pool takes the frame, without pausing (a pause there could
+            // only start another frame's task inside it)
             let queue = Arc::clone(&self.queue);
             rayon::spawn(move || {
-                queue.run_one();
+                queue.run_next(false);
             });
         }
         self.collect();
@@ -586,10 +602,11 @@ impl Recorder {
         }
     }
 
-    /// The frames waiting to be encoded, for [`crate::sim::with_workers_awake_and`]'s idle work.
-    pub fn idle_work(&self) -> crate::sim::IdleWork {
+    /// The frames waiting to be encoded, for [`crate::sim::with_workers_awake_and`]'s idle work; `None` for a
+    /// format whose encoder does not pause for the pool's jobs (its frames are tasks of the pool instead).
+    pub fn idle_work(&self) -> Option<crate::sim::IdleWork> {
         let queue = Arc::clone(&self.queue);
-        Arc::new(move || queue.run_one())
+        self.queue.pauses().then(|| Arc::new(move || queue.run_one()) as crate::sim::IdleWork)
     }
 
     /// Waits until at least one more frame is back: encodes a waiting frame on this thread, or, when none waits
@@ -838,7 +855,7 @@ mod tests {
             .unwrap();
             let idle = rec.idle_work();
             for k in 0..40u64 {
-                let frame = crate::sim::with_workers_awake_and(Some(&idle), || {
+                let frame = crate::sim::with_workers_awake_and(idle.as_ref(), || {
                     // some parallel work, as a frame's stages have
                     use rayon::prelude::*;
                     let px: Vec<f32> =

@@ -98,6 +98,10 @@ pub type IdleWork = std::sync::Arc<dyn Fn() -> bool + Send + Sync>;
 thread_local! {
     /// Whether this thread is inside a waiting worker's idle work (whose pauses may run another waiting job).
     static IN_IDLE_WORK: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    /// A later frame's end flag, left by that frame's waiting job when it ran inside this thread's idle work:
+    /// the waiting loop that did the idle work goes on waiting for that frame instead of ending with its own.
+    static ADOPTED: std::cell::RefCell<Option<std::sync::Arc<std::sync::atomic::AtomicBool>>> =
+        const { std::cell::RefCell::new(None) };
 }
 
 /// [`with_workers_awake`], the waiting workers doing `idle` (the recorder's frames to encode) when the pool has
@@ -120,19 +124,33 @@ pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R)
         rayon::spawn(move || {
             // the frame's own thread may run this job itself while it waits in a join, and idle work pausing
             // for the pool may run it: neither must wait here
-            if rayon::current_thread_index() == Some(owner) || IN_IDLE_WORK.get() {
+            if rayon::current_thread_index() == Some(owner) {
                 return;
             }
+            if IN_IDLE_WORK.get() {
+                ADOPTED.set(Some(done));
+                return;
+            }
+            let mut done = done;
             while !done.load(Ordering::Acquire) {
                 if rayon::yield_now() == Some(rayon::Yield::Executed) {
                     continue;
                 }
                 let worked = idle.as_ref().is_some_and(|work| {
+                    // cleared however `work` ends
+                    struct Idle;
+                    impl Drop for Idle {
+                        fn drop(&mut self) {
+                            IN_IDLE_WORK.set(false);
+                        }
+                    }
                     IN_IDLE_WORK.set(true);
-                    let worked = work();
-                    IN_IDLE_WORK.set(false);
-                    worked
+                    let _idle = Idle;
+                    work()
                 });
+                if let Some(later) = ADOPTED.take() {
+                    done = later;
+                }
                 if !worked {
                     std::thread::yield_now();
                 }
@@ -195,8 +213,8 @@ mod tests {
     #[test]
     fn a_panicking_frame_releases_the_waiting_workers() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
-        // the panic reaches the caller (a hang here is the failure: a waiting worker that never stopped would
-        // keep the pool's `install` from returning); the frame waits until the other thread has run part of it, which it can only reach by first taking
+        // the panic reaches the caller (the waiting job is not scoped to the frame: it sees the frame's end flag,
+        // set as the panic passes, and stops); the frame waits until the other thread has run part of it, which it can only reach by first taking
         // the waiting job (pushed before, at the end of the queue that thieves take from)
         let caught = pool.install(|| {
             std::panic::catch_unwind(|| {
