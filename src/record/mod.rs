@@ -367,15 +367,21 @@ fn write_job(
             rayon::yield_now();
         }
     });
+    // only files that were written go on the list to sync (elsewhere than Linux each is opened to be synced)
+    let mut files = Vec::new();
     let mut result = unsynced(&frame_path, bytes);
-    let mut files = vec![frame_path];
+    if result.is_ok() {
+        files.push(frame_path);
+    }
     if let (Ok(()), Some(mask)) = (&result, &job.mask) {
         let m = Frame::from_pixels(job.frame.width(), job.frame.height(), mask.iter().map(|&v| f32::from(v)).collect());
         bytes.clear();
         m.write_png8(255.0, &mut *bytes).expect("writing to memory");
         let mask_path = spec.dir.join("masks").join(format!("{:06}.png", job.index));
         result = unsynced(&mask_path, bytes);
-        files.push(mask_path);
+        if result.is_ok() {
+            files.push(mask_path);
+        }
     }
     (result, files)
 }
@@ -720,6 +726,10 @@ impl Recorder {
         for i in n..self.sent {
             let _ = std::fs::remove_file(self.dir.join("frames").join(format!("{i:06}.{ext}")));
             let _ = std::fs::remove_file(self.dir.join("masks").join(format!("{i:06}.png")));
+        }
+        // the removed files are no longer to be synced
+        if n < self.sent {
+            self.unsynced.retain(|f| f.exists());
         }
         if n < self.committed {
             let (l, m) = if n == 0 { (0, 0) } else { self.ends[n as usize - 1] };
