@@ -432,11 +432,7 @@ pub fn record_scenario(
                 break;
             }
             Err(panic) => {
-                let what = panic
-                    .downcast_ref::<&str>()
-                    .map(|s| (*s).to_owned())
-                    .or_else(|| panic.downcast_ref::<String>().cloned())
-                    .unwrap_or_default();
+                let what = crate::record::panic_text(panic.as_ref());
                 rec.fail(format!("internal error computing frame {}: {what} (please report it)", rec.frames_sent()));
                 break;
             }

@@ -306,7 +306,7 @@ impl EncodeQueue {
     /// Whether the format's encoder pauses for the pool's jobs as it goes (16-bit PNG at `fast`); the others
     /// would hold a waiting worker away from the frame's stages for a whole frame.
     fn pauses(&self) -> bool {
-        self.spec.format == FrameFormat::Png16 && self.spec.png == PngCompression::Fast
+        encoder_pauses(self.spec.format, self.spec.png)
     }
 
     fn push(&self, job: Job) {
@@ -331,11 +331,7 @@ fn run_task(spec: &TaskSpec, job: Job, tx: &Sender<Done>, pausing: bool) {
     let done = match work {
         Ok((result, files)) => Done { index, result, labels: job.labels, frame: job.frame, files },
         Err(panic) => {
-            let what = panic
-                .downcast_ref::<&str>()
-                .map(|s| (*s).to_owned())
-                .or_else(|| panic.downcast_ref::<String>().cloned())
-                .unwrap_or_default();
+            let what = panic_text(panic.as_ref());
             let error = RecordError::Io {
                 path: spec.dir.display().to_string(),
                 message: format!("internal error encoding frame {index}: {what} (please report it)"),
@@ -345,6 +341,15 @@ fn run_task(spec: &TaskSpec, job: Job, tx: &Sender<Done>, pausing: bool) {
     };
     // the recorder is gone only if its thread panicked; nothing is left to tell then
     let _ = tx.send(done);
+}
+
+/// The message a caught panic carries (its `&str` or `String` payload), or nothing.
+pub(crate) fn panic_text(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_default()
 }
 
 /// Encodes and writes a job's frame and mask; returns the outcome and the files written.
@@ -362,7 +367,7 @@ fn write_job(
         write_renamed(&tmp, path, bytes, false)
     };
     let frame_path = spec.dir.join("frames").join(format!("{:06}.{}", job.index, spec.format.extension()));
-    encode_pausing(&job.frame, spec, scratch, bytes, &mut || {
+    encode_into_pausing(&job.frame, (spec.format, spec.max_level, spec.png), scratch, bytes, &mut || {
         if pausing {
             rayon::yield_now();
         }
@@ -386,20 +391,9 @@ fn write_job(
     (result, files)
 }
 
-/// [`encode_into`] for a task, the 16-bit PNG encoder calling `pause` as it goes.
-fn encode_pausing(
-    frame: &Frame,
-    spec: &TaskSpec,
-    scratch: &mut EncodeScratch,
-    bytes: &mut Vec<u8>,
-    pause: &mut dyn FnMut(),
-) {
-    if spec.format == FrameFormat::Png16 && spec.png == PngCompression::Fast {
-        bytes.clear();
-        scratch.png16.encode_pausing(frame.pixels(), frame.width(), frame.height(), spec.max_level, bytes, pause);
-    } else {
-        encode_into(frame, spec.format, spec.max_level, spec.png, scratch, bytes);
-    }
+/// Whether `format` at `png` is written by an encoder that calls its `pause` as it goes (16-bit PNG at `fast`).
+fn encoder_pauses(format: FrameFormat, png: PngCompression) -> bool {
+    format == FrameFormat::Png16 && png == PngCompression::Fast
 }
 
 /// Encodes `frame` in `format` into bytes.
@@ -425,10 +419,21 @@ pub fn encode_into(
     scratch: &mut EncodeScratch,
     bytes: &mut Vec<u8>,
 ) {
+    encode_into_pausing(frame, (format, max_level, png), scratch, bytes, &mut || {});
+}
+
+/// [`encode_into`], the encoder calling `pause` as it goes where it does ([`encoder_pauses`]).
+fn encode_into_pausing(
+    frame: &Frame,
+    (format, max_level, png): (FrameFormat, u16, PngCompression),
+    scratch: &mut EncodeScratch,
+    bytes: &mut Vec<u8>,
+    pause: &mut dyn FnMut(),
+) {
     bytes.clear();
     match format {
-        FrameFormat::Png16 if png == PngCompression::Fast => {
-            scratch.png16.encode(frame.pixels(), frame.width(), frame.height(), max_level, bytes);
+        FrameFormat::Png16 if encoder_pauses(format, png) => {
+            scratch.png16.encode_pausing(frame.pixels(), frame.width(), frame.height(), max_level, bytes, pause);
         }
         FrameFormat::Png16 => {
             frame.png16_samples(max_level, &mut scratch.samples);
