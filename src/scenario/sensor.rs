@@ -272,6 +272,8 @@ pub struct BlobSettings {
     pub model: TargetModel,
     /// Quadrature of the ellipse ⊗ PSF.
     pub method: TargetMethod,
+    /// Spacing of its ring nodes, px.
+    pub node_spacing_px: f64,
     /// Paper model: minimum blur, px.
     pub min_blur_px: f64,
     /// Paper model: shape exponent β (2 = Gaussian).
@@ -285,7 +287,7 @@ pub struct BlobSettings {
 impl BlobSettings {
     /// The PSF-model quadrature settings.
     pub fn target_psf(&self) -> TargetPsfSpec {
-        TargetPsfSpec { method: self.method, ..TargetPsfSpec::default() }
+        TargetPsfSpec { method: self.method, node_spacing_px: self.node_spacing_px, ..TargetPsfSpec::default() }
     }
 }
 
@@ -563,6 +565,7 @@ impl SensorSpec {
             blob: BlobSettings {
                 model: b.model,
                 method: quality.target_method,
+                node_spacing_px: quality.target_node_spacing_px,
                 min_blur_px: b.min_blur_px,
                 beta: b.beta,
                 roi_fraction: quality.blob_roi_fraction,
