@@ -439,6 +439,20 @@ fn bench_times_a_given_scenario() {
 }
 
 #[test]
+fn bench_replays_a_short_scenario_s_own_frames() {
+    // five frames, timed over twelve after the warm-up: the scenario runs again from its first frame
+    let dir = temp_dir("bench_replay");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("s.toml");
+    std::fs::write(&path, base()).unwrap();
+    let (code, out, err) = irsim(&["bench", path.to_str().unwrap(), "--frames", "12"]);
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("frames/s"), "{out}");
+    assert!(err.contains("12 frames timed after 10 warm-up frames: the scenario's 5 frames, run again"), "{err}");
+}
+
+#[test]
 fn every_instruction_set_and_thread_count_gives_the_same_frames() {
     // the per-pixel kernels run with AVX-512, AVX2 or the baseline as the CPU allows (IRSIM_SIMD caps it), on
     // any number of threads: the frames are the same bytes
