@@ -15,14 +15,15 @@ pub struct Frame {
 impl Frame {
     /// Fills this frame from `coarse`, sampled every `step` pixels of it (coarse pixel `k` covers this frame's
     /// pixels `k·step … k·step + step − 1`): bilinear between coarse pixel centres, the edge values held beyond
-    /// the outermost centres. `rows` is scratch (the coarse rows interpolated along x), kept by the caller.
+    /// the outermost centres; along x first (each coarse row once per block of rows), then between two such
+    /// rows, in one parallel pass. Where `copy` is given, each row is copied into it as it is made.
     ///
     /// # Panics
-    /// If this frame is not `step` times `coarse` each way.
-    pub fn upsample_bilinear(&mut self, coarse: &Frame, step: usize, rows: &mut Vec<f32>) {
+    /// If this frame is not `step` times `coarse` each way, or `copy` is not this frame's size.
+    pub fn upsample_bilinear(&mut self, coarse: &Frame, step: usize, copy: Option<&mut Frame>) {
         use rayon::prelude::*;
         assert!(step >= 1 && self.width == coarse.width * step && self.height == coarse.height * step);
-        let (w, cw) = (self.width, coarse.width);
+        let (w, cw, ch) = (self.width, coarse.width, coarse.height);
         if w == 0 || self.height == 0 {
             return;
         }
@@ -38,35 +39,43 @@ impl Frame {
                 (k, k + 1, (c - k as f64) as f32)
             }
         };
-        // along x, once per coarse row
-        rows.resize(w * coarse.height, 0.0);
         // the general step's weights per column (the step of 2 needs none)
         let halves = step == 2 && cw >= 2;
         let columns: Vec<(usize, usize, f32)> =
             if halves { Vec::new() } else { (0..w).map(|i| place(i, cw)).collect() };
-        let per_task = (16_384 / w).max(1);
-        rows.par_chunks_mut(w).zip(coarse.pixels.par_chunks(cw)).with_min_len(per_task).for_each(|(out, a)| {
-            if halves {
-                // centres at k ∓ ¼: ¾ of the nearest coarse pixel and ¼ of the next one out
-                out[0] = a[0];
-                out[w - 1] = a[cw - 1];
-                for (k, pair) in out[1..w - 1].chunks_exact_mut(2).enumerate() {
-                    pair[0] = 0.75 * a[k] + 0.25 * a[k + 1];
-                    pair[1] = 0.25 * a[k] + 0.75 * a[k + 1];
-                }
-            } else {
-                for (o, &(x0, x1, fx)) in out.iter_mut().zip(&columns) {
-                    *o = a[x0] + (a[x1] - a[x0]) * fx;
-                }
+        let rows_per_task = (16_384 / w).max(1);
+        let block = w * rows_per_task;
+        let copies: Vec<Option<&mut [f32]>> = match copy {
+            Some(c) => {
+                assert!(c.width == w && c.height == self.height, "the copy is not the frame's size");
+                c.pixels.chunks_mut(block).map(Some).collect()
             }
-        });
-        // along y, a blend of two of those rows per row
-        let rows = &*rows;
-        self.pixels.par_chunks_mut(w).enumerate().with_min_len(per_task).for_each(|(j, out)| {
-            let (y0, y1, fy) = place(j, coarse.height);
-            let (top, bottom) = (&rows[y0 * w..(y0 + 1) * w], &rows[y1 * w..(y1 + 1) * w]);
-            for ((o, &t), &b) in out.iter_mut().zip(top).zip(bottom) {
-                *o = t + (b - t) * fy;
+            None => (0..self.pixels.len().div_ceil(block)).map(|_| None).collect(),
+        };
+        let columns = &columns[..];
+        self.pixels.par_chunks_mut(block).zip(copies).enumerate().for_each(|(b, (out, mut copy))| {
+            // the two coarse rows last interpolated along x, and which rows they are
+            let mut keys = [usize::MAX; 2];
+            let mut rows = [vec![0f32; w], vec![0f32; w]];
+            for (r, line) in out.chunks_mut(w).enumerate() {
+                let (y0, y1, fy) = place(b * rows_per_task + r, ch);
+                let mut slot = [0usize; 2];
+                for (k, (y, other)) in [(y0, y1), (y1, y0)].into_iter().enumerate() {
+                    slot[k] = match keys.iter().position(|&key| key == y) {
+                        Some(i) => i,
+                        None => {
+                            // the slot not holding the other row this one needs
+                            let i = if k == 1 { 1 - slot[0] } else { usize::from(keys[0] == other) };
+                            along_x(&coarse.pixels[y * cw..(y + 1) * cw], &mut rows[i], halves, columns);
+                            keys[i] = y;
+                            i
+                        }
+                    };
+                }
+                blend_rows(line, &rows[slot[0]], &rows[slot[1]], fy);
+                if let Some(c) = copy.as_deref_mut() {
+                    c[r * w..(r + 1) * w].copy_from_slice(line);
+                }
             }
         });
     }
@@ -251,6 +260,42 @@ pub enum PngCompression {
     Best,
 }
 
+/// Coarse row `a` interpolated along x into `out`: at the half-pixel offsets of a step of 2 (`halves`), or
+/// with each output pixel's `(x0, x1, fx)` from `columns`.
+fn along_x(a: &[f32], out: &mut [f32], halves: bool, columns: &[(usize, usize, f32)]) {
+    crate::physics::simd::widest(
+        #[inline(always)]
+        || {
+            if halves {
+                // centres at k ∓ ¼: ¾ of the nearest coarse pixel and ¼ of the next one out
+                let (w, cw) = (out.len(), a.len());
+                out[0] = a[0];
+                out[w - 1] = a[cw - 1];
+                for ((pair, &a0), &a1) in out[1..w - 1].chunks_exact_mut(2).zip(a).zip(&a[1..]) {
+                    pair[0] = 0.75 * a0 + 0.25 * a1;
+                    pair[1] = 0.25 * a0 + 0.75 * a1;
+                }
+            } else {
+                for (o, &(x0, x1, fx)) in out.iter_mut().zip(columns) {
+                    *o = a[x0] + (a[x1] - a[x0]) * fx;
+                }
+            }
+        },
+    );
+}
+
+/// `line = top + (bottom − top)·fy`, pixel by pixel.
+fn blend_rows(line: &mut [f32], top: &[f32], bottom: &[f32], fy: f32) {
+    crate::physics::simd::widest(
+        #[inline(always)]
+        || {
+            for ((o, &t), &b) in line.iter_mut().zip(top).zip(bottom) {
+                *o = t + (b - t) * fy;
+            }
+        },
+    );
+}
+
 /// Nearest level in `[0, max]` (`max` whole); NaN → 0. `⌊x + 0.5⌋` of the clamped value is its rounding and
 /// needs no libm call.
 #[inline]
@@ -269,12 +314,51 @@ mod tests {
         let coarse = Frame::from_pixels(cw, ch, (0..cw * ch).map(|i| (3 * (i % cw) + 7 * (i / cw)) as f32).collect());
         for step in [1, 2, 3] {
             let mut fine = Frame::new(cw * step, ch * step);
-            fine.upsample_bilinear(&coarse, step, &mut Vec::new());
+            let mut copy = Frame::new(cw * step, ch * step);
+            fine.upsample_bilinear(&coarse, step, Some(&mut copy));
+            assert_eq!(copy, fine, "step {step}: the copy");
             for y in 0..ch * step {
                 for x in 0..cw * step {
                     let c = |i: usize, n: usize| ((i as f64 + 0.5) / step as f64 - 0.5).clamp(0.0, (n - 1) as f64);
                     let want = 3.0 * c(x, cw) + 7.0 * c(y, ch);
                     assert!((f64::from(fine.get(x, y)) - want).abs() < 1e-5, "step {step} ({x}, {y})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn upsampling_across_many_row_blocks_is_bilinear() {
+        // wide enough that the rows are shared out in several blocks, each starting its own coarse rows
+        let (cw, ch) = (300, 70);
+        let coarse = Frame::from_pixels(
+            cw,
+            ch,
+            (0..cw * ch).map(|i| ((i as u32).wrapping_mul(2_654_435_761) >> 20) as f32).collect(),
+        );
+        for step in [2, 3] {
+            let (w, h) = (cw * step, ch * step);
+            let mut fine = Frame::new(w, h);
+            let mut copy = Frame::new(w, h);
+            fine.upsample_bilinear(&coarse, step, Some(&mut copy));
+            assert_eq!(copy, fine);
+            let mut alone = Frame::new(w, h);
+            alone.upsample_bilinear(&coarse, step, None);
+            assert_eq!(alone, fine);
+            let c = |i: usize, n: usize| ((i as f64 + 0.5) / step as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+            let at = |x: usize, y: usize| f64::from(coarse.get(x, y));
+            for y in 0..h {
+                let (fy, y0) = (c(y, ch), c(y, ch) as usize);
+                let y1 = (y0 + 1).min(ch - 1);
+                for x in 0..w {
+                    let (fx, x0) = (c(x, cw), c(x, cw) as usize);
+                    let x1 = (x0 + 1).min(cw - 1);
+                    let (tx, ty) = (fx - x0 as f64, fy - y0 as f64);
+                    let top = at(x0, y0) + (at(x1, y0) - at(x0, y0)) * tx;
+                    let bottom = at(x0, y1) + (at(x1, y1) - at(x0, y1)) * tx;
+                    let want = top + (bottom - top) * ty;
+                    let got = f64::from(fine.get(x, y));
+                    assert!((got - want).abs() < 1e-3 * (1.0 + want.abs()), "step {step} ({x}, {y})");
                 }
             }
         }

@@ -211,6 +211,4 @@ pub struct SensorFrame {
     pub(super) columns: Vec<f32>,
     /// The background on the coarse grid, where `background_step` > 1.
     pub(super) coarse: Option<Frame>,
-    /// Scratch of the upsampling.
-    pub(super) coarse_rows: Vec<f32>,
 }

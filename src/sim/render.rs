@@ -28,6 +28,8 @@ pub fn render_sky(
         return;
     };
     let sf = &mut *sf;
+    // whether the frame already holds the background
+    let mut copied = false;
     if sf.background_camera != Some(pose.current) {
         let view = SkyView { plane: sky.plane.as_deref(), dome: &sky.dome, sampling: sky.sampling, miss: sky.miss };
         let step = sensor.background_step;
@@ -52,11 +54,16 @@ pub fn render_sky(
                 camera.intrinsics.height /= step as u32;
                 camera.intrinsics.pixel_pitch_m *= step as f64;
                 sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
-                sf.background.upsample_bilinear(coarse, step, &mut sf.coarse_rows);
+                // the frame gets each row as it is made
+                sf.background.upsample_bilinear(coarse, step, Some(&mut sf.frame));
+                copied = true;
             }
             None => sf.background_stats = sf.renderer.render(&view, &pose.current, blur.as_ref(), &mut sf.background),
         }
         sf.background_camera = Some(pose.current);
+    }
+    if copied {
+        return;
     }
     // the frame starts as the background: copied in parallel (one thread's memcpy of a 640 × 512 frame took a
     // tenth of a draft frame)

@@ -131,7 +131,6 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
             renderer: BackgroundRenderer::new(),
             columns: Vec::new(),
             coarse: (step > 1).then(|| Frame::new(w / step, h / step)),
-            coarse_rows: Vec::new(),
         },
     ));
     let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
