@@ -137,7 +137,8 @@ pub struct BenchArgs {
     pub scenarios: Vec<PathBuf>,
     /// Frames timed per case. A scenario file's own frames are run, and run again from its first frame until
     /// this many are timed, so that the rate is that of the scenario as written (its targets in view as they
-    /// are when it is recorded), not of a run stretched past its end.
+    /// are when it is recorded), not of a run stretched past its end; what is planned for a run (the sky's blur)
+    /// is planned for this many frames, as for a recording of that length.
     #[arg(long, default_value_t = 2000)]
     pub frames: u64,
     /// Accuracy against speed: draft, standard or reference, in place of each scenario's `[quality]` table.
@@ -658,17 +659,19 @@ impl StageSplit {
 }
 
 /// Runs `scenario` headless without disk writes for `frames` frames after 10 warm-up frames; `each` sees the
-/// app after every timed frame. A run shorter than that starts again from its first frame after its last (every
-/// stage's state is a function of the frame's index and time), so the frames timed are the scenario's own.
+/// app after every timed frame. After frame `period − 1` the run starts again from its first frame (every
+/// stage's state is a function of the frame's index and time), so that a scenario loaded for a run of
+/// `frames` (its sky's blur planned for that many renders) is timed on its own `period` frames.
 fn run_timed(
     scenario: &CheckedScenario,
     frames: u64,
+    period: u64,
     mut each: impl FnMut(&mut bevy::app::App),
 ) -> Result<(StageSplit, bevy::app::App), CliError> {
     let options = RunOptions { timings: true, ..RunOptions::default() };
     let mut app = headless_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
-    let period = scenario.spec.run.frames.max(1);
+    let period = period.max(1);
     let replay = |app: &mut bevy::app::App| {
         let mut clock = app.world_mut().resource_mut::<SimClock>();
         if clock.frame >= period {
@@ -697,15 +700,16 @@ fn run_timed(
 
 /// [`run_timed`] without looking at the frames.
 pub(super) fn time_stages(scenario: &CheckedScenario, frames: u64) -> Result<StageSplit, CliError> {
-    run_timed(scenario, frames, |_| {}).map(|(split, _)| split)
+    run_timed(scenario, frames, scenario.spec.run.frames, |_| {}).map(|(split, _)| split)
 }
 
 /// Frames per second of `scenario` run headless without disk writes, over `frames` frames after 10 warm-up
-/// frames, and lines on where the time went (per stage, the sky blur).
-fn time_headless(scenario: &CheckedScenario, frames: u64) -> Result<(f64, Vec<String>), CliError> {
+/// frames, its first `period` replayed ([`run_timed`]), and lines on where the time went (per stage, the sky
+/// blur).
+fn time_headless(scenario: &CheckedScenario, frames: u64, period: u64) -> Result<(f64, Vec<String>), CliError> {
     let (mut needed, mut blurred, mut prefiltered, mut builds) = (0.0, 0.0, 0.0, 0);
     let mut plan = None;
-    let (split, _) = run_timed(scenario, frames, |app| {
+    let (split, _) = run_timed(scenario, frames, period, |app| {
         let mut q = app.world_mut().query::<(&crate::sim::Sensor, &SensorFrame)>();
         if let Some((sensor, sf)) = q.iter(app.world()).next() {
             plan = Some((sensor.sky_blur, sensor.sky_blur_plan));
@@ -755,16 +759,22 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
     }
     if !a.scenarios.is_empty() {
         for path in &a.scenarios {
-            // at its own length: its frames are replayed until `frames` are timed
-            let scenario = load_for_frames(path, None).map_err(|e| CliError::Invalid(e.to_string()))?;
+            // its own frames, replayed until `frames` are timed; loaded for a run of that many frames, so that
+            // what is planned for the run (the sky's blur: a texture made once, or a blur every frame) is planned
+            // for that many renders, as for a recording of that length
+            let own = load_for_frames(path, None).map_err(|e| CliError::Invalid(e.to_string()))?.spec.run.frames;
+            let scenario =
+                load_for_frames(path, Some(frames.max(own))).map_err(|e| CliError::Invalid(e.to_string()))?;
             let scenario = with_quality(scenario, a.quality)?;
-            let own = scenario.spec.run.frames;
-            let (fps, mut details) = time_headless(&scenario, frames)?;
+            let (fps, mut details) = time_headless(&scenario, frames, own)?;
             super::say(&format!("{:<40} {fps:>9.1} frames/s", path.display()))?;
             if own < frames + 10 {
                 details.insert(
                     0,
-                    format!("  {frames} frames timed after 10 warm-up frames: the scenario's {own} frames, run again from the first after the last"),
+                    format!(
+                        "  {frames} frames timed after 10 warm-up frames: the scenario's {own} frames, run again \
+                         from the first after the last, in a run planned for {frames}"
+                    ),
                 );
             }
             details.iter().for_each(|d| eprintln!("{d}"));
@@ -785,7 +795,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             });
             (done.frames_per_s, vec![format!("  {}{ratio}", done.summary)])
         } else {
-            let timed = time_headless(&scenario, frames)?;
+            let timed = time_headless(&scenario, frames, frames)?;
             if (w, h) == (256, 256) {
                 headless_256 = Some(timed.0);
             }
