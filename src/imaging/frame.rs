@@ -53,30 +53,35 @@ impl Frame {
             None => (0..self.pixels.len().div_ceil(block)).map(|_| None).collect(),
         };
         let columns = &columns[..];
+        let row_x = |y: usize, out: &mut [f32]| along_x(&coarse.pixels[y * cw..(y + 1) * cw], out, halves, columns);
         self.pixels.par_chunks_mut(block).zip(copies).enumerate().for_each(|(b, (out, mut copy))| {
-            // the two coarse rows last interpolated along x, and which rows they are
-            let mut keys = [usize::MAX; 2];
-            let mut rows = [vec![0f32; w], vec![0f32; w]];
-            for (r, line) in out.chunks_mut(w).enumerate() {
-                let (y0, y1, fy) = place(b * rows_per_task + r, ch);
-                let mut slot = [0usize; 2];
-                for (k, (y, other)) in [(y0, y1), (y1, y0)].into_iter().enumerate() {
-                    slot[k] = match keys.iter().position(|&key| key == y) {
-                        Some(i) => i,
-                        None => {
-                            // the slot not holding the other row this one needs
-                            let i = if k == 1 { 1 - slot[0] } else { usize::from(keys[0] == other) };
-                            along_x(&coarse.pixels[y * cw..(y + 1) * cw], &mut rows[i], halves, columns);
-                            keys[i] = y;
-                            i
+            UPSAMPLE_ROWS.with_borrow_mut(|scratch| {
+                scratch.resize(2 * w, 0.0);
+                let (mut upper, mut lower) = scratch.split_at_mut(w);
+                // which coarse rows `upper` and `lower` hold, interpolated along x; going down the block, the
+                // lower row becomes the next upper one
+                let (mut upper_y, mut lower_y) = (usize::MAX, usize::MAX);
+                for (r, line) in out.chunks_mut(w).enumerate() {
+                    let (y0, y1, fy) = place(b * rows_per_task + r, ch);
+                    if upper_y != y0 {
+                        if lower_y == y0 {
+                            std::mem::swap(&mut upper, &mut lower);
+                            std::mem::swap(&mut upper_y, &mut lower_y);
+                        } else {
+                            row_x(y0, upper);
+                            upper_y = y0;
                         }
-                    };
+                    }
+                    if y1 != y0 && lower_y != y1 {
+                        row_x(y1, lower);
+                        lower_y = y1;
+                    }
+                    blend_rows(line, upper, if y1 == y0 { upper } else { lower }, fy);
+                    if let Some(c) = copy.as_deref_mut() {
+                        c[r * w..(r + 1) * w].copy_from_slice(line);
+                    }
                 }
-                blend_rows(line, &rows[slot[0]], &rows[slot[1]], fy);
-                if let Some(c) = copy.as_deref_mut() {
-                    c[r * w..(r + 1) * w].copy_from_slice(line);
-                }
-            }
+            });
         });
     }
 
@@ -258,6 +263,12 @@ pub enum PngCompression {
     Default,
     /// The strongest level with adaptive filters (the smallest files, the most CPU).
     Best,
+}
+
+thread_local! {
+    /// Each thread's two coarse rows interpolated along x, for [`Frame::upsample_bilinear`] (kept from frame to
+    /// frame: no allocation per frame).
+    static UPSAMPLE_ROWS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Coarse row `a` interpolated along x into `out`: at the half-pixel offsets of a step of 2 (`halves`), or

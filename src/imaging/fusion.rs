@@ -106,6 +106,15 @@ pub const MAX_SWEEP_UPDATES: u64 = 1_000_000_000;
 /// region transforms in parallel from two blocks up (a 190 × 95 region's rows in about ten blocks).
 const PARALLEL_ROWS_BLOCK: usize = 4096;
 
+thread_local! {
+    /// Each thread's transform buffer and FFT scratch for the blocks of [`Dst1::process_rows`] (kept from call to
+    /// call: no allocation per frame).
+    static BLOCK_BUFFERS: std::cell::RefCell<FftBuffers> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+}
+
+/// A transform buffer and an FFT scratch.
+type FftBuffers = (Vec<Complex<f64>>, Vec<Complex<f64>>);
+
 struct Dst1 {
     n: usize,
     fft: Arc<dyn Fft<f64>>,
@@ -153,8 +162,8 @@ impl Dst1 {
     }
 
     /// Transforms every row of length `n` in `rows`, two at a time; a large region's rows in parallel, in
-    /// blocks of whole pairs (each row is paired as in one pass, so the result is the same), each block with
-    /// buffers of its own.
+    /// blocks of whole pairs (each row is paired as in one pass, so the result is the same), each block on its
+    /// thread's own buffers ([`BLOCK_BUFFERS`]).
     fn process_rows(&self, rows: &mut [f64], buf: &mut [Complex<f64>], scratch: &mut [Complex<f64>]) {
         use rayon::prelude::*;
         let pair = 2 * self.n;
@@ -163,11 +172,14 @@ impl Dst1 {
             return self.process_rows_serial(rows, buf, scratch);
         }
         let (buf_len, scratch_len) = (buf.len(), scratch.len());
-        let zero = Complex::new(0.0, 0.0);
-        rows.par_chunks_mut(block).for_each_init(
-            || (vec![zero; buf_len], vec![zero; scratch_len]),
-            |(buf, scratch), rows| self.process_rows_serial(rows, buf, scratch),
-        );
+        rows.par_chunks_mut(block).for_each(|rows| {
+            BLOCK_BUFFERS.with_borrow_mut(|(buf, scratch)| {
+                let zero = Complex::new(0.0, 0.0);
+                buf.resize(buf_len.max(buf.len()), zero);
+                scratch.resize(scratch_len.max(scratch.len()), zero);
+                self.process_rows_serial(rows, &mut buf[..buf_len], &mut scratch[..scratch_len]);
+            });
+        });
     }
 
     /// [`Dst1::process_rows`] on this thread.

@@ -51,7 +51,7 @@ pub struct TargetPsfSpec {
 
 impl Default for TargetPsfSpec {
     fn default() -> Self {
-        Self { method: TargetMethod::Auto, node_spacing_px: 0.3, seven_point_max_px: 0.6 }
+        Self { method: TargetMethod::Auto, node_spacing_px: NODE_SPACING_PX, seven_point_max_px: 0.6 }
     }
 }
 
@@ -66,6 +66,12 @@ impl TargetPsfSpec {
         ParamError::check_range("seven_point_max_px", self.seven_point_max_px, 0.0, 5.0)
     }
 }
+
+/// The default spacing of the ring nodes, px (the standard preset's).
+pub const NODE_SPACING_PX: f64 = 0.3;
+/// The spacing of the ring nodes that the errors of the others are measured against, px (the reference
+/// preset's).
+pub const REFERENCE_NODE_SPACING_PX: f64 = 0.05;
 
 /// Most quadrature nodes of one target; beyond it the spacing grows (a very near target).
 const MAX_NODES: usize = 40_000;
@@ -250,7 +256,8 @@ mod tests {
         let rect = psf_region(e, psf, 200, 200);
         let mut out = vec![0.0; rect.width() * rect.height()];
         // the reference at the reference preset's spacing
-        let node_spacing_px = if method == TargetMethod::Reference { 0.05 } else { 0.3 };
+        let node_spacing_px =
+            if method == TargetMethod::Reference { REFERENCE_NODE_SPACING_PX } else { NODE_SPACING_PX };
         let spec = TargetPsfSpec { method, node_spacing_px, ..TargetPsfSpec::default() };
         render_target(e, 1.0, psf, &spec, rect, &mut out);
         (rect, out)

@@ -28,7 +28,7 @@ use crate::imaging::fusion::{Guidance, Solver};
 use crate::imaging::psf::{ConvolutionMethod, REGION_ENERGY_CUTOFF};
 use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
-use crate::imaging::target_psf::TargetMethod;
+use crate::imaging::target_psf::{self, TargetMethod};
 use crate::physics::planck::PlanckMethod;
 use crate::physics::random::NormalSampler;
 use crate::physics::reflection::ReflectionGeometry;
@@ -160,7 +160,7 @@ impl Quality {
             prefilter_tolerance: 0.05,
             background_step_px: 1,
             target_method: TargetMethod::Auto,
-            target_node_spacing_px: STANDARD_TARGET_NODE_SPACING_PX,
+            target_node_spacing_px: target_psf::NODE_SPACING_PX,
             blob_sampling: BlobSampling::Auto,
             blob_roi_fraction: 1e-3,
             poisson_normal_threshold_e: 100.0,
@@ -188,7 +188,7 @@ impl Quality {
                 psf_skip_below_dn: 0.0,
                 prefilter_tolerance: REFERENCE_PREFILTER_TOLERANCE,
                 target_method: TargetMethod::Reference,
-                target_node_spacing_px: REFERENCE_TARGET_NODE_SPACING_PX,
+                target_node_spacing_px: target_psf::REFERENCE_NODE_SPACING_PX,
                 blob_sampling: BlobSampling::Integrated { n: 16 },
                 blob_roi_fraction: MIN_ROI_FRACTION,
                 poisson_normal_threshold_e: MAX_POISSON_THRESHOLD_E,
@@ -311,10 +311,6 @@ pub const STANDARD_ATMOSPHERE_TOLERANCE: f64 = 0.01;
 pub const DRAFT_ATMOSPHERE_TOLERANCE: f64 = 0.05;
 /// Largest `atmosphere_tolerance`.
 pub const MAX_ATMOSPHERE_TOLERANCE: f64 = 0.2;
-/// The standard preset's `target_node_spacing_px`.
-pub const STANDARD_TARGET_NODE_SPACING_PX: f64 = 0.3;
-/// The reference preset's `target_node_spacing_px`.
-pub const REFERENCE_TARGET_NODE_SPACING_PX: f64 = 0.05;
 /// The draft preset's `target_node_spacing_px`: on crossing_pair a quarter of the nodes of 0.3 px (targets
 /// stage 117 -> 34 µs a frame), pixels moved by at most 4.6 DN (noise off, 30 frames).
 pub const DRAFT_TARGET_NODE_SPACING_PX: f64 = 0.6;
