@@ -176,14 +176,17 @@ impl Psf {
         }
         let otf = Otf::new(spec, optics);
         // pixel kernels: the PSF times the tent of linear interpolation, with and without the pixel aperture
-        let point_grid = otf.spatial(KERNEL_GRID_PER_PX, true, true);
-        let area_grid = otf.spatial(KERNEL_GRID_PER_PX, false, true);
+        // the radial part once, for the fine grid and the kernels' coarser one (a subset of its frequencies)
+        let half = PERIOD_PX * FINE_PER_PX.max(KERNEL_GRID_PER_PX) / 2 + 1;
+        let radial = otf.radial_quadrant(half);
+        let point_grid = otf.spatial(KERNEL_GRID_PER_PX, true, true, &radial, half);
+        let area_grid = otf.spatial(KERNEL_GRID_PER_PX, false, true, &radial, half);
         let radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.energy_cutoff);
         let region_radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.region_energy_cutoff).max(radius);
         let point = Kernel::from_grid(&point_grid, KERNEL_GRID_PER_PX, radius);
         let area = Kernel::from_grid(&area_grid, KERNEL_GRID_PER_PX, radius);
         // the fine table of the PSF itself, over [−R−½, R+½]², renormalised to unit integral
-        let grid = otf.spatial(FINE_PER_PX, true, false);
+        let grid = otf.spatial(FINE_PER_PX, true, false, &radial, half);
         let n = PERIOD_PX * FINE_PER_PX;
         let half = (radius * FINE_PER_PX + FINE_PER_PX / 2) as isize;
         let side = (2 * half + 1) as usize;
@@ -482,8 +485,8 @@ impl Otf {
         Self { diffraction, aperture_px: if spec.pixel_aperture { o.fill_factor.sqrt() } else { 0.0 }, sigma2 }
     }
 
-    /// The OTF at `(fx, fy)`; `aperture` includes the pixel aperture, `tent` the linear interpolant's `sinc²`.
-    fn at(&self, fx: f64, fy: f64, aperture: bool, tent: bool) -> f64 {
+    /// The OTF's radial part at `(fx, fy)`: the Gaussian blur times the band's diffraction.
+    fn radial(&self, fx: f64, fy: f64) -> f64 {
         let f = fx.hypot(fy);
         let mut v = (-2.0 * std::f64::consts::PI.powi(2) * self.sigma2 * f * f).exp();
         if !self.diffraction.is_empty() {
@@ -496,6 +499,12 @@ impl Otf {
             }
             v *= d;
         }
+        v
+    }
+
+    /// The OTF at `(fx, fy)` from its radial part `v` there; `aperture` includes the pixel aperture, `tent`
+    /// the linear interpolant's `sinc²`.
+    fn with_apertures(&self, mut v: f64, fx: f64, fy: f64, aperture: bool, tent: bool) -> f64 {
         if aperture && self.aperture_px > 0.0 {
             v *= sinc(self.aperture_px * fx) * sinc(self.aperture_px * fy);
         }
@@ -505,20 +514,48 @@ impl Otf {
         v
     }
 
-    /// The PSF on the periodic grid of `per_px` samples per pixel (`PERIOD_PX·per_px` square, row-major, index 0
-    /// at offset 0), per px².
-    fn spatial(&self, per_px: usize, aperture: bool, tent: bool) -> Vec<f32> {
-        let n = PERIOD_PX * per_px;
-        let freq = |k: usize| if k < n / 2 { k as f64 } else { k as f64 - n as f64 } / PERIOD_PX as f64;
-        let mut data: Vec<Complex<f64>> = Vec::with_capacity(n * n);
-        for ky in 0..n {
-            for kx in 0..n {
-                data.push(Complex::new(self.at(freq(kx), freq(ky), aperture, tent), 0.0));
+    /// The radial part over the frequencies `(mx, my) / PERIOD_PX`, `mx, my ∈ [0, half)`, row-major: every
+    /// value a grid of `per_px ≤ 2·(half − 1) / PERIOD_PX` samples per pixel needs (the OTF is even in each
+    /// frequency, and the grids' frequencies are all multiples of `1/PERIOD_PX`).
+    fn radial_quadrant(&self, half: usize) -> Vec<f64> {
+        let mut out = vec![0.0; half * half];
+        out.par_chunks_mut(half).enumerate().for_each(|(my, row)| {
+            for (mx, v) in row.iter_mut().enumerate() {
+                *v = self.radial(mx as f64 / PERIOD_PX as f64, my as f64 / PERIOD_PX as f64);
             }
-        }
+        });
+        out
+    }
+
+    /// The PSF on the periodic grid of `per_px` samples per pixel (`PERIOD_PX·per_px` square, row-major, index 0
+    /// at offset 0), per px², from the radial part's quadrant ([`Otf::radial_quadrant`] of side `half`).
+    ///
+    /// The OTF is even in `fx` and in `fy` (sines are odd, `hypot` and the squares even, bit for bit), so each
+    /// frequency's value is that of its magnitudes, computed once.
+    fn spatial(&self, per_px: usize, aperture: bool, tent: bool, radial: &[f64], half: usize) -> Vec<f32> {
+        let n = PERIOD_PX * per_px;
+        assert!(n / 2 < half, "the radial quadrant covers the grid");
+        let fold = |k: usize| if k < n / 2 { k } else { n - k };
+        // the quadrant's values with the apertures, then the grid filled from it
+        let q = n / 2 + 1;
+        let mut quadrant = vec![0.0; q * q];
+        quadrant.par_chunks_mut(q).enumerate().for_each(|(my, row)| {
+            let fy = my as f64 / PERIOD_PX as f64;
+            for (mx, v) in row.iter_mut().enumerate() {
+                let fx = mx as f64 / PERIOD_PX as f64;
+                *v = self.with_apertures(radial[my * half + mx], fx, fy, aperture, tent);
+            }
+        });
+        let mut data = vec![Complex::new(0.0, 0.0); n * n];
+        data.par_chunks_mut(n).enumerate().for_each(|(ky, row)| {
+            let source = &quadrant[fold(ky) * q..][..q];
+            for (kx, c) in row.iter_mut().enumerate() {
+                c.re = source[fold(kx)];
+            }
+        });
         fft2(&mut data, n, rustfft::FftDirection::Inverse);
         let scale = 1.0 / (PERIOD_PX * PERIOD_PX) as f64;
-        data.iter().map(|c| (c.re * scale) as f32).collect()
+        data.par_iter().map(|c| (c.re * scale) as f32).collect()
     }
 }
 
@@ -534,18 +571,29 @@ fn sinc(x: f64) -> f64 {
 /// In-place 2D FFT of an `n × n` row-major array.
 fn fft2(data: &mut [Complex<f64>], n: usize, direction: rustfft::FftDirection) {
     let fft = FftPlanner::new().plan_fft(n, direction);
+    let mut scratch = vec![Complex::new(0.0, 0.0); n * n];
     for _ in 0..2 {
         data.par_chunks_mut(n).for_each(|row| fft.process(row));
-        transpose(data, n);
+        transpose_into(data, &mut scratch, n);
+        data.copy_from_slice(&scratch);
     }
 }
 
-fn transpose<T: Copy>(data: &mut [T], n: usize) {
-    for y in 0..n {
-        for x in y + 1..n {
-            data.swap(y * n + x, x * n + y);
+/// `out` = the transpose of the `n × n` row-major `data`, in bands of rows on every thread, each read from
+/// `data` in tiles (a tile's columns are a few cache lines, not one line per value).
+fn transpose_into<T: Copy + Send + Sync>(data: &[T], out: &mut [T], n: usize) {
+    const TILE: usize = 16;
+    out.par_chunks_mut(TILE * n).enumerate().for_each(|(b, band)| {
+        let y0 = b * TILE;
+        let rows = band.len() / n;
+        for x0 in (0..n).step_by(TILE) {
+            for x in x0..(x0 + TILE).min(n) {
+                for j in 0..rows {
+                    band[j * n + x] = data[x * n + y0 + j];
+                }
+            }
         }
-    }
+    });
 }
 
 /// The smallest radius (px) whose square of integer offsets holds `1 − cutoff` of the grid's energy.
@@ -1297,6 +1345,63 @@ mod tests {
             band,
             measure: Measure::Energy,
             reference_temp_k: 300.0,
+        }
+    }
+
+    /// The PSF's grid as first written: the OTF at every frequency, negative ones included, and a 2D FFT whose
+    /// transposes swap in place.
+    fn spatial_direct(otf: &Otf, per_px: usize, aperture: bool, tent: bool) -> Vec<f32> {
+        let n = PERIOD_PX * per_px;
+        let freq = |k: usize| if k < n / 2 { k as f64 } else { k as f64 - n as f64 } / PERIOD_PX as f64;
+        let mut data: Vec<Complex<f64>> = Vec::with_capacity(n * n);
+        for ky in 0..n {
+            for kx in 0..n {
+                let (fx, fy) = (freq(kx), freq(ky));
+                data.push(Complex::new(otf.with_apertures(otf.radial(fx, fy), fx, fy, aperture, tent), 0.0));
+            }
+        }
+        let fft = FftPlanner::new().plan_fft(n, rustfft::FftDirection::Inverse);
+        for _ in 0..2 {
+            data.chunks_mut(n).for_each(|row| fft.process(row));
+            for y in 0..n {
+                for x in y + 1..n {
+                    data.swap(y * n + x, x * n + y);
+                }
+            }
+        }
+        let scale = 1.0 / (PERIOD_PX * PERIOD_PX) as f64;
+        data.iter().map(|c| (c.re * scale) as f32).collect()
+    }
+
+    #[test]
+    fn the_grids_from_the_folded_otf_are_the_direct_ones_bit_for_bit() {
+        let spec = PsfSpec { aberration_sigma_px: 0.3, ..PsfSpec::default() };
+        let mut o = optics(2.0, Band::LWIR_8_12);
+        o.fill_factor = 0.8;
+        let otf = Otf::new(&spec, &o);
+        assert!(!otf.diffraction.is_empty() && otf.aperture_px > 0.0);
+        let half = PERIOD_PX * 3 / 2 + 1;
+        let radial = otf.radial_quadrant(half);
+        for (per_px, aperture, tent) in [(1, true, true), (2, false, true), (3, true, false), (2, false, false)] {
+            let got = otf.spatial(per_px, aperture, tent, &radial, half);
+            let want = spatial_direct(&otf, per_px, aperture, tent);
+            assert_eq!(got.len(), want.len());
+            let same = got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits());
+            assert!(same, "{per_px} per px, aperture {aperture}, tent {tent}");
+        }
+    }
+
+    #[test]
+    fn the_tiled_transpose_is_the_transpose() {
+        for n in [1, 5, 16, 17, 40] {
+            let data: Vec<u32> = (0..(n * n) as u32).collect();
+            let mut out = vec![0; n * n];
+            transpose_into(&data, &mut out, n);
+            for y in 0..n {
+                for x in 0..n {
+                    assert_eq!(out[y * n + x], data[x * n + y]);
+                }
+            }
         }
     }
 

@@ -140,24 +140,30 @@ pub fn generate(spec: &SkyGenSpec, width: usize, height: usize) -> CloudLayer {
     match spec.kind {
         SkyKind::Cumulus => {
             let field_slope = cumulus_field_slope(spec.psd_slope);
-            let g = gaussian_field(width, height, field_slope, outer_px, spec.seed, 0);
-            let threshold = quantile(&g, 1.0 - spec.cover.clamp(0.0, 1.0));
-            let edge = spec.edge as f32;
-            let opacity: Vec<f32> = g
-                .iter()
-                .map(|&v| {
-                    if spec.cover <= 0.0 {
-                        0.0
-                    } else if spec.cover >= 1.0 {
-                        1.0
-                    } else {
-                        smoothstep((v - threshold) / edge)
-                    }
-                })
-                .collect();
-            let t = gaussian_field(width, height, -3.0, outer_px / 4.0, spec.seed, 1);
-            let k = spec.texture_k as f32;
-            let temp_offset_k = t.iter().map(|&v| k * v).collect();
+            // the two fields side by side: each draws its noise on one thread (its own stream)
+            let (opacity, temp_offset_k) = rayon::join(
+                || {
+                    let g = gaussian_field(width, height, field_slope, outer_px, spec.seed, 0);
+                    let threshold = quantile(&g, 1.0 - spec.cover.clamp(0.0, 1.0));
+                    let edge = spec.edge as f32;
+                    g.iter()
+                        .map(|&v| {
+                            if spec.cover <= 0.0 {
+                                0.0
+                            } else if spec.cover >= 1.0 {
+                                1.0
+                            } else {
+                                smoothstep((v - threshold) / edge)
+                            }
+                        })
+                        .collect::<Vec<f32>>()
+                },
+                || {
+                    let t = gaussian_field(width, height, -3.0, outer_px / 4.0, spec.seed, 1);
+                    let k = spec.texture_k as f32;
+                    t.iter().map(|&v| k * v).collect::<Vec<f32>>()
+                },
+            );
             CloudLayer { width, height, opacity, temp_offset_k }
         }
         SkyKind::Clear => {
@@ -199,56 +205,174 @@ fn smoothstep(x: f32) -> f32 {
 
 /// The value below which a fraction `q` of the field lies.
 fn quantile(values: &[f32], q: f64) -> f32 {
-    let mut sorted = values.to_vec();
-    sorted.sort_by(f32::total_cmp);
-    let i = ((sorted.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
-    sorted[i]
+    let mut scratch = values.to_vec();
+    let i = ((scratch.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    *scratch.select_nth_unstable_by(i, f32::total_cmp).1
 }
 
 /// A periodic Gaussian random field, mean 0 and standard deviation 1, whose power spectrum falls as
 /// `max(f, 1/outer_px)^slope`.
+///
+/// The spectrum's white noise is drawn in order (one generator, two normals a texel, row after row), so the
+/// field is a function of the seed alone; the rest runs on every thread without changing a bit: the amplitude
+/// depends on `|f_x|` and `|f_y|` only, so it is computed once per quadrant's texel; each band of rows is
+/// transformed while the next is drawn; the columns are transformed in blocks gathered from the rows.
 pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, seed: u64, substream: u64) -> Vec<f32> {
+    use rayon::prelude::*;
     let mut rng = stream_rng(seed, stage::SKY, 0, substream);
     let f0 = 1.0 / outer_px.max(1.0);
     let freq = |k: usize, n: usize| if k <= n / 2 { k as f64 } else { k as f64 - n as f64 } / n as f64;
-    let mut data: Vec<Complex<f32>> = Vec::with_capacity(width * height);
-    for y in 0..height {
-        for x in 0..width {
+    // |freq(k, n)| is freq(min(k, n − k), n) exactly (k − n is −(n − k) exactly), and hypot takes magnitudes
+    let (half_w, half_h) = (width / 2 + 1, height / 2 + 1);
+    let fold = |k: usize, n: usize| if k <= n / 2 { k } else { n - k };
+    let amplitude: Vec<f64> = (0..half_w * half_h)
+        .into_par_iter()
+        .map(|i| {
+            let (x, y) = (i % half_w, i / half_w);
             let f = freq(x, width).hypot(freq(y, height));
-            let amp = if x == 0 && y == 0 { 0.0 } else { f.max(f0).powf(0.5 * slope) };
-            let (re, im) = (standard_normal(&mut rng), standard_normal(&mut rng));
-            data.push(Complex::new((amp * re) as f32, (amp * im) as f32));
-        }
-    }
+            if x == 0 && y == 0 { 0.0 } else { f.max(f0).powf(0.5 * slope) }
+        })
+        .collect();
     let mut planner = FftPlanner::<f32>::new();
     let rows = planner.plan_fft_inverse(width);
-    for row in data.chunks_mut(width) {
-        rows.process(row);
-    }
+    let mut data = vec![Complex::new(0.0f32, 0.0); width * height];
+    // bands of about 64 KiB: the last band drawn is transformed while the next is drawn
+    let band_rows = (8192 / width).max(1);
+    rayon::scope(|scope| {
+        for (b, band) in data.chunks_mut(band_rows * width).enumerate() {
+            for (r, row) in band.chunks_mut(width).enumerate() {
+                let y = b * band_rows + r;
+                let amp_row = &amplitude[fold(y, height) * half_w..][..half_w];
+                for (x, c) in row.iter_mut().enumerate() {
+                    let amp = amp_row[fold(x, width)];
+                    let (re, im) = (standard_normal(&mut rng), standard_normal(&mut rng));
+                    *c = Complex::new((amp * re) as f32, (amp * im) as f32);
+                }
+            }
+            let rows = &rows;
+            scope.spawn(move |_| band.chunks_mut(width).for_each(|row| rows.process(row)));
+        }
+    });
+    // columns, in blocks of 16 gathered from the rows; each block's real parts kept column after column
     let cols = planner.plan_fft_inverse(height);
-    let mut col = vec![Complex::new(0.0f32, 0.0); height];
-    for x in 0..width {
+    const BLOCK: usize = 16;
+    let mut columns = vec![0f32; width * height];
+    columns.par_chunks_mut(BLOCK * height).enumerate().for_each(|(b, out)| {
+        let x0 = b * BLOCK;
+        let n = out.len() / height;
+        let mut block = vec![Complex::new(0.0f32, 0.0); n * height];
         for y in 0..height {
-            col[y] = data[y * width + x];
+            for (j, &c) in data[y * width + x0..][..n].iter().enumerate() {
+                block[j * height + y] = c;
+            }
         }
-        cols.process(&mut col);
-        for y in 0..height {
-            data[y * width + x] = col[y];
+        for (col, re) in block.chunks_mut(height).zip(out.chunks_mut(height)) {
+            cols.process(col);
+            re.iter_mut().zip(col.iter()).for_each(|(r, c)| *r = c.re);
         }
-    }
-    // the real part of the transform of white complex noise is a real Gaussian field with the same spectrum
-    let values: Vec<f64> = data.iter().map(|c| f64::from(c.re)).collect();
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    });
+    drop(data);
+    // the real part of the transform of white complex noise is a real Gaussian field with the same spectrum;
+    // back to rows, then standardized (the sums in row order, as the field is laid out)
+    let mut real = vec![0f32; width * height];
+    real.par_chunks_mut(width * BLOCK).enumerate().for_each(|(b, out)| {
+        let y0 = b * BLOCK;
+        for x in 0..width {
+            for (j, &v) in columns[x * height + y0..][..out.len() / width].iter().enumerate() {
+                out[j * width + x] = v;
+            }
+        }
+    });
+    drop(columns);
+    let n = real.len() as f64;
+    let mean = real.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+    let sd = (real.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n).sqrt();
     let sd = if sd > 0.0 { sd } else { 1.0 };
-    values.iter().map(|v| ((v - mean) / sd) as f32).collect()
+    real.par_iter_mut().for_each(|v| *v = ((f64::from(*v) - mean) / sd) as f32);
+    real
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::imaging::psd::psd_slope;
+
+    /// [`gaussian_field`] as first written: one thread, the amplitude per texel, the columns copied one by one.
+    fn gaussian_field_serial(
+        width: usize,
+        height: usize,
+        slope: f64,
+        outer_px: f64,
+        seed: u64,
+        substream: u64,
+    ) -> Vec<f32> {
+        let mut rng = stream_rng(seed, stage::SKY, 0, substream);
+        let f0 = 1.0 / outer_px.max(1.0);
+        let freq = |k: usize, n: usize| if k <= n / 2 { k as f64 } else { k as f64 - n as f64 } / n as f64;
+        let mut data: Vec<Complex<f32>> = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                let f = freq(x, width).hypot(freq(y, height));
+                let amp = if x == 0 && y == 0 { 0.0 } else { f.max(f0).powf(0.5 * slope) };
+                let (re, im) = (standard_normal(&mut rng), standard_normal(&mut rng));
+                data.push(Complex::new((amp * re) as f32, (amp * im) as f32));
+            }
+        }
+        let mut planner = FftPlanner::<f32>::new();
+        let rows = planner.plan_fft_inverse(width);
+        for row in data.chunks_mut(width) {
+            rows.process(row);
+        }
+        let cols = planner.plan_fft_inverse(height);
+        let mut col = vec![Complex::new(0.0f32, 0.0); height];
+        for x in 0..width {
+            for y in 0..height {
+                col[y] = data[y * width + x];
+            }
+            cols.process(&mut col);
+            for y in 0..height {
+                data[y * width + x] = col[y];
+            }
+        }
+        let values: Vec<f64> = data.iter().map(|c| f64::from(c.re)).collect();
+        let n = values.len() as f64;
+        let mean = values.iter().sum::<f64>() / n;
+        let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let sd = if sd > 0.0 { sd } else { 1.0 };
+        values.iter().map(|v| ((v - mean) / sd) as f32).collect()
+    }
+
+    #[test]
+    fn the_parallel_field_is_the_serial_one_bit_for_bit() {
+        // odd and even sides, a side under a block and one over a band, sides that are not powers of two
+        for (w, h, slope, outer) in
+            [(1, 1, -3.0, 4.0), (7, 5, -3.0, 2.0), (64, 48, -2.5, 30.0), (300, 17, -4.0, 90.0), (9000, 3, -3.0, 1e4)]
+        {
+            for substream in [0, 1] {
+                let got = gaussian_field(w, h, slope, outer, 11, substream);
+                let want = gaussian_field_serial(w, h, slope, outer, 11, substream);
+                assert!(
+                    got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()) && got.len() == want.len(),
+                    "{w}x{h} substream {substream}"
+                );
+            }
+        }
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let three = pool.install(|| gaussian_field(129, 70, -3.0, 40.0, 5, 0));
+        let want = gaussian_field_serial(129, 70, -3.0, 40.0, 5, 0);
+        assert!(three.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    #[test]
+    fn the_quantile_is_that_of_the_sorted_values() {
+        let values: Vec<f32> = gaussian_field(40, 30, -3.0, 10.0, 3, 0);
+        let mut sorted = values.clone();
+        sorted.sort_by(f32::total_cmp);
+        for q in [0.0, 0.1, 0.35, 0.5, 0.99, 1.0] {
+            let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+            assert_eq!(quantile(&values, q).to_bits(), sorted[i].to_bits(), "q {q}");
+        }
+    }
 
     /// The layer as a radiance image over a uniform background (cloud 1 + texture, background 0).
     fn radiance(layer: &CloudLayer) -> Vec<f32> {
