@@ -259,7 +259,19 @@ pub struct AtmosphereTable {
     above_od: Vec<f32>,
     /// Mean blackbody radiance per bin at whole kelvins over [`PLANCK_TABLE_K`], `[kelvin][bin]`.
     planck: Vec<f64>,
+    /// The logarithm of each of `planck` (NaN where it is not positive).
+    planck_ln: Vec<f64>,
+    /// The aerosol profiles of the weathers asked for last (a run asks for one weather's paths thousands of
+    /// times): `(model, settings and weights' bits)` and [`Self::aerosol_profile`]'s result.
+    profile_cache: std::sync::Mutex<Vec<(ProfileKey, std::sync::Arc<AerosolProfile>)>>,
 }
+
+/// A weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`) and its logarithm.
+type AerosolProfile = (Vec<f64>, Vec<f64>);
+/// What an aerosol profile depends on: the model's index, and each aerosol setting's index and weight (bits).
+type ProfileKey = (usize, Vec<(usize, u64)>);
+/// Aerosol profiles kept by a table.
+const PROFILE_CACHE: usize = 8;
 
 /// The spectral result for one path.
 #[derive(Debug, Clone)]
@@ -465,12 +477,17 @@ impl AtmosphereTable {
         }
         let alt_coord = head.altitudes_km.iter().map(|&h| altitude_coord(h)).collect();
         let (t0, t1) = PLANCK_TABLE_K;
-        let planck = (0..=(t1 - t0) as usize)
-            .flat_map(|k| {
-                let edges = &head.bin_edges_um;
-                (0..nbins).map(move |b| exact_bin_mean_planck(edges[b], edges[b + 1], t0 + k as f64))
-            })
-            .collect();
+        let planck: Vec<f64> = {
+            use rayon::prelude::*;
+            let edges = &head.bin_edges_um;
+            (0..=(t1 - t0) as usize)
+                .into_par_iter()
+                .flat_map_iter(|k| {
+                    (0..nbins).map(move |b| exact_bin_mean_planck(edges[b], edges[b + 1], t0 + k as f64))
+                })
+                .collect()
+        };
+        let planck_ln = planck.iter().map(|&a| if a > 0.0 { a.ln() } else { f64::NAN }).collect();
         Ok(AtmosphereTable {
             alt_coord,
             alt_km: head.altitudes_km,
@@ -487,6 +504,8 @@ impl AtmosphereTable {
             above_km,
             above_od,
             planck,
+            planck_ln,
+            profile_cache: std::sync::Mutex::new(Vec::new()),
         })
     }
 
@@ -685,7 +704,23 @@ impl AtmosphereTable {
 
     /// The weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`, weighted over the
     /// bracketing visibilities), and its logarithm.
-    fn aerosol_profile(&self, m: usize, vis: &[(usize, f64)]) -> (Vec<f64>, Vec<f64>) {
+    fn aerosol_profile(&self, m: usize, vis: &[(usize, f64)]) -> std::sync::Arc<AerosolProfile> {
+        let key: ProfileKey = (m, vis.iter().map(|&(s, w)| (s, w.to_bits())).collect());
+        let cache = || self.profile_cache.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((_, p)) = cache().iter().find(|(k, _)| *k == key) {
+            return std::sync::Arc::clone(p);
+        }
+        let profile = std::sync::Arc::new(self.aerosol_profile_uncached(m, vis));
+        let mut kept = cache();
+        if kept.len() >= PROFILE_CACHE {
+            kept.remove(0);
+        }
+        kept.push((key, std::sync::Arc::clone(&profile)));
+        profile
+    }
+
+    /// [`Self::aerosol_profile`], computed.
+    fn aerosol_profile_uncached(&self, m: usize, vis: &[(usize, f64)]) -> AerosolProfile {
         let nb = self.nbins();
         let nalt = self.alt_km.len();
         let mut rows = vec![0.0; nalt * nb];
@@ -700,7 +735,7 @@ impl AtmosphereTable {
     }
 
     /// Aerosol extinction per km at altitude `h_km`, per bin, into `out`, from [`Self::aerosol_profile`].
-    fn extinction_at(&self, profile: &(Vec<f64>, Vec<f64>), h_km: f64, out: &mut [f64]) {
+    fn extinction_at(&self, profile: &AerosolProfile, h_km: f64, out: &mut [f64]) {
         let nb = self.nbins();
         let i = bracket(&self.alt_km, h_km);
         let f = ((h_km - self.alt_km[i]) / (self.alt_km[i + 1] - self.alt_km[i])).clamp(0.0, 1.0);
@@ -1025,7 +1060,8 @@ impl AtmosphereTable {
             let (a, c) = (self.planck[i * nb + b], self.planck[(i + 1) * nb + b]);
             if a > 0.0 && c > 0.0 {
                 let u = (1.0 / temp_k - 1.0 / ta) / (1.0 / tc - 1.0 / ta);
-                return (a.ln() + u * (c.ln() - a.ln())).exp();
+                let (la, lc) = (self.planck_ln[i * nb + b], self.planck_ln[(i + 1) * nb + b]);
+                return (la + u * (lc - la)).exp();
             }
         }
         exact_bin_mean_planck(self.edges_um[b], self.edges_um[b + 1], temp_k)
