@@ -16,7 +16,7 @@ use crate::imaging::camera::{Camera, Jitter};
 use crate::imaging::frame::Frame;
 use crate::imaging::psf::{Psf, PsfOptics, PsfSpec};
 use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air};
-use crate::imaging::sky_gen::{SkyGenSpec, generate};
+use crate::imaging::sky_gen::{CloudLayer, SkyGenSpec, generate};
 use crate::imaging::sky_plane::{SkyImage, SkyPlane};
 use crate::imaging::vibration::Vibration;
 use crate::physics::lowtran_paths::LowtranAtmosphere;
@@ -90,15 +90,28 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         mask_fraction: spec.labels.mask_fraction,
     });
     let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
-    let atmosphere = match spec.atmosphere.weather() {
-        Some(weather) => {
-            let model = &sensor_spec.model;
-            let lowtran = LowtranAtmosphere::new(weather, model.band, model.measure(), p0.z, spec.sun.temp_k)
-                .map_err(|e| setup("atmosphere.model")(e.to_string()))?;
-            SceneAtmosphere::Lowtran(Arc::new(lowtran))
-        }
-        None => SceneAtmosphere::Override(spec.atmosphere.override_transmittance()),
-    };
+    // three independent parts side by side (each has stretches on one thread: the generated layer's noise, the
+    // table's logarithms): the atmosphere's tables, the generated cloud layer, the optics' PSFs
+    let ((atmosphere, layer), psfs) = rayon::join(
+        || {
+            rayon::join(
+                || match spec.atmosphere.weather() {
+                    Some(weather) => {
+                        let model = &sensor_spec.model;
+                        let lowtran =
+                            LowtranAtmosphere::new(weather, model.band, model.measure(), p0.z, spec.sun.temp_k)
+                                .map_err(|e| setup("atmosphere.model")(e.to_string()))?;
+                        Ok(SceneAtmosphere::Lowtran(Arc::new(lowtran)))
+                    }
+                    None => Ok(SceneAtmosphere::Override(spec.atmosphere.override_transmittance())),
+                },
+                || generated_layer(scenario, p0, seed),
+            )
+        },
+        || sensor_psfs(&sensor_spec),
+    );
+    // the errors in the order the parts were made in before: the atmosphere's, the sky's, the sensor's
+    let atmosphere = atmosphere?;
     let scene = SceneParams {
         air: spec.atmosphere.air_temperature().map_err(|e| setup("atmosphere.model")(e.to_string()))?,
         stagnation: spec.atmosphere.stagnation,
@@ -109,8 +122,8 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
 
     let intrinsics = sensor_spec.intrinsics;
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
-    let sky = build_sky(scenario, &scene, p0, seed)?;
-    let mut sensor = build_sensor(&sensor_spec, &sky, seed)?;
+    let sky = build_sky(scenario, &scene, p0, layer)?;
+    let mut sensor = build_sensor(&sensor_spec, &sky, seed, psfs?)?;
     if let (Some(plane), Some(psf), Some(cfg), true) = (&sky.plane, &sensor.psf, sensor_spec.psf, sensor.blur_frame)
         && cfg.sky_blur == SkyBlur::Auto
     {
@@ -190,7 +203,12 @@ pub fn despawn_scenario(world: &mut World) {
 }
 
 /// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
-fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: u64) -> Result<Sky, SetupError> {
+fn build_sky(
+    scenario: &CheckedScenario,
+    scene: &SceneParams,
+    eye: DVec3,
+    layer: Option<CloudLayer>,
+) -> Result<Sky, SetupError> {
     let sky = &scenario.spec.sky;
     let model = &scenario.sensor.model;
     let (band, measure) = (model.band, model.measure());
@@ -229,10 +247,9 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, seed: 
             };
             Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
         }
-        (Some(gen_spec), None, Some(placement)) => {
-            let (tw, th) = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
-            let gen_spec = SkyGenSpec { seed: gen_spec.seed ^ seed.wrapping_mul(SplitMix64::GAMMA), ..*gen_spec };
-            let layer = generate(&gen_spec, tw, th);
+        (Some(_), None, Some(placement)) => {
+            let layer = layer.ok_or_else(|| setup("sky.generate")("no layer was generated".into()))?;
+            let (tw, th) = (layer.width, layer.height);
             let blank = SkyImage::from_f32(tw, th, vec![0.0; tw * th]).map_err(|e| setup("sky")(e.to_string()))?;
             let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
             let air = |z: f64| scene.air_temp_k(z);
@@ -277,6 +294,20 @@ pub(crate) fn planned_views(scenario: &CheckedScenario) -> impl Iterator<Item = 
     })
 }
 
+/// The generated cloud layer of a scenario whose sky is generated (none for an image or no plane): its size
+/// from [`layer_size`] at the observer's start `eye`, its seed the layer's own mixed with the run's.
+fn generated_layer(scenario: &CheckedScenario, eye: DVec3, seed: u64) -> Option<CloudLayer> {
+    let sky = &scenario.spec.sky;
+    match (&sky.generate, &scenario.sky_image, sky.placement()) {
+        (Some(gen_spec), None, Some(placement)) => {
+            let (tw, th) = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
+            let gen_spec = SkyGenSpec { seed: gen_spec.seed ^ seed.wrapping_mul(SplitMix64::GAMMA), ..*gen_spec };
+            Some(generate(&gen_spec, tw, th))
+        }
+        _ => None,
+    }
+}
+
 /// Texels of a generated layer: at least one per sensor pixel at the plane's distance from the observer's
 /// start (its nearest point), up to `max_texels` per side.
 fn layer_size(
@@ -318,12 +349,17 @@ fn shared_psf(spec: &PsfSpec, optics: &PsfOptics) -> Result<Arc<Psf>, crate::phy
     Ok(psf)
 }
 
-/// The sensor component: readout, PSF (and whether the frame needs it), non-idealities.
-fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Sensor, SetupError> {
+/// A sensor's PSFs: at its pixels, and at the coarse background's (`background_step` pixels a side, where
+/// that is more than 1).
+struct SensorPsfs {
+    psf: Option<Arc<Psf>>,
+    coarse_psf: Option<Arc<Psf>>,
+    background_step: usize,
+}
+
+/// The PSFs of a sensor ([`SensorPsfs`]).
+fn sensor_psfs(resolved: &ResolvedSensor) -> Result<SensorPsfs, SetupError> {
     let model = &resolved.model;
-    let k = model.signal_per_radiance();
-    let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
-    let dn_per_radiance = k / model.adc.gain;
     let (w, h) = (resolved.intrinsics.width as usize, resolved.intrinsics.height as usize);
     let step = resolved.background_step_px.max(1);
     let background_step = if w % step == 0 && h % step == 0 { step } else { 1 };
@@ -345,6 +381,16 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64) -> Result<Senso
     };
     let psf = psf_at(1)?;
     let coarse_psf = if background_step > 1 { psf_at(background_step)? } else { None };
+    Ok(SensorPsfs { psf, coarse_psf, background_step })
+}
+
+/// The sensor component: readout, PSF (and whether the frame needs it), non-idealities.
+fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64, psfs: SensorPsfs) -> Result<Sensor, SetupError> {
+    let model = &resolved.model;
+    let k = model.signal_per_radiance();
+    let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
+    let dn_per_radiance = k / model.adc.gain;
+    let SensorPsfs { psf, coarse_psf, background_step } = psfs;
     let blur_dome = match (&psf, resolved.psf) {
         (Some(psf), Some(cfg)) => dome_needs_blur(psf, &cfg, sky, resolved, dn_per_radiance),
         _ => false,
