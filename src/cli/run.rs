@@ -373,8 +373,11 @@ pub fn record_scenario(
         masks: plan.masks,
         timings: true,
     };
+    let setting_up = Instant::now();
     let mut app = headless_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
+    // the world's set-up (atmosphere tables, sky, PSFs): a short run's wall time is mostly this
+    let setup_s = setting_up.elapsed().as_secs_f64();
     let _lock = prepare_dir(&plan.out, plan.force).map_err(|e| match e {
         crate::record::RecordError::NotEmpty(_)
         | crate::record::RecordError::NotADirectory(_)
@@ -461,13 +464,13 @@ pub fn record_scenario(
     if let Some(t) = app.world().get_resource::<StageTimings>().filter(|_| !plan.reproducible) {
         let stages: serde_json::Map<String, serde_json::Value> =
             t.mean_ms().into_iter().map(|(k, v)| (k.to_owned(), json!(v))).collect();
-        rec.set_manifest("timings", json!({ "wall_s": elapsed, "stage_ms_per_frame": stages }));
+        rec.set_manifest("timings", json!({ "setup_s": setup_s, "wall_s": elapsed, "stage_ms_per_frame": stages }));
     }
     let progress = rec.finish(interrupted).map_err(|e| CliError::Failed(format!("recording stopped: {e}")))?;
     // the rate counts the files still in the encoders' hands and the last sync
     let elapsed = started.elapsed().as_secs_f64();
     let summary = format!(
-        "{}: {} of {} frames written to {} ({:.1} frames/s)",
+        "{}: {} of {} frames written to {} ({:.1} frames/s, after {setup_s:.2} s of set-up)",
         progress.status,
         progress.frames_written,
         progress.frames_requested,
