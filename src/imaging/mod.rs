@@ -6,6 +6,7 @@
 pub mod agc;
 pub mod background;
 pub mod camera;
+pub mod fft2d;
 pub mod frame;
 pub mod fusion;
 pub mod png16;

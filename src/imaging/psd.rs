@@ -5,7 +5,7 @@
 //! The estimate removes the mean and a fitted plane, applies a Hann window, and fits `ln P` against `ln f` by
 //! least squares over `[f_min, f_max]` cycles/px on bins `1/min(w, h)` wide.
 
-use rustfft::FftPlanner;
+use super::fft2d::fft2;
 use rustfft::num_complex::Complex;
 
 /// The radially averaged power spectrum: `(frequency cycles/px, mean power)` per bin from the first non-zero.
@@ -38,22 +38,7 @@ pub fn radial_power_spectrum(pixels: &[f32], width: usize, height: usize) -> Vec
             data.push(Complex::new(v * hann(x, w) * hann(y, h), 0.0));
         }
     }
-    let mut planner = FftPlanner::new();
-    let rows = planner.plan_fft_forward(w);
-    for row in data.chunks_mut(w) {
-        rows.process(row);
-    }
-    let cols = planner.plan_fft_forward(h);
-    let mut col = vec![Complex::new(0.0, 0.0); h];
-    for x in 0..w {
-        for y in 0..h {
-            col[y] = data[y * w + x];
-        }
-        cols.process(&mut col);
-        for y in 0..h {
-            data[y * w + x] = col[y];
-        }
-    }
+    fft2(&mut data, w, h, rustfft::FftDirection::Forward);
     let bin = 1.0 / w.min(h) as f64;
     let nbins = (0.5f64.hypot(0.5) / bin).ceil() as usize + 1;
     let (mut power, mut count) = (vec![0.0; nbins], vec![0usize; nbins]);

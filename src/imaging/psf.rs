@@ -26,10 +26,10 @@
 //! largest error is below 1e-4 of its peak), directly in 2D, or by FFT; edges are replicated.
 
 use rayon::prelude::*;
-use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 use serde::{Deserialize, Serialize};
 
+use super::fft2d::fft2;
 use super::frame::Frame;
 use crate::physics::ParamError;
 use crate::physics::planck::{Band, Measure, spectral_radiance};
@@ -553,7 +553,7 @@ impl Otf {
                 c.re = source[fold(kx)];
             }
         });
-        fft2(&mut data, n, rustfft::FftDirection::Inverse);
+        fft2(&mut data, n, n, rustfft::FftDirection::Inverse);
         let scale = 1.0 / (PERIOD_PX * PERIOD_PX) as f64;
         data.par_iter().map(|c| (c.re * scale) as f32).collect()
     }
@@ -566,34 +566,6 @@ fn sinc(x: f64) -> f64 {
         let px = std::f64::consts::PI * x;
         px.sin() / px
     }
-}
-
-/// In-place 2D FFT of an `n × n` row-major array.
-fn fft2(data: &mut [Complex<f64>], n: usize, direction: rustfft::FftDirection) {
-    let fft = FftPlanner::new().plan_fft(n, direction);
-    let mut scratch = vec![Complex::new(0.0, 0.0); n * n];
-    for _ in 0..2 {
-        data.par_chunks_mut(n).for_each(|row| fft.process(row));
-        transpose_into(data, &mut scratch, n);
-        data.copy_from_slice(&scratch);
-    }
-}
-
-/// `out` = the transpose of the `n × n` row-major `data`, in bands of rows on every thread, each read from
-/// `data` in tiles (a tile's columns are a few cache lines, not one line per value).
-fn transpose_into<T: Copy + Send + Sync>(data: &[T], out: &mut [T], n: usize) {
-    const TILE: usize = 16;
-    out.par_chunks_mut(TILE * n).enumerate().for_each(|(b, band)| {
-        let y0 = b * TILE;
-        let rows = band.len() / n;
-        for x0 in (0..n).step_by(TILE) {
-            for x in x0..(x0 + TILE).min(n) {
-                for j in 0..rows {
-                    band[j * n + x] = data[x * n + y0 + j];
-                }
-            }
-        }
-    });
 }
 
 /// The smallest radius (px) whose square of integer offsets holds `1 − cutoff` of the grid's energy.
@@ -1247,7 +1219,7 @@ impl Convolver {
                     k[y * pw + x] = Complex::new(kernel.values[dy * side + dx], 0.0);
                 }
             }
-            fft2_rect(&mut k, pw, ph, rustfft::FftDirection::Forward);
+            fft2(&mut k, pw, ph, rustfft::FftDirection::Forward);
             self.fft = Some(FftConvolution {
                 width: w,
                 height: h,
@@ -1267,11 +1239,11 @@ impl Convolver {
                 f.buf[py * pw + px] = Complex::new(src[y * w + x], 0.0);
             }
         }
-        fft2_rect(&mut f.buf, pw, ph, rustfft::FftDirection::Forward);
+        fft2(&mut f.buf, pw, ph, rustfft::FftDirection::Forward);
         for (b, k) in f.buf.iter_mut().zip(&f.kernel) {
             *b *= k;
         }
-        fft2_rect(&mut f.buf, pw, ph, rustfft::FftDirection::Inverse);
+        fft2(&mut f.buf, pw, ph, rustfft::FftDirection::Inverse);
         let scale = 1.0 / (pw * ph) as f32;
         let out = frame.pixels_mut();
         for y in 0..h {
@@ -1299,29 +1271,10 @@ pub(crate) fn fast_len(n: usize) -> usize {
     }
 }
 
-/// 2D FFT of a `w × h` row-major array (rows, then columns through a transpose).
-fn fft2_rect(data: &mut [Complex<f32>], w: usize, h: usize, direction: rustfft::FftDirection) {
-    let mut planner = FftPlanner::new();
-    let row_fft = planner.plan_fft(w, direction);
-    data.par_chunks_mut(w).for_each(|row| row_fft.process(row));
-    let mut t = vec![Complex::new(0.0f32, 0.0); w * h];
-    for y in 0..h {
-        for x in 0..w {
-            t[x * h + y] = data[y * w + x];
-        }
-    }
-    let col_fft = planner.plan_fft(h, direction);
-    t.par_chunks_mut(h).for_each(|col| col_fft.process(col));
-    for x in 0..w {
-        for y in 0..h {
-            data[y * w + x] = t[x * h + y];
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rustfft::FftPlanner;
 
     #[test]
     fn runs_and_reach_of_flagged_tiles() {
@@ -1388,20 +1341,6 @@ mod tests {
             assert_eq!(got.len(), want.len());
             let same = got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits());
             assert!(same, "{per_px} per px, aperture {aperture}, tent {tent}");
-        }
-    }
-
-    #[test]
-    fn the_tiled_transpose_is_the_transpose() {
-        for n in [1, 5, 16, 17, 40] {
-            let data: Vec<u32> = (0..(n * n) as u32).collect();
-            let mut out = vec![0; n * n];
-            transpose_into(&data, &mut out, n);
-            for y in 0..n {
-                for x in 0..n {
-                    assert_eq!(out[y * n + x], data[x * n + y]);
-                }
-            }
         }
     }
 

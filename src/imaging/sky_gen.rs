@@ -19,10 +19,11 @@
 //! The radially averaged power spectrum of real infrared cloud clutter has a slope near −3 (sharp-edged
 //! cumulus), the default.
 
-use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
+use rustfft::{FftDirection, FftPlanner};
 use serde::{Deserialize, Serialize};
 
+use super::fft2d::fft_columns;
 use crate::physics::ParamError;
 use crate::physics::noise::{stage, standard_normal, stream_rng};
 
@@ -216,7 +217,7 @@ fn quantile(values: &[f32], q: f64) -> f32 {
 /// The spectrum's white noise is drawn in order (one generator, two normals a texel, row after row), so the
 /// field is a function of the seed alone; the rest runs on every thread without changing a bit: the amplitude
 /// depends on `|f_x|` and `|f_y|` only, so it is computed once per quadrant's texel; each band of rows is
-/// transformed while the next is drawn; the columns are transformed in blocks gathered from the rows.
+/// transformed while the next is drawn; then the columns ([`fft_columns`]).
 pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, seed: u64, substream: u64) -> Vec<f32> {
     use rayon::prelude::*;
     let mut rng = stream_rng(seed, stage::SKY, 0, substream);
@@ -253,37 +254,11 @@ pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, se
             scope.spawn(move |_| band.chunks_mut(width).for_each(|row| rows.process(row)));
         }
     });
-    // columns, in blocks of 16 gathered from the rows; each block's real parts kept column after column
-    let cols = planner.plan_fft_inverse(height);
-    const BLOCK: usize = 16;
-    let mut columns = vec![0f32; width * height];
-    columns.par_chunks_mut(BLOCK * height).enumerate().for_each(|(b, out)| {
-        let x0 = b * BLOCK;
-        let n = out.len() / height;
-        let mut block = vec![Complex::new(0.0f32, 0.0); n * height];
-        for y in 0..height {
-            for (j, &c) in data[y * width + x0..][..n].iter().enumerate() {
-                block[j * height + y] = c;
-            }
-        }
-        for (col, re) in block.chunks_mut(height).zip(out.chunks_mut(height)) {
-            cols.process(col);
-            re.iter_mut().zip(col.iter()).for_each(|(r, c)| *r = c.re);
-        }
-    });
-    drop(data);
+    fft_columns(&mut data, width, height, FftDirection::Inverse);
     // the real part of the transform of white complex noise is a real Gaussian field with the same spectrum;
-    // back to rows, then standardized (the sums in row order, as the field is laid out)
-    let mut real = vec![0f32; width * height];
-    real.par_chunks_mut(width * BLOCK).enumerate().for_each(|(b, out)| {
-        let y0 = b * BLOCK;
-        for x in 0..width {
-            for (j, &v) in columns[x * height + y0..][..out.len() / width].iter().enumerate() {
-                out[j * width + x] = v;
-            }
-        }
-    });
-    drop(columns);
+    // standardized (the sums in row order, as the field is laid out)
+    let mut real: Vec<f32> = data.par_iter().map(|c| c.re).collect();
+    drop(data);
     let n = real.len() as f64;
     let mean = real.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
     let sd = (real.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n).sqrt();
@@ -295,9 +270,10 @@ pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, se
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::imaging::fft2d::fft2;
     use crate::imaging::psd::psd_slope;
 
-    /// [`gaussian_field`] as first written: one thread, the amplitude per texel, the columns copied one by one.
+    /// [`gaussian_field`] as first written: one thread drawing, the amplitude per texel, then the 2D FFT.
     fn gaussian_field_serial(
         width: usize,
         height: usize,
@@ -318,22 +294,7 @@ mod tests {
                 data.push(Complex::new((amp * re) as f32, (amp * im) as f32));
             }
         }
-        let mut planner = FftPlanner::<f32>::new();
-        let rows = planner.plan_fft_inverse(width);
-        for row in data.chunks_mut(width) {
-            rows.process(row);
-        }
-        let cols = planner.plan_fft_inverse(height);
-        let mut col = vec![Complex::new(0.0f32, 0.0); height];
-        for x in 0..width {
-            for y in 0..height {
-                col[y] = data[y * width + x];
-            }
-            cols.process(&mut col);
-            for y in 0..height {
-                data[y * width + x] = col[y];
-            }
-        }
+        fft2(&mut data, width, height, FftDirection::Inverse);
         let values: Vec<f64> = data.iter().map(|c| f64::from(c.re)).collect();
         let n = values.len() as f64;
         let mean = values.iter().sum::<f64>() / n;
