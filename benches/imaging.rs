@@ -184,6 +184,7 @@ fn png16(c: &mut Criterion) {
 }
 
 fn psf(c: &mut Criterion) {
+    use irsim::imaging::prefilter::TextureFilter;
     use irsim::imaging::psf::{ConvolutionMethod, Convolver, Psf, PsfOptics, PsfSpec};
     use irsim::physics::planck::{Band, Measure};
     let optics = PsfOptics {
@@ -212,6 +213,15 @@ fn psf(c: &mut Criterion) {
                 convolver.apply(psf.point_kernel(), black_box(&mut frame), method);
             })
         });
+    }
+    group.finish();
+    // the kernels of a prefiltered sky texture, made for every new view Jacobian: a sky about as fine as the
+    // sensor (one texel a pixel, 4 phases), and a magnified one (0.4 texel a pixel, 16 phases)
+    let mut group = c.benchmark_group("texture_filter");
+    for (name, scale) in [("texel_per_px_1.09", 1.09), ("texel_per_px_0.4", 0.4)] {
+        let (s, c) = (0.1f64.sin(), 0.1f64.cos());
+        let jacobian = glam::DMat2::from_cols_array(&[scale * c, scale * s, -scale * s * 0.9, scale * c * 0.9]);
+        group.bench_function(name, |b| b.iter(|| TextureFilter::new(&psf, black_box(jacobian))));
     }
     group.finish();
 }

@@ -256,6 +256,39 @@ impl Psf {
         top + (bottom - top) * ty
     }
 
+    /// [`Psf::value`] at every `(xs[a], ys[b])`, row-major (`b` the row), with each axis's node and
+    /// fraction found once: the same values.
+    pub fn values_on_grid(&self, xs: &[f64], ys: &[f64]) -> Vec<f32> {
+        let half = (self.fine_side / 2) as f64;
+        let limit = (self.fine_side - 1) as f64;
+        // per coordinate: its node and fraction, or None where it lies outside the table
+        let nodes = |v: &[f64]| -> Vec<Option<(usize, f32)>> {
+            v.iter()
+                .map(|&d| {
+                    let f = d * FINE_PER_PX as f64 + half;
+                    (f >= 0.0 && f < limit).then_some((f as usize, (f - (f as usize) as f64) as f32))
+                })
+                .collect()
+        };
+        let (cols, rows) = (nodes(xs), nodes(ys));
+        let mut out = Vec::with_capacity(xs.len() * ys.len());
+        let f = |x: usize, y: usize| self.fine.at(x, y);
+        for row in &rows {
+            match *row {
+                None => out.extend(std::iter::repeat_n(0.0, xs.len())),
+                Some((y0, ty)) => out.extend(cols.iter().map(|col| match *col {
+                    None => 0.0,
+                    Some((x0, tx)) => {
+                        let top = f(x0, y0) + (f(x0 + 1, y0) - f(x0, y0)) * tx;
+                        let bottom = f(x0, y0 + 1) + (f(x0 + 1, y0 + 1) - f(x0, y0 + 1)) * tx;
+                        top + (bottom - top) * ty
+                    }
+                })),
+            }
+        }
+        out
+    }
+
     /// Adds `weight ×` the PSF of a point source at `(x, y)` (px) to the pixels `x0..x1 × y0..y1` of `out`, a
     /// row-major buffer `width` wide whose first element is pixel `(x0, y0)`: the same values as
     /// [`Psf::value`] at each pixel centre, with the interpolation weights computed once (every pixel centre
@@ -1288,6 +1321,26 @@ mod tests {
         assert_eq!(out, vec![false, true, true, true, false, true, true, true]);
         tiles_within_reach(&grid, 4, 0, &mut out);
         assert_eq!(out, grid.to_vec());
+    }
+
+    #[test]
+    fn values_on_a_grid_are_the_values_one_by_one() {
+        let psf = Psf::new(&PsfSpec::default(), &optics(1.0, Band::LWIR_8_12)).unwrap();
+        let reach = psf.radius_px() as f64 + 0.5;
+        // inside, on the table's edges and beyond them, at odd steps
+        let xs: Vec<f64> = (0..97).map(|a| -reach - 0.3 + a as f64 * (2.0 * reach + 0.6) / 96.0).collect();
+        let ys: Vec<f64> = (0..61).map(|b| -reach - 0.2 + b as f64 * (2.0 * reach + 0.5) / 60.0).collect();
+        let grid = psf.values_on_grid(&xs, &ys);
+        assert_eq!(grid.len(), xs.len() * ys.len());
+        let mut inside = 0;
+        for (b, &y) in ys.iter().enumerate() {
+            for (a, &x) in xs.iter().enumerate() {
+                let one = psf.value(x, y);
+                assert_eq!(grid[b * xs.len() + a].to_bits(), one.to_bits(), "({x}, {y})");
+                inside += usize::from(one != 0.0);
+            }
+        }
+        assert!(inside > xs.len() * ys.len() / 2 && inside < xs.len() * ys.len(), "{inside} inside");
     }
 
     fn optics(f_number: f64, band: Band) -> PsfOptics {
