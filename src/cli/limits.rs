@@ -394,7 +394,7 @@ mod x86 {
             let (fx, fy) = (_mm512_sub_ps(x, _mm512_cvtepi32_ps(ix)), _mm512_sub_ps(y, _mm512_cvtepi32_ps(iy)));
             let k = _mm512_add_epi32(_mm512_mullo_epi32(iy, _mm512_set1_epi32(TEXTURE as i32)), ix);
             // SAFETY: 0 ≤ ix, iy ≤ TEXTURE − 2 (clamped), so every index is inside the texture
-            let v = unsafe { crate::physics::simd::bilinear16_avx512(t, k, TEXTURE, fx, fy) };
+            let v = unsafe { crate::physics::simd::bilinear16_avx512(t, k, TEXTURE, fx, fy, 0xffff) };
             let n = (row.len() - i).min(16);
             // SAFETY: 16 floats into `tail`, then n ≤ 16 into the row at i
             unsafe {

@@ -850,19 +850,12 @@ impl RowGeometry {
         let (ddx, ddy) = (fixed(2.0 * span.c.x), fixed(2.0 * span.c.y));
         let px = &img.pixels;
         const FRACTION: f32 = 1.0 / 16_777_216.0; // 2⁻²⁴
-        let mut out = out;
         #[cfg(target_arch = "x86_64")]
-        if out.len() >= 16 && px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
+        if px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
             // SAFETY: the CPU has AVX-512; every sample (and its neighbours, bilinear) lies inside the image
             // (checked above)
-            let done = unsafe { x86::span_512(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) };
-            // the recurrence below, advanced by `done` steps: q(k) = q₀ + k·d₀ + k(k−1)/2·dd, d(k) = d₀ + k·dd
-            let k = done as i64;
-            x = x.wrapping_add(k.wrapping_mul(dx)).wrapping_add((k * (k - 1) / 2).wrapping_mul(ddx));
-            y = y.wrapping_add(k.wrapping_mul(dy)).wrapping_add((k * (k - 1) / 2).wrapping_mul(ddy));
-            dx = dx.wrapping_add(k.wrapping_mul(ddx));
-            dy = dy.wrapping_add(k.wrapping_mul(ddy));
-            out = &mut out[done..];
+            unsafe { x86::span_512(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) };
+            return true;
         }
         for o in out.iter_mut() {
             let (xi, yi) = ((x >> 32) as usize, (y >> 32) as usize);
@@ -892,11 +885,12 @@ mod x86 {
 
     use crate::physics::simd::bilinear16_avx512;
 
-    /// [`SkyPlane::fast_span`](super::SkyPlane)'s loop (nearest or bilinear), sixteen pixels at a time, for the
-    /// whole blocks of sixteen in `out`; returns how many pixels it wrote. The positions are the scalar
-    /// recurrence's, in closed form (`q(k) = q₀ + k·d₀ + k(k−1)/2·dd` in 32.32 fixed point, exact integer
-    /// arithmetic), and the mix is the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so
-    /// every value is the same.
+    /// [`SkyPlane::fast_span`](super::SkyPlane)'s loop (nearest or bilinear), sixteen pixels at a time, the last
+    /// block masked. The positions are the scalar recurrence's
+    /// (`q(k) = q₀ + k·d₀ + k(k−1)/2·dd` in 32.32 fixed point), stepped sixteen pixels at a time in each lane by
+    /// the same identity (`q(k + 16) − q(k) = 16·d₀ + 120·dd + 16k·dd`, exact in wrapping integer arithmetic),
+    /// and the mix is the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so every value
+    /// is the same.
     ///
     /// # Safety
     /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel (and, bilinear, its right and lower
@@ -912,62 +906,78 @@ mod x86 {
         bilinear: bool,
         out: &mut [f32],
         accumulate: bool,
-    ) -> usize {
-        let blocks = out.len() / 16;
+    ) {
         let lanes_lo = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
         let lanes_hi = _mm512_setr_epi64(8, 9, 10, 11, 12, 13, 14, 15);
         // k(k−1)/2 per lane
         let tri_lo = _mm512_setr_epi64(0, 0, 1, 3, 6, 10, 15, 21);
         let tri_hi = _mm512_setr_epi64(28, 36, 45, 55, 66, 78, 91, 105);
-        let low = _mm512_set1_epi64(0xffff_ffff);
+        // the low and the high 32 bits of sixteen 64-bit lanes held in two vectors, in lane order
+        let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+        let odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
         let fraction = _mm512_set1_ps(1.0 / 16_777_216.0);
         let width = _mm512_set1_epi32(w as i32);
         let base = px.as_ptr();
-        let (mut q, mut d) = (q, d);
-        // one axis' sixteen positions: whole pixels (i32) and the fraction's top 24 bits as f32
-        let positions = |q: i64, d: i64, dd: i64| {
+        // one axis: the sixteen lanes' positions (low lanes, high lanes), the step to the next block's, and the
+        // step's own change from block to block
+        let axis = |q: i64, d: i64, dd: i64| {
+            let (d_, dd_) = (_mm512_set1_epi64(d), _mm512_set1_epi64(dd));
             let at = |lanes: __m512i, tri: __m512i| {
-                let step = _mm512_mullo_epi64(lanes, _mm512_set1_epi64(d));
-                let bend = _mm512_mullo_epi64(tri, _mm512_set1_epi64(dd));
-                _mm512_add_epi64(_mm512_set1_epi64(q), _mm512_add_epi64(step, bend))
+                _mm512_add_epi64(
+                    _mm512_set1_epi64(q),
+                    _mm512_add_epi64(_mm512_mullo_epi64(lanes, d_), _mm512_mullo_epi64(tri, dd_)),
+                )
             };
-            let (lo, hi) = (at(lanes_lo, tri_lo), at(lanes_hi, tri_hi));
-            let join = |a: __m512i, b: __m512i| {
-                _mm512_inserti64x4::<1>(_mm512_castsi256_si512(_mm512_cvtepi64_epi32(a)), _mm512_cvtepi64_epi32(b))
+            let first = d.wrapping_mul(16).wrapping_add(dd.wrapping_mul(120));
+            let step = |lanes: __m512i| {
+                _mm512_add_epi64(
+                    _mm512_set1_epi64(first),
+                    _mm512_mullo_epi64(lanes, _mm512_set1_epi64(dd.wrapping_mul(16))),
+                )
             };
-            let whole = join(_mm512_srli_epi64::<32>(lo), _mm512_srli_epi64::<32>(hi));
-            let top24 = join(
-                _mm512_srli_epi64::<8>(_mm512_and_si512(lo, low)),
-                _mm512_srli_epi64::<8>(_mm512_and_si512(hi, low)),
-            );
+            ([at(lanes_lo, tri_lo), at(lanes_hi, tri_hi)], [step(lanes_lo), step(lanes_hi)], dd.wrapping_mul(256))
+        };
+        // whole pixels (i32) and the fraction's top 24 bits as f32 of sixteen positions
+        let split = |p: [__m512i; 2]| {
+            let whole = _mm512_permutex2var_epi32(p[0], odd, p[1]);
+            let top24 = _mm512_srli_epi32::<8>(_mm512_permutex2var_epi32(p[0], even, p[1]));
             (whole, _mm512_mul_ps(_mm512_cvtepi32_ps(top24), fraction))
         };
-        for b in 0..blocks {
-            let (ix, fx) = positions(q[0], d[0], dd[0]);
-            let (iy, fy) = positions(q[1], d[1], dd[1]);
+        let (mut qx, mut sx, bend_x) = axis(q[0], d[0], dd[0]);
+        let (mut qy, mut sy, bend_y) = axis(q[1], d[1], dd[1]);
+        let (bend_x, bend_y) = (_mm512_set1_epi64(bend_x), _mm512_set1_epi64(bend_y));
+        let n = out.len();
+        let mut k = 0;
+        while k < n {
+            // all sixteen lanes, or the first n − k of them
+            let mask: __mmask16 = if n - k >= 16 { 0xffff } else { (1u16 << (n - k)) - 1 };
+            let (ix, fx) = split(qx);
+            let (iy, fy) = split(qy);
             let i = _mm512_add_epi32(_mm512_mullo_epi32(iy, width), ix);
-            let mut v = if bilinear {
-                // SAFETY: the caller guarantees every index and its neighbours are inside `px`
-                unsafe { bilinear16_avx512(base, i, w, fx, fy) }
-            } else {
-                // SAFETY: the caller guarantees every index is inside `px`
-                unsafe { _mm512_i32gather_ps::<4>(i, base) }
+            // SAFETY: the caller guarantees every written pixel's index and its neighbours are inside `px`; the
+            // lanes past the span's end are masked off
+            let mut v = unsafe {
+                if bilinear {
+                    bilinear16_avx512(base, i, w, fx, fy, mask)
+                } else {
+                    _mm512_mask_i32gather_ps::<4>(_mm512_setzero_ps(), mask, i, base)
+                }
             };
-            let at = out[16 * b..16 * b + 16].as_mut_ptr();
-            // SAFETY: sixteen floats at `at`, inside `out`
+            let at = out[k..].as_mut_ptr();
+            // SAFETY: the masked lanes are inside `out`
             unsafe {
                 if accumulate {
-                    v = _mm512_add_ps(_mm512_loadu_ps(at), v);
+                    v = _mm512_add_ps(_mm512_maskz_loadu_ps(mask, at), v);
                 }
-                _mm512_storeu_ps(at, v);
+                _mm512_mask_storeu_ps(at, mask, v);
             }
-            // sixteen steps of the recurrence
-            for a in 0..2 {
-                q[a] = q[a].wrapping_add(d[a].wrapping_mul(16)).wrapping_add(dd[a].wrapping_mul(120));
-                d[a] = d[a].wrapping_add(dd[a].wrapping_mul(16));
-            }
+            // sixteen steps of the recurrence in every lane
+            qx = [_mm512_add_epi64(qx[0], sx[0]), _mm512_add_epi64(qx[1], sx[1])];
+            qy = [_mm512_add_epi64(qy[0], sy[0]), _mm512_add_epi64(qy[1], sy[1])];
+            sx = [_mm512_add_epi64(sx[0], bend_x), _mm512_add_epi64(sx[1], bend_x)];
+            sy = [_mm512_add_epi64(sy[0], bend_y), _mm512_add_epi64(sy[1], bend_y)];
+            k += 16;
         }
-        16 * blocks
     }
 }
 
@@ -1004,6 +1014,48 @@ mod tests {
     fn plane(image: SkyImage) -> SkyPlane {
         let placement = SkyPlacement::paper_fig8();
         SkyPlane::new(image, &placement, DVec3::new(0.0, 0.0, 8000.0)).unwrap()
+    }
+
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn the_vector_span_is_the_scalar_recurrence_bit_for_bit() {
+        if !is_x86_feature_detected!("avx512f") || !is_x86_feature_detected!("avx512dq") {
+            return;
+        }
+        let w = 300usize;
+        let px: Vec<f32> = (0..w * 200).map(|i| (i as f32 * 0.37).sin() * 50.0 + 100.0).collect();
+        let fixed = |v: f64| (v * 4_294_967_296.0) as i64;
+        // forwards and backwards, bending either way, over spans of 1 to 100 pixels (whole blocks and tails)
+        let paths =
+            [([10.37, 150.2], [0.731, -0.52], [0.0013, -0.0007]), ([280.9, 20.6], [-1.9, 0.41], [-0.002, 0.003])];
+        for (start, step, bend) in paths {
+            for len in 1..=100 {
+                for (bilinear, accumulate) in [(true, false), (true, true), (false, false), (false, true)] {
+                    let (q, d, dd) = (start.map(fixed), step.map(fixed), bend.map(fixed));
+                    let before: Vec<f32> = (0..len).map(|k| k as f32 * 0.25).collect();
+                    let mut scalar = before.clone();
+                    let (mut x, mut y, mut dx, mut dy) = (q[0], q[1], d[0], d[1]);
+                    for o in &mut scalar {
+                        let (xi, yi) = ((x >> 32) as usize, (y >> 32) as usize);
+                        let i = yi * w + xi;
+                        let value = if bilinear {
+                            let fx = ((x as u32) >> 8) as f32 / 16_777_216.0;
+                            let fy = ((y as u32) >> 8) as f32 / 16_777_216.0;
+                            bilinear_mix(px[i], px[i + 1], px[i + w], px[i + w + 1], fx, fy)
+                        } else {
+                            px[i]
+                        };
+                        *o = if accumulate { *o + value } else { value };
+                        (x, y, dx, dy) = (x + dx, y + dy, dx + dd[0], dy + dd[1]);
+                    }
+                    let mut vector = before.clone();
+                    // SAFETY: AVX-512 checked above; the paths stay inside the image
+                    unsafe { x86::span_512(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&vector), bits(&scalar), "len {len}, bilinear {bilinear}, accumulate {accumulate}");
+                }
+            }
+        }
     }
 
     #[test]

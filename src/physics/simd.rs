@@ -104,11 +104,11 @@ unsafe fn with_avx512<R>(f: impl FnOnce() -> R) -> R {
 /// Sixteen bilinear samples of a row-major f32 image `width` wide with AVX-512 gathers: the texel at each lane's
 /// `index` and its right, lower and lower-right neighbours, mixed by the lane's fractions the way the scalar
 /// samplers do (each row `left + (right − left)·fx`, then `top + (bottom − top)·fy`, multiplies and adds
-/// separate), so the values are the scalar's.
+/// separate), so the values are the scalar's. Only the lanes in `mask` read the image (the others are 0).
 ///
 /// # Safety
-/// The CPU must have AVX-512F; for every lane, `index`, `index + 1`, `index + width` and `index + width + 1` must
-/// lie inside the image that `base` points at.
+/// The CPU must have AVX-512F; for every lane in `mask`, `index`, `index + 1`, `index + width` and
+/// `index + width + 1` must lie inside the image that `base` points at.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
@@ -118,15 +118,17 @@ pub unsafe fn bilinear16_avx512(
     width: usize,
     fx: std::arch::x86_64::__m512,
     fy: std::arch::x86_64::__m512,
+    mask: std::arch::x86_64::__mmask16,
 ) -> std::arch::x86_64::__m512 {
     use std::arch::x86_64::*;
-    // SAFETY: the caller guarantees every lane's four texels are inside the image
+    let zero = _mm512_setzero_ps();
+    // SAFETY: the caller guarantees every masked lane's four texels are inside the image
     let (tl, tr, bl, br) = unsafe {
         (
-            _mm512_i32gather_ps::<4>(index, base),
-            _mm512_i32gather_ps::<4>(index, base.add(1)),
-            _mm512_i32gather_ps::<4>(index, base.add(width)),
-            _mm512_i32gather_ps::<4>(index, base.add(width + 1)),
+            _mm512_mask_i32gather_ps::<4>(zero, mask, index, base),
+            _mm512_mask_i32gather_ps::<4>(zero, mask, index, base.add(1)),
+            _mm512_mask_i32gather_ps::<4>(zero, mask, index, base.add(width)),
+            _mm512_mask_i32gather_ps::<4>(zero, mask, index, base.add(width + 1)),
         )
     };
     let top = _mm512_add_ps(tl, _mm512_mul_ps(_mm512_sub_ps(tr, tl), fx));
