@@ -876,6 +876,8 @@ fn curvature_row(up: &[f32], mid: &[f32], down: &[f32], xs: std::ops::Range<usiz
 #[derive(Debug, Default)]
 pub struct Convolver {
     tmp: Vec<f32>,
+    /// Per padded row, per term: the horizontal pass of the tiles blurred where needed (frame columns).
+    horizontal: Vec<f32>,
     acc: Vec<f32>,
     padded: Vec<f32>,
     fft: Option<FftConvolution>,
@@ -1138,44 +1140,63 @@ impl Convolver {
         let needed_tiles = std::mem::take(&mut self.needed);
         let needed = &needed_tiles;
         let band_needed = |ty: usize| needed[ty * tw..(ty + 1) * tw].iter().any(|&n| n);
-        let pw = self.pad_rows(frame, r, |py| {
-            // padded row py is read by the bands ty with ty·t ≤ py < ty·t + t + 2r
-            let first = py.saturating_sub(t + 2 * r - 1) / t;
-            (first..=(py / t).min(th - 1)).any(band_needed)
-        });
+        // padded row py is read by the bands ty with ty·t ≤ py < ty·t + t + 2r
+        let bands_reading = |py: usize| py.saturating_sub(t + 2 * r - 1) / t..=(py / t).min(th - 1);
+        let pw = self.pad_rows(frame, r, |py| bands_reading(py).any(band_needed));
         let padded = &self.padded;
+        // each padded row's horizontal pass, every term, once: on the tiles' columns that any band reading the
+        // row blurs (rows shared by the bands of a horizontal edge are not made again for each band); the same
+        // sums, pixel by pixel, as a band's own pass (a run starts on a tile's edge, a multiple of the rows' 16
+        // lanes)
+        let terms = kernel.terms.len();
+        self.horizontal.resize((h + 2 * r) * terms * w, 0.0);
+        self.horizontal.par_chunks_mut(terms * w).enumerate().for_each_init(
+            || Vec::with_capacity(tw),
+            |columns: &mut Vec<bool>, (py, row)| {
+                columns.clear();
+                columns.resize(tw, false);
+                for ty in bands_reading(py) {
+                    for (c, &n) in columns.iter_mut().zip(&needed[ty * tw..(ty + 1) * tw]) {
+                        *c |= n;
+                    }
+                }
+                for run in true_runs(columns) {
+                    let x0 = run.start * t;
+                    let cols = (run.end * t).min(w) - x0;
+                    let src = &padded[py * pw + x0..];
+                    for ((_, v), out) in kernel.terms.iter().zip(row.chunks_exact_mut(w)) {
+                        widest(
+                            #[inline(always)]
+                            || correlate_row(src, v, &mut out[x0..x0 + cols]),
+                        );
+                    }
+                }
+            },
+        );
+        let horizontal = &self.horizontal;
         frame.pixels_mut().par_chunks_mut(t * w).enumerate().for_each_init(
             // grown to the widest run a task meets, so bands with nothing to blur allocate nothing
-            || (Vec::new(), Vec::new()),
-            |(tmp, acc): &mut (Vec<f32>, Vec<f32>), (ty, band)| {
+            Vec::new,
+            |acc: &mut Vec<f32>, (ty, band)| {
                 let rows = band.len() / w;
-                // each run of blurred tiles along the band in one sweep (the same sums, pixel by pixel, as tile
-                // by tile: a run starts on a tile's edge, a multiple of the rows' 16 lanes)
+                // each run of blurred tiles along the band in one sweep
                 for run in true_runs(&needed[ty * tw..(ty + 1) * tw]) {
                     let x0 = run.start * t;
                     let cols = (run.end * t).min(w) - x0;
-                    if tmp.len() < (t + 2 * r) * cols {
-                        tmp.resize((t + 2 * r) * cols, 0.0);
+                    if acc.len() < t * cols {
                         acc.resize(t * cols, 0.0);
                     }
                     acc[..rows * cols].fill(0.0);
-                    for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
-                        // horizontal over the band's rows and r more on each side (padded coordinates)
-                        for py in 0..rows + 2 * r {
-                            let src = &padded[(ty * t + py) * pw + x0..];
-                            widest(
-                                #[inline(always)]
-                                || correlate_row(src, v, &mut tmp[py * cols..(py + 1) * cols]),
-                            );
-                        }
+                    for (term, scaled) in kernel.vertical.iter().enumerate() {
                         let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
                         for y in 0..rows {
-                            for (k, row) in src.iter_mut().enumerate().take(v.len()) {
-                                *row = &tmp[(y + k) * cols..(y + k + 1) * cols];
+                            for (k, row) in src.iter_mut().enumerate().take(scaled.len()) {
+                                let at = ((ty * t + y + k) * terms + term) * w + x0;
+                                *row = &horizontal[at..at + cols];
                             }
                             widest(
                                 #[inline(always)]
-                                || accumulate_rows(&src[..v.len()], scaled, &mut acc[y * cols..(y + 1) * cols]),
+                                || accumulate_rows(&src[..scaled.len()], scaled, &mut acc[y * cols..(y + 1) * cols]),
                             );
                         }
                     }
@@ -1472,6 +1493,67 @@ mod tests {
         let mut flat = Frame::from_pixels(w, h, vec![123.0; w * h]);
         c.apply(psf.point_kernel(), &mut flat, ConvolutionMethod::Separable);
         assert!(flat.pixels().iter().all(|v| (v - 123.0).abs() < 1e-3));
+    }
+
+    #[test]
+    fn tiles_blurred_where_needed_are_the_separable_sums_bit_for_bit() {
+        // candidate tiles alone, in a row, in a column, in a block, at the right and bottom edges (partial
+        // tiles): every pixel of a blurred tile is the kernel's sums in their order (horizontal per term, then
+        // vertical, terms added in turn), whichever band shares its rows; the other tiles are untouched
+        let psf = Psf::new(&PsfSpec::default(), &optics(4.0, Band::MWIR_3_5)).unwrap();
+        let kernel = psf.point_kernel();
+        assert!(
+            kernel.rank() > 1 && kernel.radius() >= BLUR_TILE_PX / 2,
+            "rank {}, radius {}",
+            kernel.rank(),
+            kernel.radius()
+        );
+        let (w, h) = (150usize, 133usize);
+        let t = BLUR_TILE_PX;
+        let (tw, th) = (w.div_ceil(t), h.div_ceil(t));
+        let base =
+            Frame::from_pixels(w, h, (0..w * h).map(|i| 1000.0 + ((i * 7919 + 13) % 997) as f32 * 0.1).collect());
+        let mut candidates = vec![false; tw * th];
+        for (tx, ty) in [(1, 1), (3, 2), (4, 2), (5, 2), (7, 3), (7, 4), (7, 5), (1, 6), (2, 6), (1, 7), (2, 7)] {
+            candidates[ty * tw + tx] = true;
+        }
+        candidates[(th - 1) * tw + tw - 1] = true;
+        candidates[tw - 1] = true;
+        let mut frame = base.clone();
+        let stats = Convolver::new().apply_where_needed_in(
+            kernel,
+            &mut frame,
+            ConvolutionMethod::Separable,
+            1e-6,
+            Some(&candidates),
+        );
+        assert_eq!(stats.tiles_blurred, candidates.iter().filter(|&&c| c).count());
+        let r = kernel.radius() as isize;
+        let at =
+            |x: isize, y: isize| base.get(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
+        for y in 0..h {
+            for x in 0..w {
+                let got = frame.get(x, y);
+                if !candidates[(y / t) * tw + x / t] {
+                    assert_eq!(got.to_bits(), base.get(x, y).to_bits(), "({x}, {y}) changed");
+                    continue;
+                }
+                let mut want = 0.0f32;
+                for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
+                    let mut term = 0.0f32;
+                    for (k, &c) in scaled.iter().enumerate() {
+                        let row = y as isize + k as isize - r;
+                        let mut across = 0.0f32;
+                        for (j, &cj) in v.iter().enumerate() {
+                            across += cj * at(x as isize + j as isize - r, row);
+                        }
+                        term += c * across;
+                    }
+                    want += term;
+                }
+                assert_eq!(got.to_bits(), want.to_bits(), "({x}, {y}): {got} vs {want}");
+            }
+        }
     }
 
     #[test]
