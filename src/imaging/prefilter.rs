@@ -463,30 +463,40 @@ impl PrefilterCache {
             }
             fresh
         };
+        // a blur of finite values is finite; checked once per block, not again for every crop made of it
+        assert!(fresh.iter().all(|values| values.iter().all(|v| v.is_finite())), "a blur of finite values is finite");
         self.blocks.extend(missing.iter().zip(fresh).map(|(&at, values)| Block {
             key,
             at,
             values: Some(values),
             last_used: self.clock,
         }));
-        let (cw, ch) = (rect[2] - rect[0], rect[3] - rect[1]);
-        let (fw, fh) = (cw * m, ch * m);
-        let mut pixels = vec![0.0f32; fw * fh];
+        // the blocks covering `rect`, by block row and column (every one is in the cache: just marked or made)
+        let (cols_x, cols_y) = (rect[0] / s..rect[2].div_ceil(s), rect[1] / s..rect[3].div_ceil(s));
+        let mut grid: Vec<Option<&[f32]>> = vec![None; cols_x.len() * cols_y.len()];
         for block in self.blocks.iter().filter(|b| b.key == key && b.last_used == self.clock) {
             let (Some(values), [bx, by]) = (&block.values, block.at) else { continue };
-            // the block's part inside `rect`, fine rows and columns
-            let (x0, x1) = (bx.max(rect[0]), (bx + s).min(rect[2]));
-            let (y0, y1) = (by.max(rect[1]), (by + s).min(rect[3]));
-            if x0 >= x1 || y0 >= y1 {
-                continue;
-            }
-            for fy in (y0 - by) * m..(y1 - by) * m {
-                let from = &values[fy * bs + (x0 - bx) * m..fy * bs + (x1 - bx) * m];
-                let to = (by * m + fy - rect[1] * m) * fw + (x0 - rect[0]) * m;
-                pixels[to..to + from.len()].copy_from_slice(from);
+            if cols_x.contains(&(bx / s)) && cols_y.contains(&(by / s)) {
+                grid[(by / s - cols_y.start) * cols_x.len() + bx / s - cols_x.start] = Some(values);
             }
         }
-        let image = SkyImage::from_f32(fw.max(1), fh.max(1), pixels).expect("a blur of finite values is finite");
+        let (cw, ch) = (rect[2] - rect[0], rect[3] - rect[1]);
+        let (fw, fh) = (cw * m, ch * m);
+        // the crop's fine rows in order, each from the blocks along it (no fill first: every value is written)
+        let mut pixels = Vec::with_capacity(fw * fh);
+        for fy in rect[1] * m..rect[3] * m {
+            let (by, row_in_block) = (fy / bs, fy % bs);
+            let blocks = &grid[(by - cols_y.start) * cols_x.len()..(by - cols_y.start + 1) * cols_x.len()];
+            for (bx, block) in cols_x.clone().zip(blocks) {
+                let values = block.expect("the blocks of a crop are kept while it is made");
+                // the block's columns inside `rect`, fine
+                let (x0, x1) = ((bx * s).max(rect[0]), ((bx + 1) * s).min(rect[2]));
+                let row = &values[row_in_block * bs..(row_in_block + 1) * bs];
+                pixels.extend_from_slice(&row[(x0 - bx * s) * m..(x1 - bx * s) * m]);
+            }
+        }
+        debug_assert_eq!(pixels.len(), fw * fh);
+        let image = SkyImage::from_finite(fw.max(1), fh.max(1), pixels);
         source.with_region(image, [rect[0], rect[1]], m)
     }
 }

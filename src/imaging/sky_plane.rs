@@ -72,6 +72,13 @@ impl SkyImage {
         Ok(Self { width, height, pixels })
     }
 
+    /// As [`SkyImage::from_f32`] for values known to be finite and as many as `width × height` (a blur of a
+    /// checked image); checked in debug builds only.
+    pub(crate) fn from_finite(width: usize, height: usize, pixels: Vec<f32>) -> Self {
+        debug_assert!(width * height == pixels.len() && pixels.iter().all(|p| p.is_finite()));
+        Self { width, height, pixels }
+    }
+
     /// Reads any image the `image` crate decodes (PNG, TIFF, PNM here). Gray images keep their integer values,
     /// float images their floats; colour
     /// images are converted to luma at their bit depth.
