@@ -71,9 +71,8 @@ pub fn texture_kernel(psf: &Psf, jacobian: DMat2, shift: DVec2) -> Option<Kernel
 /// space: the same for every shift, so a [`TextureFilter`]'s phases share them (each phase splats them with its
 /// own tent).
 struct PsfSamples {
-    jacobian: DMat2,
-    /// The PSF is 0 beyond this many px from its centre on either axis.
-    reach_px: f64,
+    /// How far the mapped PSF reaches from its centre along each texel axis, texels.
+    reach_texels: DVec2,
     /// `(J·y, PSF(y)·h²)` for each grid point `y` where the PSF is not 0, row by row.
     points: Vec<(DVec2, f64)>,
 }
@@ -87,9 +86,10 @@ impl PsfSamples {
         }
         // the PSF is 0 beyond R + ½ px on either axis
         let reach_px = psf.radius_px() as f64 + 0.5;
+        // texels per px along each texel axis, at most
+        let stretch = DVec2::new(j.x_axis.x.abs() + j.y_axis.x.abs(), j.x_axis.y.abs() + j.y_axis.y.abs());
         // sample spacing: at most 1/16 px and 1/16 texel along either texel axis
-        let texels_per_px = (j.x_axis.x.abs() + j.y_axis.x.abs()).max(j.x_axis.y.abs() + j.y_axis.y.abs());
-        let per_px = (16.0 * texels_per_px.max(1.0)).ceil();
+        let per_px = (16.0 * stretch.x.max(stretch.y).max(1.0)).ceil();
         let n = (2.0 * reach_px * per_px).ceil() as usize;
         let h = 2.0 * reach_px / n as f64;
         let nodes: Vec<f64> = (0..n).map(|a| -reach_px + (a as f64 + 0.5) * h).collect();
@@ -103,19 +103,17 @@ impl PsfSamples {
                 }
             }
         }
-        Some(Self { jacobian, reach_px, points })
+        Some(Self { reach_texels: reach_px * stretch, points })
     }
 
     /// The kernel read `shift` texels from texel centres ([`texture_kernel`]).
     fn kernel(&self, shift: DVec2) -> Option<Kernel> {
-        let (j, reach_px) = (self.jacobian, self.reach_px);
         if !shift.is_finite() {
             return None;
         }
-        let reach_x = reach_px * (j.x_axis.x.abs() + j.y_axis.x.abs()) + shift.x.abs();
-        let reach_y = reach_px * (j.x_axis.y.abs() + j.y_axis.y.abs()) + shift.y.abs();
+        let reach = self.reach_texels + shift.abs();
         // the tent reaches one texel further
-        let radius = reach_x.max(reach_y).ceil() as usize + 1;
+        let radius = reach.x.max(reach.y).ceil() as usize + 1;
         if radius > MAX_TEXTURE_RADIUS {
             return None;
         }

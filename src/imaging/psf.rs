@@ -241,52 +241,45 @@ impl Psf {
     /// The PSF at offset `(dx, dy)` px from a point source, per px² (bilinear in the fine table; 0 outside).
     #[inline]
     pub fn value(&self, dx: f64, dy: f64) -> f32 {
-        let half = (self.fine_side / 2) as f64;
-        let fx = dx * FINE_PER_PX as f64 + half;
-        let fy = dy * FINE_PER_PX as f64 + half;
-        let limit = (self.fine_side - 1) as f64;
-        if !(fx >= 0.0 && fy >= 0.0 && fx < limit && fy < limit) {
-            return 0.0;
+        match (self.fine_node(dx), self.fine_node(dy)) {
+            (Some(column), Some(row)) => self.fine_mix(column, row),
+            _ => 0.0,
         }
-        let (x0, y0) = (fx as usize, fy as usize);
-        let (tx, ty) = ((fx - x0 as f64) as f32, (fy - y0 as f64) as f32);
-        let f = |x: usize, y: usize| self.fine.at(x, y);
-        let top = f(x0, y0) + (f(x0 + 1, y0) - f(x0, y0)) * tx;
-        let bottom = f(x0, y0 + 1) + (f(x0 + 1, y0 + 1) - f(x0, y0 + 1)) * tx;
-        top + (bottom - top) * ty
     }
 
     /// [`Psf::value`] at every `(xs[a], ys[b])`, row-major (`b` the row), with each axis's node and
     /// fraction found once: the same values.
     pub fn values_on_grid(&self, xs: &[f64], ys: &[f64]) -> Vec<f32> {
-        let half = (self.fine_side / 2) as f64;
-        let limit = (self.fine_side - 1) as f64;
-        // per coordinate: its node and fraction, or None where it lies outside the table
-        let nodes = |v: &[f64]| -> Vec<Option<(usize, f32)>> {
-            v.iter()
-                .map(|&d| {
-                    let f = d * FINE_PER_PX as f64 + half;
-                    (f >= 0.0 && f < limit).then_some((f as usize, (f - (f as usize) as f64) as f32))
-                })
-                .collect()
-        };
-        let (cols, rows) = (nodes(xs), nodes(ys));
+        let columns: Vec<_> = xs.iter().map(|&d| self.fine_node(d)).collect();
         let mut out = Vec::with_capacity(xs.len() * ys.len());
-        let f = |x: usize, y: usize| self.fine.at(x, y);
-        for row in &rows {
-            match *row {
+        for row in ys.iter().map(|&d| self.fine_node(d)) {
+            match row {
                 None => out.extend(std::iter::repeat_n(0.0, xs.len())),
-                Some((y0, ty)) => out.extend(cols.iter().map(|col| match *col {
-                    None => 0.0,
-                    Some((x0, tx)) => {
-                        let top = f(x0, y0) + (f(x0 + 1, y0) - f(x0, y0)) * tx;
-                        let bottom = f(x0, y0 + 1) + (f(x0 + 1, y0 + 1) - f(x0, y0 + 1)) * tx;
-                        top + (bottom - top) * ty
-                    }
-                })),
+                Some(row) => out.extend(columns.iter().map(|c| c.map_or(0.0, |column| self.fine_mix(column, row)))),
             }
         }
         out
+    }
+
+    /// The fine table's node at or below offset `d` px on one axis and the fraction beyond it; `None` outside
+    /// the table (the PSF is 0 there).
+    #[inline]
+    fn fine_node(&self, d: f64) -> Option<(usize, f32)> {
+        let f = d * FINE_PER_PX as f64 + (self.fine_side / 2) as f64;
+        if !(f >= 0.0 && f < (self.fine_side - 1) as f64) {
+            return None;
+        }
+        let node = f as usize;
+        Some((node, (f - node as f64) as f32))
+    }
+
+    /// The fine table between the nodes `(x0, y0)` and `(x0 + 1, y0 + 1)`, bilinear at fractions `(tx, ty)`.
+    #[inline]
+    fn fine_mix(&self, (x0, tx): (usize, f32), (y0, ty): (usize, f32)) -> f32 {
+        let f = |x: usize, y: usize| self.fine.at(x, y);
+        let top = f(x0, y0) + (f(x0 + 1, y0) - f(x0, y0)) * tx;
+        let bottom = f(x0, y0 + 1) + (f(x0 + 1, y0 + 1) - f(x0, y0 + 1)) * tx;
+        top + (bottom - top) * ty
     }
 
     /// Adds `weight ×` the PSF of a point source at `(x, y)` (px) to the pixels `x0..x1 × y0..y1` of `out`, a
