@@ -113,8 +113,8 @@ pub struct Quality {
     /// Shot noise is an exact Poisson count below this mean, electrons, and normal above.
     pub poisson_normal_threshold_e: f64,
     /// How the noise's normal deviates are drawn: the ziggurat (exact), Box–Muller with polynomial functions
-    /// (vectorized, within 1e-6 of the exact transform, the tail cut at 5.77 σ) or a table of 2¹⁶ quantiles
-    /// (cheaper, the tail cut at 4.32 σ).
+    /// (vectorized, within 1e-6 of the exact transform, the tail cut at 5.77 σ) or a table of quantiles
+    /// picked by 16 bits (cheaper, the tail cut at 4.32 σ).
     pub normal_sampler: NormalSampler,
     /// How the Poisson fusion equation is solved.
     pub fusion_solver: Solver,
