@@ -204,7 +204,7 @@ const CELL: u16 = 16;
 const QUANTILE_ENTRIES: usize = FINE as usize + (0x8000 - FINE as usize) / CELL as usize;
 
 /// The deviates of [`NormalSampler::Table`]. For 16 random bits `i` in the lower half (`i < 2¹⁵`), the deviate
-/// is `i`'s quantile `Φ⁻¹((i + ½)/2¹⁶)` of the standard normal law for the [`FINE`] lowest, and nearer the middle
+/// is `i`'s quantile `Φ⁻¹((i + ½)/2¹⁶)` of the standard normal law for the 2048 lowest, and nearer the middle
 /// the quantile at the middle of `i`'s cell of 16 (`Φ⁻¹((2048 + 16c + 8)/2¹⁶)` for cell `c`); the upper half is
 /// the mirror image (`i` gives minus the deviate of `2¹⁶ − 1 − i`). So the tails are those of all 2¹⁶ quantiles,
 /// out to 4.32 σ, and a cell is at most 0.0035 σ wide (0.0006 σ in the middle). The table holds the lower
