@@ -1,5 +1,6 @@
-//! The headless front end: an [`App`] with `MinimalPlugins` that computes one sensor frame per `update()`, and
-//! the helpers tests, the recorder and the benchmark drive it with.
+//! The headless front end: an [`App`] with `MinimalPlugins` (without `TaskPoolPlugin`'s polling every update)
+//! that computes one sensor frame per `update()`, and the helpers tests, the recorder and the benchmark drive it
+//! with.
 
 use bevy::app::App;
 use bevy::app::{PluginGroup, TaskPoolPlugin};
@@ -18,7 +19,8 @@ use crate::scenario::CheckedScenario;
 /// simulation's own time is [`SimClock`](super::SimClock)).
 pub const BEVY_STEP: std::time::Duration = std::time::Duration::from_millis(10);
 
-/// A headless app for `scenario`: `MinimalPlugins`, [`IrSimPlugins`] (and [`TimingPlugin`] if asked), the
+/// A headless app for `scenario`: `MinimalPlugins` without `TaskPoolPlugin` (Bevy's task pools made
+/// directly), [`IrSimPlugins`] (and [`TimingPlugin`] if asked), the
 /// scenario spawned, one fixed step per `update()`, warmed up (the first update runs Startup and no fixed step),
 /// so each further `update()` computes one frame and writes one [`FrameReady`].
 ///
