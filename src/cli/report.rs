@@ -977,7 +977,10 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
             load_for_frames(&path, Some(plan.recording_frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
         let headless = super::run::time_stages(&scenario, plan.recording_frames)?;
         let fps = 1e6 / headless.frame_us;
-        let done = super::run::time_recording(&path, &scenario, plan.recording_frames, None, &dir.join("out"))?;
+        // a directory per case: recording over the last case's frames would first delete them, and on ext4
+        // files made just after many deletions are slow to create (docs/accuracy.md)
+        let out = dir.join(format!("out-{w}x{h}"));
+        let done = super::run::time_recording(&path, &scenario, plan.recording_frames, None, &out)?;
         let _ = writeln!(
             md,
             "| {w} × {h}, {n} target{} | {fps:.0} | {:.0} | {:.2} |",
