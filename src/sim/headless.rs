@@ -2,8 +2,7 @@
 //! that computes one sensor frame per `update()`, and the helpers tests, the recorder and the benchmark drive it
 //! with.
 
-use bevy::app::App;
-use bevy::app::{PluginGroup, TaskPoolPlugin};
+use bevy::app::{App, PluginGroup, TaskPoolPlugin};
 use bevy::ecs::message::Messages;
 use bevy::ecs::prelude::*;
 use bevy::prelude::MinimalPlugins;
