@@ -176,7 +176,7 @@ impl Bound {
 
     /// One frame of the bound, rows split over the current pool.
     fn frame(self, s: &Setup, frame: u64, pixels: &mut [f32], width: usize) {
-        let per_task = (16_384 / width).max(1);
+        let per_task = crate::physics::simd::rows_per_task(width, 1);
         pixels.par_chunks_mut(width).enumerate().with_min_len(per_task).for_each(|(j, row)| {
             widest(
                 #[inline(always)]
@@ -212,7 +212,7 @@ fn time_bound(bound: Bound, s: &Setup, width: usize, height: usize, frames: u64)
 /// per row as the readout draws them.
 fn time_sampler(sampler: NormalSampler, width: usize, height: usize, frames: u64) -> f64 {
     let mut pixels = vec![0f32; width * height];
-    let per_task = (16_384 / width).max(1);
+    let per_task = crate::physics::simd::rows_per_task(width, 1);
     let mut times: Vec<f64> = crate::sim::with_workers_awake(|| {
         (0..frames + 5)
             .map(|k| {

@@ -43,7 +43,7 @@ impl Frame {
         let halves = step == 2 && cw >= 2;
         let columns: Vec<(usize, usize, f32)> =
             if halves { Vec::new() } else { (0..w).map(|i| place(i, cw)).collect() };
-        let rows_per_task = (16_384 / w).max(1);
+        let rows_per_task = crate::physics::simd::rows_per_task(w, 1);
         let block = w * rows_per_task;
         let copies: Vec<Option<&mut [f32]>> = match copy {
             Some(c) => {

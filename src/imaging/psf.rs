@@ -33,7 +33,7 @@ use super::fft2d::fft2;
 use super::frame::Frame;
 use crate::physics::ParamError;
 use crate::physics::planck::{Band, Measure, spectral_radiance};
-use crate::physics::simd::widest;
+use crate::physics::simd::{rows_per_task, widest};
 
 /// Period of the grid the PSF is computed on, px.
 const PERIOD_PX: usize = 32;
@@ -1015,7 +1015,8 @@ impl Convolver {
         self.tmp.resize(w * h, 0.0);
         self.acc.clear();
         self.acc.resize(w * h, 0.0);
-        let rows_per_task = (8192 / w).max(1);
+        // a pixel of a pass costs its 2r + 1 taps
+        let rows_per_task = rows_per_task(w, 2 * r + 1);
         for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
             // horizontal pass into tmp
             let src = frame.pixels();
@@ -1231,7 +1232,7 @@ impl Convolver {
         let pw = self.pad(frame, r);
         let side = 2 * r + 1;
         let padded = &self.padded;
-        let rows_per_task = (8192 / w).max(1);
+        let rows_per_task = rows_per_task(w, side * side);
         frame.pixels_mut().par_chunks_mut(w).enumerate().with_min_len(rows_per_task).for_each(|(y, out)| {
             out.fill(0.0);
             for dy in 0..side {

@@ -310,7 +310,7 @@ pub fn render_dome(camera: &Camera, dome: &Dome, frame: &mut Frame, only_nan: bo
     let f = camera.intrinsics.focal_px();
     let c = camera.intrinsics.principal_point();
     // rows in batches: one row is too little work to be worth a task
-    let rows_per_task = (8_192 / width.max(1)).max(1);
+    let rows_per_task = crate::physics::simd::rows_per_task(width, 2);
     frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
         if only_nan && !row.iter().any(|v| v.is_nan()) {
             return;

@@ -19,7 +19,7 @@ use thiserror::Error;
 use super::camera::Camera;
 use super::frame::Frame;
 use super::psf::true_runs;
-use crate::physics::simd::{Level, widest};
+use crate::physics::simd::{Level, rows_per_task, widest};
 
 /// An error loading or placing a sky image.
 #[derive(Debug, Error)]
@@ -515,7 +515,7 @@ impl SkyPlane {
         let inv = 1.0 / (n * n) as f32;
         let mapped = gain != 1.0 || offset != 0.0;
         // rows in batches: one row is too little work to be worth a task
-        let rows_per_task = (8_192 / (width * n * n)).max(1);
+        let rows_per_task = rows_per_task(width, 2 * n * n);
         frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
             if n == 1 {
                 widest(

@@ -129,7 +129,7 @@ impl Readout {
         }
         let key = stream_rng(seed, stage::SENSOR_NOISE, frame, 0).next_u64();
         // rows in batches: one row is too little work to be worth a task
-        let rows_per_task = (16_384 / width).max(1);
+        let rows_per_task = super::simd::rows_per_task(width, 1);
         pixels.par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(row, line)| {
             let span = row * width..(row + 1) * width;
             let gain = maps.gain.map(|g| &g[span.clone()]);
