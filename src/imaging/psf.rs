@@ -33,7 +33,7 @@ use super::fft2d::fft2;
 use super::frame::Frame;
 use crate::physics::ParamError;
 use crate::physics::planck::{Band, Measure, spectral_radiance};
-use crate::physics::simd::{rows_per_task, widest};
+use crate::physics::simd::{rows_per_task, split_finely, widest};
 
 /// Period of the grid the PSF is computed on, px.
 const PERIOD_PX: usize = 32;
@@ -799,9 +799,10 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
     out.clear();
     out.resize(tw * th, 0.0);
     let px = frame.pixels();
-    out.par_chunks_mut(tw).enumerate().for_each_init(
-        || vec![0.0f32; w],
-        |line, (ty, tiles)| {
+    // a band of tiles a task: the wanted tiles are often a few bands
+    out.par_chunks_mut(tw).enumerate().with_max_len(split_finely(1)).for_each(|(ty, tiles)| {
+        CURVATURE_ROW.with_borrow_mut(|line| {
+            line.resize(w, 0.0);
             let wanted = &wanted[ty * tw..(ty + 1) * tw];
             widest(
                 #[inline(always)]
@@ -826,8 +827,16 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                     }
                 },
             );
-        },
-    );
+        });
+    });
+}
+
+thread_local! {
+    /// Each thread's row of curvatures for [`tile_curvature`] (kept from frame to frame).
+    static CURVATURE_ROW: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// Each thread's tile columns that a padded row's horizontal pass covers, for
+    /// [`Convolver::apply_where_needed_in`] (kept from frame to frame).
+    static BLURRED_COLUMNS: std::cell::RefCell<Vec<bool>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// The curvature measure `|f_xx| + |f_yy| + 2·|f_xy|` of row `mid` (rows `up` and `down` around it, edges
@@ -879,6 +888,10 @@ pub struct Convolver {
     needed: Vec<bool>,
     /// Per tile: whether its curvature is needed (a candidate tile reaches it).
     wanted: Vec<bool>,
+    /// The vertical pass's pieces of blurred tiles: (band, first column, columns), in band order.
+    pieces: Vec<(usize, usize, usize)>,
+    /// Each piece's blurred pixels (`rows × columns`), until they are copied into the frame.
+    piece_sums: Vec<Vec<f32>>,
 }
 
 /// Per tile of a row-major grid `tiles_x` wide (`flags`): whether a tile within `reach` tiles of it (on either
@@ -1144,62 +1157,81 @@ impl Convolver {
         // lanes)
         let terms = kernel.terms.len();
         self.horizontal.resize((h + 2 * r) * terms * w, 0.0);
-        self.horizontal.par_chunks_mut(terms * w).enumerate().for_each_init(
-            || Vec::with_capacity(tw),
-            |columns: &mut Vec<bool>, (py, row)| {
-                columns.clear();
-                columns.resize(tw, false);
-                for ty in bands_reading(py) {
-                    for (c, &n) in columns.iter_mut().zip(&needed[ty * tw..(ty + 1) * tw]) {
-                        *c |= n;
+        // a few rows a task: the rows to blur are often one strip of the frame, which in a handful of large tasks
+        // fell to one thread
+        self.horizontal.par_chunks_mut(terms * w).enumerate().with_max_len(split_finely(BLUR_TILE_PX / 2)).for_each(
+            |(py, row)| {
+                BLURRED_COLUMNS.with_borrow_mut(|columns| {
+                    columns.clear();
+                    columns.resize(tw, false);
+                    for ty in bands_reading(py) {
+                        for (c, &n) in columns.iter_mut().zip(&needed[ty * tw..(ty + 1) * tw]) {
+                            *c |= n;
+                        }
                     }
+                    for run in true_runs(columns) {
+                        let x0 = run.start * t;
+                        let cols = (run.end * t).min(w) - x0;
+                        let src = &padded[py * pw + x0..];
+                        for ((_, v), out) in kernel.terms.iter().zip(row.chunks_exact_mut(w)) {
+                            widest(
+                                #[inline(always)]
+                                || correlate_row(src, v, &mut out[x0..x0 + cols]),
+                            );
+                        }
+                    }
+                });
+            },
+        );
+        // the vertical pass in pieces of at most 4 tiles of a band's runs, each its own task: the tiles to blur
+        // (the sky image's edges) often lie in a few bands, which as whole tasks left one thread doing most of the
+        // pass (a pool of one sweeps each run whole)
+        let piece_tiles = split_finely(4);
+        self.pieces.clear();
+        for ty in 0..th {
+            for run in true_runs(&needed[ty * tw..(ty + 1) * tw]) {
+                for first in run.clone().step_by(piece_tiles) {
+                    let x0 = first * t;
+                    let cols = (first.saturating_add(piece_tiles).min(run.end) * t).min(w) - x0;
+                    self.pieces.push((ty, x0, cols));
                 }
-                for run in true_runs(columns) {
-                    let x0 = run.start * t;
-                    let cols = (run.end * t).min(w) - x0;
-                    let src = &padded[py * pw + x0..];
-                    for ((_, v), out) in kernel.terms.iter().zip(row.chunks_exact_mut(w)) {
+            }
+        }
+        if self.piece_sums.len() < self.pieces.len() {
+            self.piece_sums.resize_with(self.pieces.len(), Vec::new);
+        }
+        let horizontal = &self.horizontal;
+        let pieces = &self.pieces;
+        self.piece_sums[..pieces.len()].par_iter_mut().zip(pieces.par_iter()).with_max_len(split_finely(1)).for_each(
+            |(acc, &(ty, x0, cols))| {
+                let rows = t.min(h - ty * t);
+                acc.clear();
+                acc.resize(rows * cols, 0.0);
+                for (term, scaled) in kernel.vertical.iter().enumerate() {
+                    let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
+                    for y in 0..rows {
+                        for (k, row) in src.iter_mut().enumerate().take(scaled.len()) {
+                            let at = ((ty * t + y + k) * terms + term) * w + x0;
+                            *row = &horizontal[at..at + cols];
+                        }
                         widest(
                             #[inline(always)]
-                            || correlate_row(src, v, &mut out[x0..x0 + cols]),
+                            || accumulate_rows(&src[..scaled.len()], scaled, &mut acc[y * cols..(y + 1) * cols]),
                         );
                     }
                 }
             },
         );
-        let horizontal = &self.horizontal;
-        frame.pixels_mut().par_chunks_mut(t * w).enumerate().for_each_init(
-            // grown to the widest run a task meets, so bands with nothing to blur allocate nothing
-            Vec::new,
-            |acc: &mut Vec<f32>, (ty, band)| {
-                let rows = band.len() / w;
-                // each run of blurred tiles along the band in one sweep
-                for run in true_runs(&needed[ty * tw..(ty + 1) * tw]) {
-                    let x0 = run.start * t;
-                    let cols = (run.end * t).min(w) - x0;
-                    if acc.len() < t * cols {
-                        acc.resize(t * cols, 0.0);
-                    }
-                    acc[..rows * cols].fill(0.0);
-                    for (term, scaled) in kernel.vertical.iter().enumerate() {
-                        let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
-                        for y in 0..rows {
-                            for (k, row) in src.iter_mut().enumerate().take(scaled.len()) {
-                                let at = ((ty * t + y + k) * terms + term) * w + x0;
-                                *row = &horizontal[at..at + cols];
-                            }
-                            widest(
-                                #[inline(always)]
-                                || accumulate_rows(&src[..scaled.len()], scaled, &mut acc[y * cols..(y + 1) * cols]),
-                            );
-                        }
-                    }
-                    for y in 0..rows {
-                        band[y * w + x0..y * w + x0 + cols].copy_from_slice(&acc[y * cols..(y + 1) * cols]);
-                    }
+        // into the frame, band by band (a band's pieces are consecutive)
+        let sums = &self.piece_sums;
+        frame.pixels_mut().par_chunks_mut(t * w).enumerate().for_each(|(ty, band)| {
+            let first = pieces.partition_point(|p| p.0 < ty);
+            for (&(_, x0, cols), acc) in pieces[first..].iter().zip(&sums[first..]).take_while(|(p, _)| p.0 == ty) {
+                for (y, sum) in acc.chunks_exact(cols).enumerate() {
+                    band[y * w + x0..y * w + x0 + cols].copy_from_slice(sum);
                 }
-            },
-        );
+            }
+        });
         self.needed = needed_tiles;
         BlurStats { tiles_needed: blurred, tiles_blurred: blurred, tiles }
     }
@@ -1211,19 +1243,21 @@ impl Convolver {
 
     /// As [`Convolver::pad`], writing only the padded rows `py` (`0..height + 2r`) for which `wanted(py)`;
     /// returns the padded width.
-    fn pad_rows(&mut self, frame: &Frame, r: usize, wanted: impl Fn(usize) -> bool) -> usize {
+    fn pad_rows(&mut self, frame: &Frame, r: usize, wanted: impl Fn(usize) -> bool + Sync) -> usize {
         let (w, h) = (frame.width(), frame.height());
         let pw = w + 2 * r;
         self.padded.resize(pw * (h + 2 * r), 0.0);
         let src = frame.pixels();
-        for py in (0..h + 2 * r).filter(|&py| wanted(py)) {
+        self.padded.par_chunks_mut(pw).enumerate().with_max_len(split_finely(BLUR_TILE_PX)).for_each(|(py, out)| {
+            if !wanted(py) {
+                return;
+            }
             let y = py.saturating_sub(r).min(h - 1);
             let row = &src[y * w..(y + 1) * w];
-            let out = &mut self.padded[py * pw..(py + 1) * pw];
             out[..r].fill(row[0]);
             out[r..r + w].copy_from_slice(row);
             out[r + w..].fill(row[w - 1]);
-        }
+        });
         pw
     }
 

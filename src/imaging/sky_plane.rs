@@ -19,7 +19,7 @@ use thiserror::Error;
 use super::camera::Camera;
 use super::frame::Frame;
 use super::psf::true_runs;
-use crate::physics::simd::{Level, rows_per_task, widest};
+use crate::physics::simd::{Level, rows_per_task, split_finely, widest};
 
 /// An error loading or placing a sky image.
 #[derive(Debug, Error)]
@@ -398,7 +398,10 @@ impl SkyPlane {
         let tiles_x = width.div_ceil(tile_px);
         let sampling = if matches!(sampling, Sampling::Nearest) { sampling } else { Sampling::Bilinear };
         let geometry = RowGeometry::new(self, camera);
-        frame.pixels_mut().par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+        // half a tile's rows a task at most: the tiles to render are often a strip of the frame, which in a
+        // handful of large tasks fell to one thread
+        let most = split_finely(tile_px / 2);
+        frame.pixels_mut().par_chunks_mut(width).enumerate().with_max_len(most).for_each(|(j, row)| {
             let flags = &tiles[(j / tile_px) * tiles_x..(j / tile_px + 1) * tiles_x];
             // one cast per run of consecutive tiles
             for run in true_runs(flags) {

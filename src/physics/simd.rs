@@ -80,6 +80,13 @@ pub fn rows_per_task(width: usize, cost: usize) -> usize {
     (TASK_PIXELS / width.saturating_mul(cost).max(1)).max(1)
 }
 
+/// The most items a task of a parallel pass takes when the pass's work may gather in a few of its items (the
+/// tiles along a sky image's edge): `most` when the pool has other threads to hand tasks to, all of them in a
+/// pool of one (which would only pay for the splitting).
+pub fn split_finely(most: usize) -> usize {
+    if rayon::current_num_threads() > 1 { most.max(1) } else { usize::MAX }
+}
+
 /// Runs `f`, compiled with AVX-512 or AVX2 where the CPU supports it (results identical to the baseline path).
 #[inline]
 pub fn widest<R>(f: impl FnOnce() -> R) -> R {
