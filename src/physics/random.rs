@@ -269,17 +269,10 @@ impl Quantiles {
                 *o = self.value(i);
             }
         }
-        let mut quads = runs.into_remainder().chunks_exact_mut(4);
-        for quad in &mut quads {
+        // the rest four at a time, a draw each (the last group may be shorter)
+        for quad in runs.into_remainder().chunks_mut(4) {
             let b = rng.next_bits();
             for (k, o) in quad.iter_mut().enumerate() {
-                *o = self.value((b >> (16 * k)) as u16);
-            }
-        }
-        let rest = quads.into_remainder();
-        if !rest.is_empty() {
-            let b = rng.next_bits();
-            for (k, o) in rest.iter_mut().enumerate() {
                 *o = self.value((b >> (16 * k)) as u16);
             }
         }

@@ -19,9 +19,9 @@ use crate::scenario::CheckedScenario;
 pub const BEVY_STEP: std::time::Duration = std::time::Duration::from_millis(10);
 
 /// A headless app for `scenario`: `MinimalPlugins` without `TaskPoolPlugin` (Bevy's task pools made
-/// directly), [`IrSimPlugins`] (and [`TimingPlugin`] if asked), the
-/// scenario spawned, one fixed step per `update()`, warmed up (the first update runs Startup and no fixed step),
-/// so each further `update()` computes one frame and writes one [`FrameReady`].
+/// directly), [`IrSimPlugins`] (and [`TimingPlugin`] if asked), the scenario spawned, one fixed step per
+/// `update()`, warmed up (the first update runs Startup and no fixed step), so each further `update()` computes
+/// one frame and writes one [`FrameReady`].
 ///
 /// # Errors
 /// [`SetupError`] if the sky image cannot be loaded or placed, or the PSF built.
