@@ -40,6 +40,7 @@
 //! never an extrapolation.
 
 use std::io::Read as _;
+use std::ops::Range;
 use std::sync::OnceLock;
 
 use serde::{Deserialize, Serialize};
@@ -257,10 +258,10 @@ pub struct AtmosphereTable {
     /// Optical depth per bin of the vertical path from each grid altitude to each of `above_km` (0 where the level
     /// is not above it), `[model][altitude][level][bin]`.
     above_od: Vec<f32>,
-    /// Mean blackbody radiance per bin at whole kelvins over [`PLANCK_TABLE_K`], `[kelvin][bin]`.
-    planck: Vec<f64>,
-    /// The logarithm of each of `planck` (NaN where it is not positive).
-    planck_ln: Vec<f64>,
+    /// Per bin, made when the bin is first asked for (a run's band holds a third of the bins or fewer): the mean
+    /// blackbody radiance over the bin at each whole kelvin of [`PLANCK_TABLE_K`], with its logarithm (NaN where
+    /// the radiance is not positive).
+    planck: Vec<OnceLock<PlanckRow>>,
     /// The aerosol profiles of the weathers asked for last (a run asks for one weather's paths thousands of
     /// times): `(model, settings and weights' bits)` and [`Self::aerosol_profile`]'s result.
     profile_cache: std::sync::Mutex<Vec<(ProfileKey, std::sync::Arc<AerosolProfile>)>>,
@@ -268,6 +269,8 @@ pub struct AtmosphereTable {
 
 /// A weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`) and its logarithm.
 type AerosolProfile = (Vec<f64>, Vec<f64>);
+/// A bin's mean blackbody radiance at each whole kelvin of [`PLANCK_TABLE_K`], with its logarithm.
+type PlanckRow = Box<[(f64, f64)]>;
 /// What an aerosol profile depends on: the model's index, and each aerosol setting's index and weight (bits).
 type ProfileKey = (usize, Vec<(usize, u64)>);
 /// Aerosol profiles kept by a table.
@@ -476,18 +479,6 @@ impl AtmosphereTable {
             return Err(bad("optical depths above the top must be finite and not negative"));
         }
         let alt_coord = head.altitudes_km.iter().map(|&h| altitude_coord(h)).collect();
-        let (t0, t1) = PLANCK_TABLE_K;
-        let planck: Vec<f64> = {
-            use rayon::prelude::*;
-            let edges = &head.bin_edges_um;
-            (0..=(t1 - t0) as usize)
-                .into_par_iter()
-                .flat_map_iter(|k| {
-                    (0..nbins).map(move |b| exact_bin_mean_planck(edges[b], edges[b + 1], t0 + k as f64))
-                })
-                .collect()
-        };
-        let planck_ln = planck.iter().map(|&a| if a > 0.0 { a.ln() } else { f64::NAN }).collect();
         Ok(AtmosphereTable {
             alt_coord,
             alt_km: head.altitudes_km,
@@ -503,8 +494,7 @@ impl AtmosphereTable {
             profiles,
             above_km,
             above_od,
-            planck,
-            planck_ln,
+            planck: (0..nbins).map(|_| OnceLock::new()).collect(),
             profile_cache: std::sync::Mutex::new(Vec::new()),
         })
     }
@@ -557,7 +547,18 @@ impl AtmosphereTable {
 
     /// Molecular optical depth per bin of the path between altitudes `lo ≤ hi` (km) over `range_km`, into `out`;
     /// the flags and first traced lengths of the nodes used are collected in `info`.
-    fn molecular_into(&self, m: usize, lo: f64, hi: f64, range_km: f64, out: &mut [f64], info: &mut CornerInfo) {
+    /// `out` holds the bins from `b0` on (as many as it is long).
+    #[allow(clippy::too_many_arguments)]
+    fn molecular_into(
+        &self,
+        m: usize,
+        lo: f64,
+        hi: f64,
+        range_km: f64,
+        b0: usize,
+        out: &mut [f64],
+        info: &mut CornerInfo,
+    ) {
         let ia = bracket(&self.alt_km, lo);
         let ib = bracket(&self.alt_km, hi);
         let c = altitude_coord;
@@ -573,7 +574,7 @@ impl AtmosphereTable {
         ];
         let short = corners.iter().any(|&(x, y, w)| w > 0.0 && (self.alt_km[x] - self.alt_km[y]).abs() > range_km);
         if short && hi - lo <= SHORT_PATH_MAX_RISE_KM {
-            self.horizontal_mean_into(m, lo, hi, range_km, out, info);
+            self.horizontal_mean_into(m, lo, hi, range_km, b0, out, info);
             return;
         }
         let mut buf = Vec::new();
@@ -584,23 +585,23 @@ impl AtmosphereTable {
             let (p, q) = (x.min(y), x.max(y));
             let dhc = self.alt_km[q] - self.alt_km[p];
             if range_km >= dhc {
-                self.pair_into(m, p, q, range_km, w, out, info);
+                self.pair_into(m, p, q, (range_km, w), b0, out, info);
                 continue;
             }
             // a corner whose shortest path (vertical, dhc) is longer than the path asked: its vertical path
             // scaled by how the horizontal paths at its two altitudes grow from range_km to dhc (strong lines
             // saturate within metres, so optical depth is far from proportional to length there)
-            let nb = self.nbins();
+            let nb = out.len();
             buf.resize(5 * nb, 0.0);
             let (v, rest) = buf.split_at_mut(nb);
             let (ar, rest) = rest.split_at_mut(nb);
             let (ad, rest) = rest.split_at_mut(nb);
             let (br, bd) = rest.split_at_mut(nb);
-            self.pair_into(m, p, q, dhc, 1.0, v, info);
-            self.pair_into(m, p, p, range_km, 1.0, ar, info);
-            self.pair_into(m, p, p, dhc, 1.0, ad, info);
-            self.pair_into(m, q, q, range_km, 1.0, br, info);
-            self.pair_into(m, q, q, dhc, 1.0, bd, info);
+            self.pair_into(m, p, q, (dhc, 1.0), b0, v, info);
+            self.pair_into(m, p, p, (range_km, 1.0), b0, ar, info);
+            self.pair_into(m, p, p, (dhc, 1.0), b0, ad, info);
+            self.pair_into(m, q, q, (range_km, 1.0), b0, br, info);
+            self.pair_into(m, q, q, (dhc, 1.0), b0, bd, info);
             let ratio = |x: f64, y: f64| if y > 0.0 { x / y } else { range_km / dhc };
             for b in 0..nb {
                 out[b] += w * v[b] * 0.5 * (ratio(ar[b], ad[b]) + ratio(br[b], bd[b]));
@@ -612,7 +613,17 @@ impl AtmosphereTable {
     /// horizontal paths of the same length at its altitudes (the same curve of growth: strong lines saturate
     /// within metres, so a short path's depth is far from proportional to its length), each interpolated
     /// between the horizontal paths at the bracketing altitudes, in the altitude coordinate.
-    fn horizontal_mean_into(&self, m: usize, lo: f64, hi: f64, range_km: f64, out: &mut [f64], info: &mut CornerInfo) {
+    #[allow(clippy::too_many_arguments)]
+    fn horizontal_mean_into(
+        &self,
+        m: usize,
+        lo: f64,
+        hi: f64,
+        range_km: f64,
+        b0: usize,
+        out: &mut [f64],
+        info: &mut CornerInfo,
+    ) {
         const SAMPLES: usize = 16;
         let mut weights = vec![0.0; self.alt_km.len()];
         for k in 0..SAMPLES {
@@ -625,24 +636,27 @@ impl AtmosphereTable {
         }
         for (node, &w) in weights.iter().enumerate() {
             if w > 0.0 {
-                self.pair_into(m, node, node, range_km, w, out, info);
+                self.pair_into(m, node, node, (range_km, w), b0, out, info);
             }
         }
     }
 
-    /// Adds `weight` × the optical depth of altitude pair `(p, q)` at `range_km` along that pair's range axis.
+    /// Adds `weight` × the optical depth of altitude pair `(p, q)` at `range_km` along that pair's range axis, for
+    /// the bins from `b0` on (as many as `out` holds).
     #[allow(clippy::too_many_arguments)]
     fn pair_into(
         &self,
         m: usize,
         p: usize,
         q: usize,
-        range_km: f64,
-        weight: f64,
+        (range_km, weight): (f64, f64),
+        b0: usize,
         out: &mut [f64],
         info: &mut CornerInfo,
     ) {
         let nb = self.nbins();
+        let n = out.len();
+        let row = |node: usize| &self.od[node * nb + b0..][..n];
         let dh = self.alt_km[q] - self.alt_km[p];
         // the pair's axis: node 0 at the vertical range dh, then the grid's ranges beyond it (range k is node k + 1)
         let first = self.ranges_km.partition_point(|&r| r <= dh + 1e-9);
@@ -669,7 +683,7 @@ impl AtmosphereTable {
                 info.range = Some([0.0, r1]);
             }
             let (x1, x2) = (self.ranges_km[0], self.ranges_km[1]);
-            let (row1, row2) = (&self.od[a * nb..(a + 1) * nb], &self.od[b * nb..(b + 1) * nb]);
+            let (row1, row2) = (row(a), row(b));
             for ((o, &v1), &v2) in out.iter_mut().zip(row1).zip(row2) {
                 let (d1, d2) = (f64::from(v1) * self.od_scale, f64::from(v2) * self.od_scale);
                 let gamma = if d1 > 0.0 && d2 > 0.0 { ((d2 / d1).ln() / (x2 / x1).ln()).clamp(0.5, 1.0) } else { 1.0 };
@@ -687,8 +701,7 @@ impl AtmosphereTable {
                 // stored as f32: to the metre LOWTRAN prints
                 info.traced.push((f64::from(self.traced_km[idx]) * 1000.0).round() / 1000.0);
             }
-            let row = &self.od[idx * nb..(idx + 1) * nb];
-            for (o, &v) in out.iter_mut().zip(row) {
+            for (o, &v) in out.iter_mut().zip(row(idx)) {
                 *o += weight * w * f64::from(v) * self.od_scale;
             }
         }
@@ -734,9 +747,11 @@ impl AtmosphereTable {
         (rows, logs)
     }
 
-    /// Aerosol extinction per km at altitude `h_km`, per bin, into `out`, from [`Self::aerosol_profile`].
-    fn extinction_at(&self, profile: &AerosolProfile, h_km: f64, out: &mut [f64]) {
+    /// Aerosol extinction per km at altitude `h_km`, per bin from `b0` on (as many as `out` holds), into `out`,
+    /// from [`Self::aerosol_profile`].
+    fn extinction_at(&self, profile: &AerosolProfile, h_km: f64, b0: usize, out: &mut [f64]) {
         let nb = self.nbins();
+        let n = out.len();
         let i = bracket(&self.alt_km, h_km);
         let f = ((h_km - self.alt_km[i]) / (self.alt_km[i + 1] - self.alt_km[i])).clamp(0.0, 1.0);
         // LOWTRAN varies each aerosol regime's extinction exponentially between its levels, and linearly where
@@ -746,9 +761,9 @@ impl AtmosphereTable {
         let (a0, a1) = (self.alt_km[i], self.alt_km[i + 1]);
         let linear = REGIME_HANDOVER_KM.iter().any(|&(lo, hi)| a0 >= lo && a1 <= hi);
         let (rows, logs) = profile;
-        let (a, b) = (&rows[i * nb..(i + 1) * nb], &rows[(i + 1) * nb..(i + 2) * nb]);
-        let (la, lb) = (&logs[i * nb..(i + 1) * nb], &logs[(i + 1) * nb..(i + 2) * nb]);
-        for k in 0..nb {
+        let (a, b) = (&rows[i * nb + b0..][..n], &rows[(i + 1) * nb + b0..][..n]);
+        let (la, lb) = (&logs[i * nb + b0..][..n], &logs[(i + 1) * nb + b0..][..n]);
+        for k in 0..n {
             let (x, y) = (a[k], b[k]);
             out[k] = if linear || x <= 0.0 || y <= 0.0 { x + f * (y - x) } else { (la[k] + f * (lb[k] - la[k])).exp() };
         }
@@ -825,17 +840,50 @@ impl AtmosphereTable {
         target_alt_km: f64,
         range_km: f64,
     ) -> Result<PathSpectrum, AtmosphereError> {
+        self.path_in(weather, observer_alt_km, target_alt_km, range_km, 0..self.nbins())
+    }
+
+    /// The bins that overlap `band` (by a positive width), a range of the table's bins: what a spectrum needs for
+    /// that band alone ([`AtmosphereTable::path_in`]).
+    pub fn bins_of(&self, band: Band) -> Range<usize> {
+        let e = &self.edges_um;
+        let start = (0..self.nbins()).find(|&b| e[b + 1] > band.lo_um() && e[b] < band.hi_um());
+        let end = (0..self.nbins()).rev().find(|&b| e[b + 1] > band.lo_um() && e[b] < band.hi_um());
+        match (start, end) {
+            (Some(a), Some(b)) => a..b + 1,
+            _ => 0..0,
+        }
+    }
+
+    /// [`AtmosphereTable::path`] over `bins` alone: a spectrum whose bins are those of `bins` (its edges and
+    /// samples theirs), each the same bits as in the whole spectrum. A band's transmittance and path radiance
+    /// need only the bins that overlap it ([`AtmosphereTable::bins_of`]); the others are most of a path's work.
+    ///
+    /// # Errors
+    /// As [`AtmosphereTable::path`].
+    ///
+    /// # Panics
+    /// If `bins` is not inside the table's bins.
+    pub fn path_in(
+        &self,
+        weather: &Weather,
+        observer_alt_km: f64,
+        target_alt_km: f64,
+        range_km: f64,
+        bins: Range<usize>,
+    ) -> Result<PathSpectrum, AtmosphereError> {
+        assert!(bins.start <= bins.end && bins.end <= self.nbins(), "bins {bins:?} of {}", self.nbins());
         self.check_path(observer_alt_km, target_alt_km, range_km)?;
         let (vis, vis_bracket) = self.visibility_weights(weather)?;
         let m = model_index(weather.model);
-        let nb = self.nbins();
+        let (b0, nb) = (bins.start, bins.len());
         let (h1, h2) = (observer_alt_km, target_alt_km);
         let (lo, hi) = if h1 <= h2 { (h1, h2) } else { (h2, h1) };
         let ia = bracket(&self.alt_km, lo);
         let ib = bracket(&self.alt_km, hi);
         let finish = |transmittance: Vec<f64>, path_radiance_w_m2_sr_um: Vec<f64>, info: CornerInfo| PathSpectrum {
-            edges_um: self.edges_um.clone(),
-            samples: self.samples.clone(),
+            edges_um: self.edges_um[bins.start..=bins.end].to_vec(),
+            samples: self.samples[bins.clone()].to_vec(),
             transmittance,
             path_radiance_w_m2_sr_um,
             cell: GridCell {
@@ -859,10 +907,10 @@ impl AtmosphereTable {
             let profile = self.aerosol_profile(m, &vis);
             let mut prev = vec![0.0; nb];
             let mut cur = vec![0.0; nb];
-            self.extinction_at(&profile, chord.altitude_km(0.0), &mut prev);
+            self.extinction_at(&profile, chord.altitude_km(0.0), b0, &mut prev);
             let ds = range_km / AEROSOL_STEPS as f64;
             for k in 1..=AEROSOL_STEPS {
-                self.extinction_at(&profile, chord.altitude_km(k as f64 / AEROSOL_STEPS as f64), &mut cur);
+                self.extinction_at(&profile, chord.altitude_km(k as f64 / AEROSOL_STEPS as f64), b0, &mut cur);
                 let (done, rest) = aer.split_at_mut(k);
                 for ((o, &a), (&p, &c)) in rest[0].iter_mut().zip(&done[k - 1]).zip(prev.iter().zip(&cur)) {
                     *o = a + 0.5 * ds * (p + c);
@@ -878,7 +926,7 @@ impl AtmosphereTable {
         };
         let mut info = CornerInfo::default();
         let mut od = vec![0.0; nb];
-        self.molecular_into(m, lo, hi, range_km, &mut od, &mut info);
+        self.molecular_into(m, lo, hi, range_km, b0, &mut od, &mut info);
         let transmittance: Vec<f64> =
             (0..nb).map(|b| (-(od[b] + aerosol_depth(1.0, b))).exp().clamp(0.0, 1.0)).collect();
         let cell_info = info;
@@ -897,7 +945,7 @@ impl AtmosphereTable {
                 let h = chord.altitude_km(t).clamp(0.0, self.max_altitude_km());
                 let s = (t * range_km).max((h - h1).abs());
                 let (l, u) = if h1 <= h { (h1, h) } else { (h, h1) };
-                self.molecular_into(m, l, u, s, &mut od, &mut scratch);
+                self.molecular_into(m, l, u, s, b0, &mut od, &mut scratch);
                 for b in 0..nb {
                     tau_cur[b] = (-(od[b] + aerosol_depth(t, b))).exp().clamp(0.0, tau_prev[b]);
                 }
@@ -906,7 +954,7 @@ impl AtmosphereTable {
             for b in 0..nb {
                 let d = tau_prev[b] - tau_cur[b];
                 if d > 0.0 {
-                    radiance[b] += d * self.bin_mean_planck(b, temp);
+                    radiance[b] += d * self.bin_mean_planck(b0 + b, temp);
                 }
             }
             std::mem::swap(&mut tau_prev, &mut tau_cur);
@@ -925,7 +973,21 @@ impl AtmosphereTable {
     /// [`AtmosphereError::OutsideGrid`] for an observer outside the table's altitudes, or a ray below the
     /// horizon's dip (it meets the ground).
     pub fn sky(&self, weather: &Weather, observer_alt_km: f64, sin_e: f64) -> Result<PathSpectrum, AtmosphereError> {
-        match self.ray(weather, observer_alt_km, sin_e)? {
+        self.sky_in(weather, observer_alt_km, sin_e, 0..self.nbins())
+    }
+
+    /// [`AtmosphereTable::sky`] over `bins` alone (see [`AtmosphereTable::path_in`]).
+    ///
+    /// # Errors
+    /// As [`AtmosphereTable::sky`].
+    pub fn sky_in(
+        &self,
+        weather: &Weather,
+        observer_alt_km: f64,
+        sin_e: f64,
+        bins: Range<usize>,
+    ) -> Result<PathSpectrum, AtmosphereError> {
+        match self.ray_in(weather, observer_alt_km, sin_e, bins)? {
             (p, false) => Ok(p),
             (_, true) => Err(AtmosphereError::OutsideGrid {
                 name: "sin_elevation",
@@ -946,6 +1008,20 @@ impl AtmosphereTable {
         weather: &Weather,
         observer_alt_km: f64,
         sin_e: f64,
+    ) -> Result<(PathSpectrum, bool), AtmosphereError> {
+        self.ray_in(weather, observer_alt_km, sin_e, 0..self.nbins())
+    }
+
+    /// [`AtmosphereTable::ray`] over `bins` alone (see [`AtmosphereTable::path_in`]).
+    ///
+    /// # Errors
+    /// As [`AtmosphereTable::ray`].
+    pub fn ray_in(
+        &self,
+        weather: &Weather,
+        observer_alt_km: f64,
+        sin_e: f64,
+        bins: Range<usize>,
     ) -> Result<(PathSpectrum, bool), AtmosphereError> {
         let s = sin_e.clamp(-1.0, 1.0);
         let top = self.max_altitude_km();
@@ -974,7 +1050,8 @@ impl AtmosphereTable {
             };
         }
         let ground = legs.len() == 1 && s < 0.0;
-        let mut out = self.path(weather, h, h, 0.0)?;
+        let b0 = bins.start;
+        let mut out = self.path_in(weather, h, h, 0.0, bins.clone())?;
         for (a, b) in legs {
             let pieces = ((b - a) / far).ceil().max(1.0) as usize;
             let len = (b - a) / pieces as f64;
@@ -984,7 +1061,7 @@ impl AtmosphereTable {
                 }
                 let (ta, tb) = (a + k as f64 * len, a + (k + 1) as f64 * len);
                 let (za, zb) = (alt(ta), alt(tb));
-                let piece = self.path(weather, za, zb, len.max((zb - za).abs()))?;
+                let piece = self.path_in(weather, za, zb, len.max((zb - za).abs()), bins.clone())?;
                 for ((t, l), (&pt, &pl)) in out
                     .transmittance
                     .iter_mut()
@@ -1000,7 +1077,7 @@ impl AtmosphereTable {
             return Ok((out, true));
         }
         let PathSpectrum { transmittance, path_radiance_w_m2_sr_um, .. } = &mut out;
-        self.add_above_top(weather.model, h, (t_end + r0 * s) / rt, transmittance, path_radiance_w_m2_sr_um);
+        self.add_above_top(weather.model, (h, (t_end + r0 * s) / rt), b0, transmittance, path_radiance_w_m2_sr_um);
         Ok((out, false))
     }
 
@@ -1010,12 +1087,12 @@ impl AtmosphereTable {
     /// column (LOWTRAN's path from the observer's altitude through each level, interpolated between the grid's
     /// altitudes), so that lines already saturated below neither absorb nor emit again; each layer's optical depth
     /// is stretched by the ray's straight length through its spherical shell and emits at the profile's
-    /// temperature at its mid-height.
+    /// temperature at its mid-height. `tau` and `radiance` hold the bins from `b0` on.
     fn add_above_top(
         &self,
         model: ModelAtmosphere,
-        observer_alt_km: f64,
-        sin_e_top: f64,
+        (observer_alt_km, sin_e_top): (f64, f64),
+        b0: usize,
         tau: &mut [f64],
         radiance: &mut [f64],
     ) {
@@ -1039,11 +1116,12 @@ impl AtmosphereTable {
             let (z0, z1) = (self.above_km[l], self.above_km[l + 1]);
             let stretch = (reach(EARTH_RADIUS_KM + z1) - reach(EARTH_RADIUS_KM + z0)) / (z1 - z0);
             let temp = profile.temperature_at(0.5 * (z0 + z1));
-            for b in 0..nb {
+            for (k, (t, r)) in tau.iter_mut().zip(radiance.iter_mut()).enumerate() {
+                let b = b0 + k;
                 let depth = (od(l + 1, b) - od(l, b)).max(0.0) * stretch;
-                let after = tau[b] * (-depth).exp();
-                radiance[b] += (tau[b] - after) * self.bin_mean_planck(b, temp);
-                tau[b] = after;
+                let after = *t * (-depth).exp();
+                *r += (*t - after) * self.bin_mean_planck(b, temp);
+                *t = after;
             }
         }
     }
@@ -1053,18 +1131,25 @@ impl AtmosphereTable {
     /// `planck_table_is_close_to_exact` bounds the error), the exact integral outside.
     fn bin_mean_planck(&self, b: usize, temp_k: f64) -> f64 {
         let (t0, t1) = PLANCK_TABLE_K;
+        let (lo, hi) = (self.edges_um[b], self.edges_um[b + 1]);
         if temp_k >= t0 && temp_k < t1 {
+            let row = self.planck[b].get_or_init(|| {
+                (0..=(t1 - t0) as usize)
+                    .map(|k| {
+                        let v = exact_bin_mean_planck(lo, hi, t0 + k as f64);
+                        (v, if v > 0.0 { v.ln() } else { f64::NAN })
+                    })
+                    .collect()
+            });
             let i = (temp_k - t0) as usize;
             let (ta, tc) = (t0 + i as f64, t0 + i as f64 + 1.0);
-            let nb = self.nbins();
-            let (a, c) = (self.planck[i * nb + b], self.planck[(i + 1) * nb + b]);
+            let ((a, la), (c, lc)) = (row[i], row[i + 1]);
             if a > 0.0 && c > 0.0 {
                 let u = (1.0 / temp_k - 1.0 / ta) / (1.0 / tc - 1.0 / ta);
-                let (la, lc) = (self.planck_ln[i * nb + b], self.planck_ln[(i + 1) * nb + b]);
                 return (la + u * (lc - la)).exp();
             }
         }
-        exact_bin_mean_planck(self.edges_um[b], self.edges_um[b + 1], temp_k)
+        exact_bin_mean_planck(lo, hi, temp_k)
     }
 }
 
@@ -1571,6 +1656,52 @@ mod tests {
                 _ => 6.5,
             };
             assert!(dt.abs() <= bound, "{k}: {dt} K at {at}");
+        }
+    }
+
+    #[test]
+    fn a_band_s_bins_alone_are_the_whole_spectrum_s_bins_bit_for_bit() {
+        let t = table();
+        let hazy = Weather { aerosol: Aerosol::Maritime, visibility_km: 7.0, ..MLS_RURAL_23 };
+        for band in [Band::LWIR_8_12, Band::MWIR_3_5, Band::try_new(7.6, 13.3).unwrap()] {
+            let bins = t.bins_of(band);
+            // exactly the bins a band's sums read
+            let whole = t.path(&MLS_RURAL_23, 1.0, 1.0, 0.0).unwrap();
+            let overlapping: Vec<usize> = whole.overlaps(band).map(|(b, _, _)| b).collect();
+            assert_eq!(overlapping, bins.clone().collect::<Vec<_>>(), "{band:?}");
+            let same = |a: &PathSpectrum, b: &PathSpectrum| {
+                assert_eq!(b.edges_um, a.edges_um[bins.start..=bins.end]);
+                assert_eq!(b.samples, a.samples[bins.clone()]);
+                for (x, y) in
+                    [(&a.transmittance, &b.transmittance), (&a.path_radiance_w_m2_sr_um, &b.path_radiance_w_m2_sr_um)]
+                {
+                    let x: Vec<u64> = x[bins.clone()].iter().map(|v| v.to_bits()).collect();
+                    assert_eq!(x, y.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+                }
+                assert_eq!(a.cell, b.cell);
+                assert_eq!(a.spectrum_weighted(band, 290.0).to_bits(), b.spectrum_weighted(band, 290.0).to_bits());
+                assert_eq!(
+                    a.band_path_radiance_in(Measure::Photon, band).to_bits(),
+                    b.band_path_radiance_in(Measure::Photon, band).to_bits()
+                );
+            };
+            // level, slant, steep (the corners' vertical paths scaled), short, long, through the aerosol layers
+            for (w, h1, h2, r) in [
+                (&MLS_RURAL_23, 1.0, 1.0, 5.0),
+                (&hazy, 0.2, 3.0, 12.0),
+                (&MLS_RURAL_23, 1.0, 9.0, 8.2),
+                (&hazy, 0.5, 0.5, 0.05),
+                (&MLS_RURAL_23, 2.0, 15.0, 90.0),
+            ] {
+                same(&t.path(w, h1, h2, r).unwrap(), &t.path_in(w, h1, h2, r, bins.clone()).unwrap());
+            }
+            // rays up through the top, and down to the ground
+            for (h, sin_e) in [(1.0, 0.3), (0.1, 0.02), (5.0, -0.2)] {
+                let (a, ground_a) = t.ray(&hazy, h, sin_e).unwrap();
+                let (b, ground_b) = t.ray_in(&hazy, h, sin_e, bins.clone()).unwrap();
+                assert_eq!(ground_a, ground_b);
+                same(&a, &b);
+            }
         }
     }
 }

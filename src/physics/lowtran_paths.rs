@@ -62,6 +62,8 @@ pub struct LowtranAtmosphere {
     air_weights: Vec<f64>,
     /// The same in the detector's measure (the weights of reflected sunlight reaching the detector).
     sun_weights: Vec<f64>,
+    /// The table's bins that overlap the band: the only ones its spectra hold ([`AtmosphereTable::path_in`]).
+    bins: std::ops::Range<usize>,
     nbins: usize,
 }
 
@@ -85,14 +87,18 @@ impl LowtranAtmosphere {
         let top = table.max_altitude_km();
         let far = table.max_range_km();
         table.check_path(eye, eye, 0.0)?;
-        let probe = table.path(&weather, eye, eye, 0.0)?;
-        if !probe.covers(band) {
+        let edges = table.edges_um();
+        let (first, last) = (edges[0], edges[edges.len() - 1]);
+        if !(band.lo_um() >= first && band.hi_um() <= last) {
             return Err(AtmosphereError::OutsideGrid {
                 name: "band_um",
-                value: if band.lo_um() < probe.edges_um[0] { band.lo_um() } else { band.hi_um() },
-                range: format!("[{}, {}] µm", probe.edges_um[0], probe.edges_um[probe.edges_um.len() - 1]),
+                value: if band.lo_um() < first { band.lo_um() } else { band.hi_um() },
+                range: format!("[{first}, {last}] µm"),
             });
         }
+        // the band's bins alone: the others would be most of every path's work, for weights of 0
+        let bins = table.bins_of(band);
+        let probe = table.path_in(&weather, eye, eye, 0.0, bins.clone())?;
         let nbins = probe.transmittance.len();
         let alt_km: Vec<f64> = table.altitudes_km().to_vec();
         // what these paths pass is air, ground or cloud near the air's temperature: τ weighted by its spectrum, so
@@ -106,7 +112,7 @@ impl LowtranAtmosphere {
                 let mut path = vec![f64::NAN; RANGE_NODES];
                 for j in 0..RANGE_NODES {
                     let r = range_at(dh, far, j);
-                    if let Ok(p) = table.path(&weather, eye, h, r) {
+                    if let Ok(p) = table.path_in(&weather, eye, h, r, bins.clone()) {
                         ln_tau[j] = p.weighted(&air_weights).max(1e-300).ln();
                         path[j] = p.band_path_radiance_in(measure, band);
                     }
@@ -121,7 +127,10 @@ impl LowtranAtmosphere {
             .into_par_iter()
             .map(|k| {
                 let h = (k as f64 * VERTICAL_STEP_KM).min(top);
-                table.path(&weather, h, top, top - h).map(|p| p.transmittance).unwrap_or_else(|_| vec![1.0; nbins])
+                table
+                    .path_in(&weather, h, top, top - h, bins.clone())
+                    .map(|p| p.transmittance)
+                    .unwrap_or_else(|_| vec![1.0; nbins])
             })
             .collect();
         let sun_energy_weights = (0..nbins)
@@ -144,17 +153,19 @@ impl LowtranAtmosphere {
             sun_weights: probe.blackbody_weights(measure, band, sun_temp_k),
             sun_energy_weights,
             air_weights,
+            bins,
             nbins,
         })
     }
 
     /// The spectrum of the line of sight between the observer at `eye_m` and a target at `target_m`,
-    /// interpolated from the table.
+    /// interpolated from the table, over the bins of the band ([`AtmosphereTable::path_in`]).
     ///
     /// # Errors
     /// [`AtmosphereError`] for a path outside the table's grid (never extrapolated).
     pub fn sight(&self, eye_m: DVec3, target_m: DVec3) -> Result<PathSpectrum, AtmosphereError> {
-        self.table.path(&self.weather, eye_m.z / 1000.0, target_m.z / 1000.0, eye_m.distance(target_m) / 1000.0)
+        let (h1, h2, r) = (eye_m.z / 1000.0, target_m.z / 1000.0, eye_m.distance(target_m) / 1000.0);
+        self.table.path_in(&self.weather, h1, h2, r, self.bins.clone())
     }
 
     /// Checks that the line of sight between two points lies inside the table's grid.
@@ -184,8 +195,9 @@ impl LowtranAtmosphere {
     /// Band transmittance of the vertical path from sea level to the table's top (20 km), weighted as the
     /// observer's paths are.
     pub fn zenith_transmittance(&self) -> f64 {
+        let top = self.table.max_altitude_km();
         self.table
-            .path(&self.weather, 0.0, self.table.max_altitude_km(), self.table.max_altitude_km())
+            .path_in(&self.weather, 0.0, top, top, self.bins.clone())
             .map_or(1.0, |p| p.weighted(&self.air_weights))
     }
 
@@ -195,12 +207,12 @@ impl LowtranAtmosphere {
     }
 
     /// The clear sky's spectrum toward elevation `asin(sin_e)` from the observer's start
-    /// ([`AtmosphereTable::sky`]).
+    /// ([`AtmosphereTable::sky`]), over the bins of the band.
     ///
     /// # Errors
     /// As [`AtmosphereTable::sky`].
     pub fn sky_spectrum(&self, sin_e: f64) -> Result<PathSpectrum, AtmosphereError> {
-        self.table.sky(&self.weather, self.eye_alt_km, sin_e)
+        self.table.sky_in(&self.weather, self.eye_alt_km, sin_e, self.bins.clone())
     }
 
     /// The clear sky's band radiance in the detector's measure toward elevation `asin(sin_e)` (see
@@ -233,8 +245,8 @@ impl LowtranAtmosphere {
         let ground = ground_elevation_rad
             .par_iter()
             .map(|&e| {
-                let (p, _) =
-                    self.table.ray(&self.weather, self.eye_alt_km, e.sin().min(self.horizon_sin_e() - 1e-12))?;
+                let sin_e = e.sin().min(self.horizon_sin_e() - 1e-12);
+                let (p, _) = self.table.ray_in(&self.weather, self.eye_alt_km, sin_e, self.bins.clone())?;
                 Ok((p.weighted(&self.air_weights), p.band_path_radiance_in(self.measure, self.band)))
             })
             .collect::<Result<Vec<(f64, f64)>, AtmosphereError>>()?;
@@ -414,7 +426,7 @@ impl PathTransmittance for LowtranAtmosphere {
                 let top = self.alt_km[self.alt_km.len() - 1];
                 let (ha, hb) = ((a_m.z / 1000.0).clamp(0.0, top), (b_m.z / 1000.0).clamp(0.0, top));
                 let r = r_km.clamp((ha - hb).abs(), self.table.max_range_km());
-                match self.table.path(&self.weather, ha, hb, r) {
+                match self.table.path_in(&self.weather, ha, hb, r, self.bins.clone()) {
                     Ok(p) => p.weighted(&self.air_weights).powf(r_km / r),
                     // untraceable away from the observer: as if from the observer's altitude
                     Err(_) => self.observer_path(hb, r_km).0.exp(),
