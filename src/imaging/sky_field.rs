@@ -132,7 +132,12 @@ impl RadianceLut {
         }
         let step_k = step_k.clamp(1e-3, 5.0);
         let n = ((Self::HI_K - Self::LO_K) / step_k).ceil() as usize + 1;
-        let values = (0..n).map(|i| band_radiance_in(measure, band, Self::LO_K + i as f64 * step_k, 1.0)).collect();
+        use rayon::prelude::*;
+        let values = (0..n)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|i| band_radiance_in(measure, band, Self::LO_K + i as f64 * step_k, 1.0))
+            .collect();
         Self { values, step_k, band, measure }
     }
 

@@ -19,7 +19,7 @@ use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, t
 use crate::imaging::sky_gen::{CloudLayer, SkyGenSpec, generate};
 use crate::imaging::sky_plane::{SkyImage, SkyPlane};
 use crate::imaging::vibration::Vibration;
-use crate::physics::lowtran_paths::LowtranAtmosphere;
+use crate::physics::lowtran_paths::{ClearSky, LowtranAtmosphere};
 use crate::physics::nonideal::{FocalPlane, NonIdeal};
 use crate::physics::random::SplitMix64;
 use crate::physics::reflection::SphereQuadrature;
@@ -90,28 +90,25 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         mask_fraction: spec.labels.mask_fraction,
     });
     let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
-    // three independent parts side by side (each has stretches on one thread: the generated layer's noise, the
-    // table's logarithms): the atmosphere's tables, the generated cloud layer, the optics' PSFs
-    let ((atmosphere, layer), psfs) = rayon::join(
+    // independent parts side by side (each has stretches on one thread: the generated layer's noise, the
+    // table's logarithms, the image's decoding): the atmosphere's tables and the clear sky from them, the
+    // generated cloud layer, the optics' PSFs, and the radiance table with the sky image calibrated by it
+    let ((atmosphere, layer), (psfs, (lut, image))) = rayon::join(
+        || rayon::join(|| atmosphere_and_clear_sky(scenario, p0), || generated_layer(scenario, p0, seed)),
         || {
             rayon::join(
-                || match spec.atmosphere.weather() {
-                    Some(weather) => {
-                        let model = &sensor_spec.model;
-                        let lowtran =
-                            LowtranAtmosphere::new(weather, model.band, model.measure(), p0.z, spec.sun.temp_k)
-                                .map_err(|e| setup("atmosphere.model")(e.to_string()))?;
-                        Ok(SceneAtmosphere::Lowtran(Arc::new(lowtran)))
-                    }
-                    None => Ok(SceneAtmosphere::Override(spec.atmosphere.override_transmittance())),
+                || sensor_psfs(&sensor_spec),
+                || {
+                    let model = &sensor_spec.model;
+                    let lut = RadianceLut::new(model.band, model.measure(), scenario.quality.radiance_table_step_k);
+                    let image = calibrated_image(scenario, &lut);
+                    (lut, image)
                 },
-                || generated_layer(scenario, p0, seed),
             )
         },
-        || sensor_psfs(&sensor_spec),
     );
     // the errors in the order the parts were made in before: the atmosphere's, the sky's, the sensor's
-    let atmosphere = atmosphere?;
+    let (atmosphere, clear_sky) = atmosphere?;
     let scene = SceneParams {
         air: spec.atmosphere.air_temperature().map_err(|e| setup("atmosphere.model")(e.to_string()))?,
         stagnation: spec.atmosphere.stagnation,
@@ -122,7 +119,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
 
     let intrinsics = sensor_spec.intrinsics;
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
-    let sky = build_sky(scenario, &scene, p0, layer)?;
+    let sky = build_sky(scenario, &scene, p0, SkyParts { layer, clear_sky, lut, image })?;
     let mut sensor = build_sensor(&sensor_spec, &sky, seed, psfs?)?;
     if let (Some(plane), Some(psf), Some(cfg), true) = (&sky.plane, &sensor.psf, sensor_spec.psf, sensor.blur_frame)
         && cfg.sky_blur == SkyBlur::Auto
@@ -203,19 +200,57 @@ pub fn despawn_scenario(world: &mut World) {
 }
 
 /// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
-fn build_sky(
+/// The scene's atmosphere (its tables for a LOWTRAN weather) and, where the dome takes it from them, the clear
+/// sky's radiance from the observer's start `eye` (its error for the field `sky.dome.clear_sky`).
+fn atmosphere_and_clear_sky(
     scenario: &CheckedScenario,
-    scene: &SceneParams,
     eye: DVec3,
+) -> Result<(SceneAtmosphere, Result<Option<ClearSky>, SetupError>), SetupError> {
+    let spec = &scenario.spec;
+    let Some(weather) = spec.atmosphere.weather() else {
+        return Ok((SceneAtmosphere::Override(spec.atmosphere.override_transmittance()), Ok(None)));
+    };
+    let model = &scenario.sensor.model;
+    let lowtran = LowtranAtmosphere::new(weather, model.band, model.measure(), eye.z, spec.sun.temp_k)
+        .map_err(|e| setup("atmosphere.model")(e.to_string()))?;
+    let clear_sky = match spec.sky.dome.clear_sky {
+        Some(ClearSkyModel::Parametric) => Ok(None),
+        _ => lowtran.clear_sky().map(Some).map_err(|e| setup("sky.dome.clear_sky")(e.to_string())),
+    };
+    Ok((SceneAtmosphere::Lowtran(Arc::new(lowtran)), clear_sky))
+}
+
+/// A scenario's sky image loaded and calibrated to radiance by `lut` (none for a generated sky or no plane).
+fn calibrated_image(scenario: &CheckedScenario, lut: &RadianceLut) -> Option<Result<SkyImage, SetupError>> {
+    let sky = &scenario.spec.sky;
+    let (Some(path), Some(_)) = (&scenario.sky_image, sky.placement()) else { return None };
+    Some((|| {
+        let raw = SkyImage::load(path).map_err(|e| setup("sky.image")(e.to_string()))?;
+        let calibration = sky.calibration.ok_or_else(|| setup("sky.calibration")("is required".into()))?;
+        calibrate(&raw, &calibration, lut, &path.display().to_string())
+            .map_err(|e| setup("sky.calibration")(e.to_string()))
+    })())
+}
+
+/// What the sky is built from, made beside the atmosphere ([`spawn_scenario`]).
+struct SkyParts {
+    /// The generated cloud layer, for a generated sky.
     layer: Option<CloudLayer>,
-) -> Result<Sky, SetupError> {
+    /// The clear sky from the LOWTRAN tables, where the dome takes it from them.
+    clear_sky: Result<Option<ClearSky>, SetupError>,
+    /// Band radiance by temperature.
+    lut: RadianceLut,
+    /// The calibrated sky image, for a sky image.
+    image: Option<Result<SkyImage, SetupError>>,
+}
+
+fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts: SkyParts) -> Result<Sky, SetupError> {
+    let SkyParts { layer, clear_sky, lut, image } = parts;
     let sky = &scenario.spec.sky;
     let model = &scenario.sensor.model;
     let (band, measure) = (model.band, model.measure());
-    let clear_sky = match (sky.dome.clear_sky, scene.atmosphere.lowtran()) {
-        (Some(ClearSkyModel::Parametric), _) | (_, None) => None,
-        (_, Some(lowtran)) => Some(lowtran.clear_sky().map_err(|e| setup("sky.dome.clear_sky")(e.to_string()))?),
-    };
+    // a clear sky is made only with LOWTRAN tables
+    let clear_sky = clear_sky?;
     let dome = Dome::new(&DomeInputs {
         spec: sky.dome,
         band,
@@ -228,14 +263,10 @@ fn build_sky(
     })
     .map_err(|e| SetupError { field: format!("sky.dome.{}", e.name), message: e.to_string() })?;
     let dome = Arc::new(dome);
-    let lut = RadianceLut::new(band, measure, scenario.quality.radiance_table_step_k);
     let placement = sky.placement();
-    let plane = match (&sky.generate, &scenario.sky_image, placement) {
-        (_, Some(path), Some(placement)) => {
-            let raw = SkyImage::load(path).map_err(|e| setup("sky.image")(e.to_string()))?;
-            let calibration = sky.calibration.ok_or_else(|| setup("sky.calibration")("is required".into()))?;
-            let image = calibrate(&raw, &calibration, &lut, &path.display().to_string())
-                .map_err(|e| setup("sky.calibration")(e.to_string()))?;
+    let plane = match (&sky.generate, image, placement) {
+        (_, Some(image), Some(placement)) => {
+            let image = image?;
             let image = if scenario.spec.atmosphere.sky_path {
                 let geometry =
                     SkyPlane::new(image.clone(), &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
