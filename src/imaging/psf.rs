@@ -179,16 +179,17 @@ impl Psf {
         // the radial part once, for the fine grid and the kernels' coarser one (a subset of its frequencies)
         let half = PERIOD_PX * FINE_PER_PX.max(KERNEL_GRID_PER_PX) / 2 + 1;
         let radial = otf.radial_quadrant(half);
-        let point_grid = otf.spatial(KERNEL_GRID_PER_PX, true, true, &radial, half);
-        let area_grid = otf.spatial(KERNEL_GRID_PER_PX, false, true, &radial, half);
+        let point_grid = otf.spatial(KERNEL_GRID_PER_PX, true, true, &radial, half, None);
+        let area_grid = otf.spatial(KERNEL_GRID_PER_PX, false, true, &radial, half, None);
         let radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.energy_cutoff);
         let region_radius = cut_radius(&point_grid, KERNEL_GRID_PER_PX, spec.region_energy_cutoff).max(radius);
         let point = Kernel::from_grid(&point_grid, KERNEL_GRID_PER_PX, radius);
         let area = Kernel::from_grid(&area_grid, KERNEL_GRID_PER_PX, radius);
         // the fine table of the PSF itself, over [−R−½, R+½]², renormalised to unit integral
-        let grid = otf.spatial(FINE_PER_PX, true, false, &radial, half);
+        let reach = radius * FINE_PER_PX + FINE_PER_PX / 2;
+        let grid = otf.spatial(FINE_PER_PX, true, false, &radial, half, Some(reach));
         let n = PERIOD_PX * FINE_PER_PX;
-        let half = (radius * FINE_PER_PX + FINE_PER_PX / 2) as isize;
+        let half = reach as isize;
         let side = (2 * half + 1) as usize;
         let mut fine = Vec::with_capacity(side * side);
         // a raised-cosine taper over the last pixel and a half: a hard cut would shift the centroid of a blob
@@ -557,8 +558,21 @@ impl Otf {
     /// at offset 0), per px², from the radial part's quadrant ([`Otf::radial_quadrant`] of side `half`).
     ///
     /// The OTF is even in `fx` and in `fy` (sines are odd, `hypot` and the squares even, bit for bit), so each
-    /// frequency's value is that of its magnitudes, computed once.
-    fn spatial(&self, per_px: usize, aperture: bool, tent: bool, radial: &[f64], half: usize) -> Vec<f32> {
+    /// frequency's value is that of its magnitudes, computed once; so is each row's transform (rows `ky` and
+    /// `n − ky` are the same). With `reach`, only the columns within `reach` samples of offset 0 (either way,
+    /// periodically) are transformed, the others left 0: the fine table reads no further.
+    ///
+    /// Each row and column is transformed by the same plan as [`fft2`]'s, so every value is the same bits as
+    /// those of the whole grid's 2D transform.
+    fn spatial(
+        &self,
+        per_px: usize,
+        aperture: bool,
+        tent: bool,
+        radial: &[f64],
+        half: usize,
+        reach: Option<usize>,
+    ) -> Vec<f32> {
         let n = PERIOD_PX * per_px;
         assert!(n / 2 < half, "the radial quadrant covers the grid");
         let fold = |k: usize| if k < n / 2 { k } else { n - k };
@@ -572,16 +586,38 @@ impl Otf {
                 *v = self.with_apertures(radial[my * half + mx], fx, fy, aperture, tent);
             }
         });
-        let mut data = vec![Complex::new(0.0, 0.0); n * n];
-        data.par_chunks_mut(n).enumerate().for_each(|(ky, row)| {
-            let source = &quadrant[fold(ky) * q..][..q];
+        let mut planner = rustfft::FftPlanner::new();
+        let plan = planner.plan_fft(n, rustfft::FftDirection::Inverse);
+        // the distinct rows, each transformed
+        let mut rows = vec![Complex::new(0.0, 0.0); q * n];
+        rows.par_chunks_mut(n).enumerate().for_each(|(ky, row)| {
+            let source = &quadrant[ky * q..][..q];
             for (kx, c) in row.iter_mut().enumerate() {
                 c.re = source[fold(kx)];
             }
+            plan.process(row);
         });
-        fft2(&mut data, n, n, rustfft::FftDirection::Inverse);
+        // the columns asked for, each gathered from its rows and transformed
+        let columns: Vec<usize> = match reach {
+            Some(r) if 2 * r + 1 < n => (0..=r).chain(n - r..n).collect(),
+            _ => (0..n).collect(),
+        };
         let scale = 1.0 / (PERIOD_PX * PERIOD_PX) as f64;
-        data.par_iter().map(|c| (c.re * scale) as f32).collect()
+        let values: Vec<Vec<f32>> = columns
+            .par_iter()
+            .map(|&x| {
+                let mut column: Vec<Complex<f64>> = (0..n).map(|ky| rows[fold(ky) * n + x]).collect();
+                plan.process(&mut column);
+                column.iter().map(|c| (c.re * scale) as f32).collect()
+            })
+            .collect();
+        let mut grid = vec![0.0f32; n * n];
+        grid.par_chunks_mut(n).enumerate().for_each(|(y, row)| {
+            for (&x, column) in columns.iter().zip(&values) {
+                row[x] = column[y];
+            }
+        });
+        grid
     }
 }
 
@@ -1438,11 +1474,20 @@ mod tests {
         let half = PERIOD_PX * 3 / 2 + 1;
         let radial = otf.radial_quadrant(half);
         for (per_px, aperture, tent) in [(1, true, true), (2, false, true), (3, true, false), (2, false, false)] {
-            let got = otf.spatial(per_px, aperture, tent, &radial, half);
+            let got = otf.spatial(per_px, aperture, tent, &radial, half, None);
             let want = spatial_direct(&otf, per_px, aperture, tent);
             assert_eq!(got.len(), want.len());
             let same = got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits());
             assert!(same, "{per_px} per px, aperture {aperture}, tent {tent}");
+            // the columns within a reach alone: theirs the same bits, the others 0
+            let n = PERIOD_PX * per_px;
+            let reach = n / 5;
+            let part = otf.spatial(per_px, aperture, tent, &radial, half, Some(reach));
+            for (i, (a, b)) in part.iter().zip(&want).enumerate() {
+                let x = i % n;
+                let want = if x <= reach || x >= n - reach { b.to_bits() } else { 0 };
+                assert_eq!(a.to_bits(), want, "{per_px} per px, column {x}");
+            }
         }
     }
 
