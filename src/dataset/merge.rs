@@ -290,15 +290,9 @@ fn stage_sequence(out: &Path, spec: &DatasetSpec, s: &SequenceEntry) -> Result<S
 
 /// An 8-bit grayscale PNG.
 fn gray8_png(pixels: &[u8], width: u32, height: u32) -> Result<Vec<u8>, MergeError> {
-    use image::ImageEncoder;
     let mut bytes = Vec::new();
-    image::codecs::png::PngEncoder::new_with_quality(
-        &mut bytes,
-        image::codecs::png::CompressionType::Fast,
-        image::codecs::png::FilterType::Sub,
-    )
-    .write_image(pixels, width, height, image::ExtendedColorType::L8)
-    .map_err(|e| MergeError::Io(format!("encoding a mask: {e}")))?;
+    crate::imaging::frame::write_gray8_png(pixels, width as usize, height as usize, &mut bytes)
+        .map_err(|e| MergeError::Io(format!("encoding a mask: {e}")))?;
     Ok(bytes)
 }
 

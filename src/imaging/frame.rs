@@ -238,15 +238,29 @@ impl Frame {
     /// # Errors
     /// The encoder's error, e.g. on a failed write.
     pub fn write_png8<W: Write>(&self, max_level: f32, out: W) -> image::ImageResult<()> {
-        use image::ImageEncoder;
-        let img = self.to_gray8(max_level);
-        image::codecs::png::PngEncoder::new_with_quality(
-            out,
-            image::codecs::png::CompressionType::Fast,
-            image::codecs::png::FilterType::Sub,
-        )
-        .write_image(img.as_raw(), self.width as u32, self.height as u32, image::ExtendedColorType::L8)
+        write_gray8_png(self.to_gray8(max_level).as_raw(), self.width, self.height, out)
     }
+}
+
+/// Writes 8-bit gray `pixels` (`width × height`, row-major) as a PNG to `out`, as [`Frame::write_png8`] does (the
+/// `Sub` filter, fast deflate): masks are written from their bytes this way.
+///
+/// # Errors
+/// The encoder's error, e.g. on a failed write or a size that does not match.
+pub fn write_gray8_png<W: Write>(pixels: &[u8], width: usize, height: usize, out: W) -> image::ImageResult<()> {
+    use image::ImageEncoder;
+    let (w, h) = (u32::try_from(width), u32::try_from(height));
+    let (Ok(w), Ok(h)) = (w, h) else {
+        return Err(image::ImageError::Limits(image::error::LimitError::from_kind(
+            image::error::LimitErrorKind::DimensionError,
+        )));
+    };
+    image::codecs::png::PngEncoder::new_with_quality(
+        out,
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Sub,
+    )
+    .write_image(pixels, w, h, image::ExtendedColorType::L8)
 }
 
 /// How hard a 16-bit PNG frame is compressed: the files are the same pixels at every setting.

@@ -400,9 +400,9 @@ fn write_job(
         files.push(frame_path);
     }
     if let (Ok(()), Some(mask)) = (&result, &job.mask) {
-        let m = Frame::from_pixels(job.frame.width(), job.frame.height(), mask.iter().map(|&v| f32::from(v)).collect());
         bytes.clear();
-        m.write_png8(255.0, &mut *bytes).expect("writing to memory");
+        crate::imaging::frame::write_gray8_png(mask, job.frame.width(), job.frame.height(), &mut *bytes)
+            .expect("a mask is the frame's size");
         let mask_path = spec.dir.join("masks").join(format!("{:06}.png", job.index));
         result = unsynced(&mask_path, bytes);
         if result.is_ok() {
