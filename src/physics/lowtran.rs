@@ -269,6 +269,8 @@ pub struct AtmosphereTable {
 
 /// A weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`) and its logarithm.
 type AerosolProfile = (Vec<f64>, Vec<f64>);
+/// A path between altitudes `lo ≤ hi` over a range: `(lo, hi, range)`, km.
+type Span = (f64, f64, f64);
 /// A bin's mean blackbody radiance at each whole kelvin of [`PLANCK_TABLE_K`], with its logarithm.
 type PlanckRow = Box<[(f64, f64)]>;
 /// What an aerosol profile depends on: the model's index, and each aerosol setting's index and weight (bits).
@@ -545,20 +547,10 @@ impl AtmosphereTable {
         v
     }
 
-    /// Molecular optical depth per bin of the path between altitudes `lo ≤ hi` (km) over `range_km`, into `out`;
-    /// the flags and first traced lengths of the nodes used are collected in `info`.
-    /// `out` holds the bins from `b0` on (as many as it is long).
-    #[allow(clippy::too_many_arguments)]
-    fn molecular_into(
-        &self,
-        m: usize,
-        lo: f64,
-        hi: f64,
-        range_km: f64,
-        b0: usize,
-        out: &mut [f64],
-        info: &mut CornerInfo,
-    ) {
+    /// Molecular optical depth per bin of the path between altitudes `lo ≤ hi` (km) over `range_km`, into `out`
+    /// (the bins from `b0` on, as many as it holds); the flags and first traced lengths of the nodes used are
+    /// collected in `info`.
+    fn molecular_into(&self, m: usize, (lo, hi, range_km): Span, b0: usize, out: &mut [f64], info: &mut CornerInfo) {
         let ia = bracket(&self.alt_km, lo);
         let ib = bracket(&self.alt_km, hi);
         let c = altitude_coord;
@@ -574,7 +566,7 @@ impl AtmosphereTable {
         ];
         let short = corners.iter().any(|&(x, y, w)| w > 0.0 && (self.alt_km[x] - self.alt_km[y]).abs() > range_km);
         if short && hi - lo <= SHORT_PATH_MAX_RISE_KM {
-            self.horizontal_mean_into(m, lo, hi, range_km, b0, out, info);
+            self.horizontal_mean_into(m, (lo, hi, range_km), b0, out, info);
             return;
         }
         let mut buf = Vec::new();
@@ -615,13 +607,10 @@ impl AtmosphereTable {
     /// horizontal paths of the same length at its altitudes (the same curve of growth: strong lines saturate
     /// within metres, so a short path's depth is far from proportional to its length), each interpolated
     /// between the horizontal paths at the bracketing altitudes, in the altitude coordinate.
-    #[allow(clippy::too_many_arguments)]
     fn horizontal_mean_into(
         &self,
         m: usize,
-        lo: f64,
-        hi: f64,
-        range_km: f64,
+        (lo, hi, range_km): Span,
         b0: usize,
         out: &mut [f64],
         info: &mut CornerInfo,
@@ -928,7 +917,7 @@ impl AtmosphereTable {
         };
         let mut info = CornerInfo::default();
         let mut od = vec![0.0; nb];
-        self.molecular_into(m, lo, hi, range_km, b0, &mut od, &mut info);
+        self.molecular_into(m, (lo, hi, range_km), b0, &mut od, &mut info);
         let transmittance: Vec<f64> =
             (0..nb).map(|b| (-(od[b] + aerosol_depth(1.0, b))).exp().clamp(0.0, 1.0)).collect();
         let cell_info = info;
@@ -947,7 +936,7 @@ impl AtmosphereTable {
                 let h = chord.altitude_km(t).clamp(0.0, self.max_altitude_km());
                 let s = (t * range_km).max((h - h1).abs());
                 let (l, u) = if h1 <= h { (h1, h) } else { (h, h1) };
-                self.molecular_into(m, l, u, s, b0, &mut od, &mut scratch);
+                self.molecular_into(m, (l, u, s), b0, &mut od, &mut scratch);
                 for b in 0..nb {
                     tau_cur[b] = (-(od[b] + aerosol_depth(t, b))).exp().clamp(0.0, tau_prev[b]);
                 }

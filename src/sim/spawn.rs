@@ -199,7 +199,6 @@ pub fn despawn_scenario(world: &mut World) {
     }
 }
 
-/// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
 /// The scene's atmosphere (its tables for a LOWTRAN weather) and, where the dome takes it from them, the clear
 /// sky's radiance from the observer's start `eye` (its error for the field `sky.dome.clear_sky`).
 fn atmosphere_and_clear_sky(
@@ -244,12 +243,13 @@ struct SkyParts {
     image: Option<Result<SkyImage, SetupError>>,
 }
 
+/// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
 fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts: SkyParts) -> Result<Sky, SetupError> {
     let SkyParts { layer, clear_sky, lut, image } = parts;
     let sky = &scenario.spec.sky;
     let model = &scenario.sensor.model;
     let (band, measure) = (model.band, model.measure());
-    // a clear sky is made only with LOWTRAN tables
+    // none without LOWTRAN tables; its error where they could not give it
     let clear_sky = clear_sky?;
     let dome = Dome::new(&DomeInputs {
         spec: sky.dome,
