@@ -249,18 +249,12 @@ impl Frame {
 /// The encoder's error, e.g. on a failed write or a size that does not match.
 pub fn write_gray8_png<W: Write>(pixels: &[u8], width: usize, height: usize, out: W) -> image::ImageResult<()> {
     use image::ImageEncoder;
-    let (w, h) = (u32::try_from(width), u32::try_from(height));
-    let (Ok(w), Ok(h)) = (w, h) else {
-        return Err(image::ImageError::Limits(image::error::LimitError::from_kind(
-            image::error::LimitErrorKind::DimensionError,
-        )));
-    };
     image::codecs::png::PngEncoder::new_with_quality(
         out,
         image::codecs::png::CompressionType::Fast,
         image::codecs::png::FilterType::Sub,
     )
-    .write_image(pixels, w, h, image::ExtendedColorType::L8)
+    .write_image(pixels, width as u32, height as u32, image::ExtendedColorType::L8)
 }
 
 /// How hard a 16-bit PNG frame is compressed: the files are the same pixels at every setting.

@@ -838,12 +838,10 @@ impl AtmosphereTable {
     /// that band alone ([`AtmosphereTable::path_in`]).
     pub fn bins_of(&self, band: Band) -> Range<usize> {
         let e = &self.edges_um;
-        let start = (0..self.nbins()).find(|&b| e[b + 1] > band.lo_um() && e[b] < band.hi_um());
-        let end = (0..self.nbins()).rev().find(|&b| e[b + 1] > band.lo_um() && e[b] < band.hi_um());
-        match (start, end) {
-            (Some(a), Some(b)) => a..b + 1,
-            _ => 0..0,
-        }
+        let overlaps = |&b: &usize| e[b + 1] > band.lo_um() && e[b] < band.hi_um();
+        // the edges increase, so the bins that overlap are one run
+        let start = (0..self.nbins()).find(overlaps).unwrap_or(0);
+        start..(start..self.nbins()).rev().find(overlaps).map_or(start, |b| b + 1)
     }
 
     /// [`AtmosphereTable::path`] over `bins` alone: a spectrum whose bins are those of `bins` (its edges and

@@ -223,12 +223,15 @@ fn atmosphere_and_clear_sky(
 fn calibrated_image(scenario: &CheckedScenario, lut: &RadianceLut) -> Option<Result<SkyImage, SetupError>> {
     let sky = &scenario.spec.sky;
     let (Some(path), Some(_)) = (&scenario.sky_image, sky.placement()) else { return None };
-    Some((|| {
-        let raw = SkyImage::load(path).map_err(|e| setup("sky.image")(e.to_string()))?;
-        let calibration = sky.calibration.ok_or_else(|| setup("sky.calibration")("is required".into()))?;
+    let raw = match SkyImage::load(path) {
+        Ok(raw) => raw,
+        Err(e) => return Some(Err(setup("sky.image")(e.to_string()))),
+    };
+    let Some(calibration) = sky.calibration else { return Some(Err(setup("sky.calibration")("is required".into()))) };
+    Some(
         calibrate(&raw, &calibration, lut, &path.display().to_string())
-            .map_err(|e| setup("sky.calibration")(e.to_string()))
-    })())
+            .map_err(|e| setup("sky.calibration")(e.to_string())),
+    )
 }
 
 /// What the sky is built from, made beside the atmosphere ([`spawn_scenario`]).
