@@ -7,6 +7,7 @@ use bevy::prelude::FixedUpdate;
 
 use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, Sky};
 use crate::imaging::background::{BackgroundBlur, SkyView};
+use crate::imaging::camera::Camera;
 
 /// Renders the background.
 pub struct RenderToTexturePlugin;
@@ -28,42 +29,12 @@ pub fn render_sky(
         return;
     };
     let sf = &mut *sf;
-    // whether the frame already holds the background
-    let mut copied = false;
     if sf.background_camera != Some(pose.current) {
-        let view = SkyView { plane: sky.plane.as_deref(), dome: &sky.dome, sampling: sky.sampling, miss: sky.miss };
-        let step = sensor.background_step;
-        // on the coarse grid: the optics seen from pixels `step` times larger
-        let psf = if step > 1 { &sensor.coarse_psf } else { &sensor.psf };
-        let blur = match (psf, sensor.resolved.psf, sensor.blur_frame) {
-            (Some(psf), Some(cfg), true) => Some(BackgroundBlur {
-                psf,
-                method: cfg.method,
-                // tiles where the blur changes no pixel by more than the set DN keep their values
-                skip_below: (cfg.skip_below_dn / sensor.dn_per_radiance) as f32,
-                sky_blur: sensor.sky_blur,
-                tolerance: cfg.prefilter_tolerance,
-                dome: sensor.blur_dome,
-            }),
-            _ => None,
-        };
-        match sf.coarse.as_mut() {
-            Some(coarse) => {
-                let mut camera = pose.current;
-                camera.intrinsics.width /= step as u32;
-                camera.intrinsics.height /= step as u32;
-                camera.intrinsics.pixel_pitch_m *= step as f64;
-                sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
-                // the frame gets each row as it is made
-                sf.background.upsample_bilinear(coarse, step, Some(&mut sf.frame));
-                copied = true;
-            }
-            None => sf.background_stats = sf.renderer.render(&view, &pose.current, blur.as_ref(), &mut sf.background),
-        }
+        let in_frame = render_background(sensor, sky, &pose.current, sf);
         sf.background_camera = Some(pose.current);
-    }
-    if copied {
-        return;
+        if in_frame {
+            return;
+        }
     }
     // the frame starts as the background: copied in parallel (one thread's memcpy of a 640 × 512 frame took a
     // tenth of a draft frame)
@@ -74,4 +45,41 @@ pub fn render_sky(
         .par_chunks_mut(chunk)
         .zip(sf.background.pixels().par_chunks(chunk))
         .for_each(|(dst, src)| dst.copy_from_slice(src));
+}
+
+/// Renders the background `camera` sees into `sf.background` (on a sensor with a coarse grid: into the coarse
+/// frame, upsampled into both `sf.background` and `sf.frame`, and returns true: the frame holds it already).
+pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf: &mut SensorFrame) -> bool {
+    let view = SkyView { plane: sky.plane.as_deref(), dome: &sky.dome, sampling: sky.sampling, miss: sky.miss };
+    let step = sensor.background_step;
+    // on the coarse grid: the optics seen from pixels `step` times larger
+    let psf = if step > 1 { &sensor.coarse_psf } else { &sensor.psf };
+    let blur = match (psf, sensor.resolved.psf, sensor.blur_frame) {
+        (Some(psf), Some(cfg), true) => Some(BackgroundBlur {
+            psf,
+            method: cfg.method,
+            // tiles where the blur changes no pixel by more than the set DN keep their values
+            skip_below: (cfg.skip_below_dn / sensor.dn_per_radiance) as f32,
+            sky_blur: sensor.sky_blur,
+            tolerance: cfg.prefilter_tolerance,
+            dome: sensor.blur_dome,
+        }),
+        _ => None,
+    };
+    match sf.coarse.as_mut() {
+        Some(coarse) => {
+            let mut camera = *camera;
+            camera.intrinsics.width /= step as u32;
+            camera.intrinsics.height /= step as u32;
+            camera.intrinsics.pixel_pitch_m *= step as f64;
+            sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
+            // the frame gets each row as it is made
+            sf.background.upsample_bilinear(coarse, step, Some(&mut sf.frame));
+            true
+        }
+        None => {
+            sf.background_stats = sf.renderer.render(&view, camera, blur.as_ref(), &mut sf.background);
+            false
+        }
+    }
 }

@@ -7,6 +7,7 @@ use bevy::ecs::prelude::*;
 use glam::DVec3;
 
 use super::camera::resolve_aim;
+use super::render::render_background;
 use super::{
     Aim, Aircraft, Body, CameraPose, FlightPath, Footprint, Kinematics, Observer, SceneParams, Sensor, SensorFrame,
     Shake, Signature, SimClock, SimSettings, Skin, Sky,
@@ -130,19 +131,30 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     }
     world.insert_resource(scene);
     let step = sensor.background_step;
-    world.spawn((
-        sensor,
-        SensorFrame {
-            frame: Frame::new(w, h),
-            float_frame: None,
-            background: Frame::new(w, h),
-            background_camera: None,
-            background_stats: BackgroundStats::default(),
-            renderer: BackgroundRenderer::new(),
-            columns: Vec::new(),
-            coarse: (step > 1).then(|| Frame::new(w / step, h / step)),
-        },
-    ));
+    let blank = || SensorFrame {
+        frame: Frame::new(w, h),
+        float_frame: None,
+        background: Frame::new(w, h),
+        background_camera: None,
+        background_stats: BackgroundStats::default(),
+        renderer: BackgroundRenderer::new(),
+        columns: Vec::new(),
+        coarse: (step > 1).then(|| Frame::new(w / step, h / step)),
+    };
+    let mut sensor_frame = blank();
+    // the prefiltered textures the first view reads are built now, with the rest of the set-up, rather than in
+    // the first frame: the first view's background is rendered here and its pixels dropped (the first frame
+    // starts from blank buffers, as without this, and reads the same texels: a texel does not depend on when
+    // or in which crop it was built)
+    if sensor.blur_frame
+        && sensor.sky_blur == SkyBlur::Prefilter
+        && sky.plane.is_some()
+        && let Some(first) = planned_views(scenario).next()
+    {
+        render_background(&sensor, &sky, &first, &mut sensor_frame);
+        sensor_frame = SensorFrame { renderer: sensor_frame.renderer, ..blank() };
+    }
+    world.spawn((sensor, sensor_frame));
     let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
     let placeholder = Camera::new(intrinsics, p0, Default::default());
     let observer = world
