@@ -20,8 +20,10 @@
 //! and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
 //! waiting for the disk; each checkpoint first makes everything written since the last one durable (one
 //! `syncfs` of the output's file system on Linux, a sync of each file elsewhere), then writes the labels. A
-//! crash of the machine loses at most the frames since the last checkpoint, and never leaves labels that list
-//! a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the manifest, so a
+//! checkpoint during the run is written by a thread of its own from a copy of the texts, so the simulation does
+//! not wait for the disk (a checkpoint still being written when the next is due delays that one); the last
+//! one, at the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint,
+//! and never leaves labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the manifest, so a
 //! process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one checkpoint
 //! behind the labels, never ahead of them.
 
@@ -528,6 +530,50 @@ pub struct Recorder {
     unsynced: Vec<PathBuf>,
     /// Frame buffers the tasks are done with.
     spare: Vec<Frame>,
+    /// The checkpoint being written in the background.
+    writing: Option<Writing>,
+}
+
+/// A checkpoint being written by a thread of its own, and the frames it covers.
+struct Writing {
+    handle: std::thread::JoinHandle<CheckpointOutcome>,
+    frames: u64,
+}
+
+/// How a checkpoint went: on failure, whether the labels and MOT file on disk list the checkpoint's frames
+/// (only the manifest failed), and the error.
+type CheckpointOutcome = Result<(), (bool, RecordError)>;
+
+/// What one checkpoint writes (a snapshot of the recorder's state, so that a thread of its own can write it).
+struct CheckpointJob {
+    dir: PathBuf,
+    /// The frames committed: those the labels list and the manifest counts.
+    frames: u64,
+    /// Files to make durable before the labels that list them.
+    unsynced: Vec<PathBuf>,
+    /// The labels and MOT texts, where the files on disk do not hold them yet.
+    texts: Option<(String, String)>,
+    manifest: String,
+}
+
+impl CheckpointJob {
+    /// Syncs, then writes the labels, the MOT file and the manifest, each atomically, in that order.
+    fn write(self) -> CheckpointOutcome {
+        if let Some((labels, mot)) = &self.texts {
+            if !self.unsynced.is_empty() {
+                sync_written(&self.dir, &self.unsynced).map_err(|e| (false, e))?;
+            }
+            // labels first: a failure between the two leaves the MOT file behind, never ahead
+            write_atomic(&self.dir.join("labels.jsonl"), labels.as_bytes()).map_err(|e| (false, e))?;
+            write_atomic(&self.dir.join("gt_mot.txt"), mot.as_bytes()).map_err(|e| (false, e))?;
+        }
+        let path = self.dir.join("manifest.json");
+        if let Err(e) = write_atomic(&path, self.manifest.as_bytes()) {
+            // a full disk may still take the manifest in place of the old one (same size or so)
+            std::fs::write(&path, self.manifest.as_bytes()).map_err(|_| (true, e))?;
+        }
+        Ok(())
+    }
 }
 
 impl Recorder {
@@ -571,6 +617,7 @@ impl Recorder {
             agc: (format == FrameFormat::Png8Agc).then(|| (Agc::new(AgcSpec::default()), u32::from(max_level))),
             unsynced: Vec::new(),
             spare: Vec::new(),
+            writing: None,
         };
         rec.checkpoint("running")?;
         Ok(rec)
@@ -627,10 +674,8 @@ impl Recorder {
         while self.sent - self.returned > self.max_in_flight {
             self.wait_for_one();
         }
-        if self.last_checkpoint.elapsed().as_secs_f64() >= 1.0
-            && let Err(e) = self.checkpoint("running")
-        {
-            self.error.get_or_insert(e);
+        if self.last_checkpoint.elapsed().as_secs_f64() >= 1.0 {
+            self.checkpoint_in_background();
         }
     }
 
@@ -701,49 +746,95 @@ impl Recorder {
     }
 
     /// Makes the frames written so far durable, then rewrites labels, MOT file and manifest atomically: the
-    /// labels on disk never list a frame that a crash of the machine could lose.
+    /// labels on disk never list a frame that a crash of the machine could lose. Waits for a checkpoint being
+    /// written in the background first.
     fn checkpoint(&mut self, status: &str) -> Result<(), RecordError> {
-        let mot_on_disk = if self.texts_written && self.on_disk == self.committed {
-            self.committed
-        } else {
-            if !self.unsynced.is_empty() {
-                sync_written(&self.dir, &self.unsynced)?;
-                self.unsynced.clear();
-            }
-            // labels first: a failure between the two leaves the MOT file behind, never ahead
-            write_atomic(&self.dir.join("labels.jsonl"), self.labels_text.as_bytes())?;
-            let r = write_atomic(&self.dir.join("gt_mot.txt"), self.mot_text.as_bytes());
-            if let Err(e) = r {
-                self.on_disk = self.on_disk.min(self.committed);
-                return Err(e);
-            }
-            self.committed
-        };
-        self.texts_written = true;
-        self.on_disk = mot_on_disk;
-        self.write_manifest(status)
+        self.settle_checkpoint(true);
+        let job = self.checkpoint_job(status);
+        let frames = job.frames;
+        let outcome = job.write();
+        self.apply_checkpoint(frames, outcome)
     }
 
-    /// Writes the manifest with `status` and the frames on disk.
-    fn write_manifest(&mut self, status: &str) -> Result<(), RecordError> {
+    /// Starts a `running` checkpoint on a thread of its own, so that the simulation does not wait for the disk;
+    /// does nothing while the last one is still being written (the next frame tries again).
+    fn checkpoint_in_background(&mut self) {
+        if self.writing.as_ref().is_some_and(|w| !w.handle.is_finished()) {
+            return;
+        }
+        self.settle_checkpoint(false);
+        if self.error.is_some() {
+            return;
+        }
+        let job = self.checkpoint_job("running");
+        let frames = job.frames;
+        match std::thread::Builder::new().name("irsim checkpoint".into()).spawn(move || job.write()) {
+            Ok(handle) => self.writing = Some(Writing { handle, frames }),
+            Err(e) => {
+                self.error.get_or_insert(io_err(&self.dir, e));
+            }
+        }
+    }
+
+    /// Takes the result of the checkpoint written in the background, if there is one (waiting for it with
+    /// `wait`; otherwise only if it is done).
+    fn settle_checkpoint(&mut self, wait: bool) {
+        if !(wait || self.writing.as_ref().is_some_and(|w| w.handle.is_finished())) {
+            return;
+        }
+        if let Some(Writing { handle, frames }) = self.writing.take() {
+            let outcome = handle.join().unwrap_or_else(|_| {
+                Err((
+                    false,
+                    RecordError::Io { path: self.dir.display().to_string(), message: "checkpoint failed".into() },
+                ))
+            });
+            if let Err(e) = self.apply_checkpoint(frames, outcome) {
+                self.error.get_or_insert(e);
+            }
+        }
+    }
+
+    /// What a checkpoint with `status` writes, now: the frames committed so far, the files to sync, the texts
+    /// (unless the files on disk already hold them) and the manifest.
+    fn checkpoint_job(&mut self, status: &str) -> CheckpointJob {
+        let texts = !(self.texts_written && self.on_disk == self.committed);
         let progress = Progress {
             status: status.to_owned(),
             frames_requested: self.frames_requested,
-            frames_written: self.on_disk,
+            frames_written: self.committed,
             error: self.error.as_ref().map(ToString::to_string),
         };
         let mut m = self.manifest.clone();
         if let (Some(obj), Ok(serde_json::Value::Object(p))) = (m.as_object_mut(), serde_json::to_value(&progress)) {
             obj.extend(p);
         }
-        let text = serde_json::to_string_pretty(&m).expect("manifest serializes");
-        let path = self.dir.join("manifest.json");
-        if let Err(e) = write_atomic(&path, text.as_bytes()) {
-            // a full disk may still take the manifest in place of the old one (same size or so)
-            std::fs::write(&path, text.as_bytes()).map_err(|_| e)?;
-        }
         self.last_checkpoint = Instant::now();
-        Ok(())
+        CheckpointJob {
+            dir: self.dir.clone(),
+            frames: self.committed,
+            unsynced: if texts { std::mem::take(&mut self.unsynced) } else { Vec::new() },
+            texts: texts.then(|| (self.labels_text.clone(), self.mot_text.clone())),
+            manifest: serde_json::to_string_pretty(&m).expect("manifest serializes"),
+        }
+    }
+
+    /// Files the outcome of a checkpoint of `frames` frames.
+    fn apply_checkpoint(&mut self, frames: u64, outcome: CheckpointOutcome) -> Result<(), RecordError> {
+        match outcome {
+            Ok(()) => {
+                self.texts_written = true;
+                self.on_disk = frames;
+                Ok(())
+            }
+            Err((texts_on_disk, e)) => {
+                if texts_on_disk {
+                    self.texts_written = true;
+                    self.on_disk = frames;
+                }
+                Err(e)
+            }
+        }
     }
 
     /// Forgets the frames after the first `n` committed ones: their files, and their label and MOT lines.
@@ -781,6 +872,7 @@ impl Recorder {
     pub fn finish(mut self, interrupted: bool) -> Result<Progress, RecordError> {
         self.wait_for_all();
         self.collect();
+        self.settle_checkpoint(true);
         // frames written after a gap (a failed frame) have no labels: remove them
         self.truncate_to(self.committed);
         let status = if self.error.is_some() {
@@ -825,6 +917,7 @@ impl Drop for Recorder {
     /// that no file is written into the directory after it is gone.
     fn drop(&mut self) {
         self.wait_for_all();
+        self.settle_checkpoint(true);
     }
 }
 
