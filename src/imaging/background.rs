@@ -143,6 +143,8 @@ pub struct BackgroundRenderer {
     rest: Vec<bool>,
     /// Per tile: in `rest` or within the frame kernel's reach of a tile that is.
     near: Vec<bool>,
+    /// Per tile: in `clean`, not in `near`, next to a tile that is.
+    ring: Vec<bool>,
 }
 
 impl BackgroundRenderer {
@@ -231,6 +233,15 @@ impl BackgroundRenderer {
         if area_sampled {
             plane.render(camera, sky.sampling, sky.miss, frame);
         } else {
+            // the ring of the texture's tiles just beyond the reached ones first: the blur's skip test reads one
+            // pixel into it (the curvature at the reached tiles' edge), which must be this frame's, never the
+            // last frame's
+            let tw = frame.width().div_ceil(t);
+            tiles_within_reach(&self.near, tw, 1, &mut self.ring);
+            for ((r, &c), &n) in self.ring.iter_mut().zip(&self.clean).zip(&self.near) {
+                *r = *r && c && !n;
+            }
+            texture.render_tiles(camera, texture_sampling, sky.miss, t, &self.ring, frame);
             plane.render_tiles(camera, sky.sampling, sky.miss, t, &self.near, frame);
         }
         if sky.miss == MissFill::Dome {

@@ -131,7 +131,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     }
     world.insert_resource(scene);
     let step = sensor.background_step;
-    let blank = || SensorFrame {
+    let mut sensor_frame = SensorFrame {
         frame: Frame::new(w, h),
         float_frame: None,
         background: Frame::new(w, h),
@@ -141,18 +141,16 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         columns: Vec::new(),
         coarse: (step > 1).then(|| Frame::new(w / step, h / step)),
     };
-    let mut sensor_frame = blank();
     // the prefiltered textures the first view reads are built now, with the rest of the set-up, rather than in
-    // the first frame: the first view's background is rendered here and its pixels dropped (the first frame
-    // starts from blank buffers, as without this, and reads the same texels: a texel does not depend on when
-    // or in which crop it was built)
+    // the first frame: the first view's background is rendered here (the first frame renders its own over it,
+    // the same values: a texel does not depend on when or in which crop it was built, nor a frame on what its
+    // buffers held)
     if sensor.blur_frame
         && sensor.sky_blur == SkyBlur::Prefilter
         && sky.plane.is_some()
         && let Some(first) = planned_views(scenario).next()
     {
         render_background(&sensor, &sky, &first, &mut sensor_frame);
-        sensor_frame = SensorFrame { renderer: sensor_frame.renderer, ..blank() };
     }
     world.spawn((sensor, sensor_frame));
     let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
