@@ -5,7 +5,7 @@
 //!
 //! `standard` is what a scenario without `[quality]` gets. `reference` puts every switch at its exact setting,
 //! or where a switch has none (a truncated kernel, a quadrature), at the finest the program offers; `draft` gives
-//! up accuracy for speed: in the committed report its frames are 2.5–4.4× faster than `standard`'s on the
+//! up accuracy for speed: in the committed report its frames are 2.4–4.3× faster than `standard`'s on the
 //! shipped scenarios and differ from `reference` by 0.32–15.5 DN rms (the most on paper_cloudy_sky, where the
 //! blurred sky is read nearest and made on a 2 px grid: cloud edges move and soften; alone, the 2 px grid costs
 //! 9.1 DN rms on sense_and_avoid, and its targets' centroids 0.013 px). What each switch costs and saves is measured in
