@@ -11,21 +11,21 @@
 //!
 //! [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
 //!
-//! Frames are committed in order: the labels on disk always describe exactly the frames on disk. Labels,
-//! the MOT file and the manifest are rewritten at checkpoints (every second) and at the end, so an
-//! interruption (Ctrl-C, SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest
-//! whose `status` and `frames_written` say where the run stopped.
+//! Frames are committed in order: the labels on disk always describe exactly the frames on disk. Labels, the MOT
+//! file and the manifest are rewritten at checkpoints (every second) and at the end, so an interruption (Ctrl-C,
+//! SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest whose
+//! `status` and `frames_written` say where the run stopped.
 //!
-//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary file
-//! and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
-//! waiting for the disk; each checkpoint first makes everything written since the last one durable (one
-//! `syncfs` of the output's file system on Linux, a sync of each file elsewhere), then writes the labels. A
-//! checkpoint during the run is written by a thread of its own from a copy of the texts, so the simulation does
-//! not wait for the disk (a checkpoint still being written when the next is due delays that one); the last
-//! one, at the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint,
-//! and never leaves labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the manifest, so a
-//! process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one checkpoint
-//! behind the labels, never ahead of them.
+//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary
+//! file and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
+//! waiting for the disk; each checkpoint first makes everything written since the last one durable (one `syncfs`
+//! of the output's file system on Linux, a sync of each file elsewhere), then writes the labels. A checkpoint
+//! during the run is written by a thread of its own from a copy of the texts, so the simulation does not wait for
+//! the disk (a checkpoint still being written when the next is due delays that one); the last one, at the end,
+//! is waited for. A crash of the machine loses at most the frames since the last checkpoint, and never leaves
+//! labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the
+//! manifest, so a process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one
+//! checkpoint behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
