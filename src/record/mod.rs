@@ -534,15 +534,31 @@ pub struct Recorder {
     writing: Option<Writing>,
 }
 
-/// A checkpoint being written by a thread of its own, and the frames it covers.
+/// A checkpoint being written by a thread of its own: the frames it covers, and (should the thread not report)
+/// the files it was to make durable.
 struct Writing {
     handle: std::thread::JoinHandle<CheckpointOutcome>,
     frames: u64,
+    files: Vec<PathBuf>,
 }
 
-/// How a checkpoint went: on failure, whether the labels and MOT file on disk list the checkpoint's frames
-/// (only the manifest failed), and the error.
-type CheckpointOutcome = Result<(), (bool, RecordError)>;
+/// How far a failed checkpoint got.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Reached {
+    /// The files on disk are as before (the sync or the labels' write failed).
+    Nothing,
+    /// The labels list the checkpoint's frames; the MOT file is behind them.
+    Labels,
+    /// The labels and the MOT file; only the manifest failed.
+    Texts,
+}
+
+/// How a checkpoint went, and the files it was to make durable and did not (they go back to the recorder's list,
+/// for the next checkpoint).
+struct CheckpointOutcome {
+    result: Result<(), (Reached, RecordError)>,
+    unsynced: Vec<PathBuf>,
+}
 
 /// What one checkpoint writes (a snapshot of the recorder's state, so that a thread of its own can write it).
 struct CheckpointJob {
@@ -558,19 +574,25 @@ struct CheckpointJob {
 
 impl CheckpointJob {
     /// Syncs, then writes the labels, the MOT file and the manifest, each atomically, in that order.
-    fn write(self) -> CheckpointOutcome {
+    fn write(mut self) -> CheckpointOutcome {
+        let result = self.write_files();
+        CheckpointOutcome { result, unsynced: self.unsynced }
+    }
+
+    fn write_files(&mut self) -> Result<(), (Reached, RecordError)> {
         if let Some((labels, mot)) = &self.texts {
             if !self.unsynced.is_empty() {
-                sync_written(&self.dir, &self.unsynced).map_err(|e| (false, e))?;
+                sync_written(&self.dir, &self.unsynced).map_err(|e| (Reached::Nothing, e))?;
+                self.unsynced.clear();
             }
             // labels first: a failure between the two leaves the MOT file behind, never ahead
-            write_atomic(&self.dir.join("labels.jsonl"), labels.as_bytes()).map_err(|e| (false, e))?;
-            write_atomic(&self.dir.join("gt_mot.txt"), mot.as_bytes()).map_err(|e| (false, e))?;
+            write_atomic(&self.dir.join("labels.jsonl"), labels.as_bytes()).map_err(|e| (Reached::Nothing, e))?;
+            write_atomic(&self.dir.join("gt_mot.txt"), mot.as_bytes()).map_err(|e| (Reached::Labels, e))?;
         }
         let path = self.dir.join("manifest.json");
         if let Err(e) = write_atomic(&path, self.manifest.as_bytes()) {
             // a full disk may still take the manifest in place of the old one (same size or so)
-            std::fs::write(&path, self.manifest.as_bytes()).map_err(|_| (true, e))?;
+            std::fs::write(&path, self.manifest.as_bytes()).map_err(|_| (Reached::Texts, e))?;
         }
         Ok(())
     }
@@ -757,7 +779,8 @@ impl Recorder {
     }
 
     /// Starts a `running` checkpoint on a thread of its own, so that the simulation does not wait for the disk;
-    /// does nothing while the last one is still being written (the next frame tries again).
+    /// does nothing while the last one is still being written (the next frame tries again). Where no thread can
+    /// be started, writes it on this one.
     fn checkpoint_in_background(&mut self) {
         if self.writing.as_ref().is_some_and(|w| !w.handle.is_finished()) {
             return;
@@ -767,11 +790,14 @@ impl Recorder {
             return;
         }
         let job = self.checkpoint_job("running");
-        let frames = job.frames;
+        let (frames, files) = (job.frames, job.unsynced.clone());
         match std::thread::Builder::new().name("irsim checkpoint".into()).spawn(move || job.write()) {
-            Ok(handle) => self.writing = Some(Writing { handle, frames }),
-            Err(e) => {
-                self.error.get_or_insert(io_err(&self.dir, e));
+            Ok(handle) => self.writing = Some(Writing { handle, frames, files }),
+            Err(_) => {
+                self.unsynced.extend(files);
+                if let Err(e) = self.checkpoint("running") {
+                    self.error.get_or_insert(e);
+                }
             }
         }
     }
@@ -782,12 +808,13 @@ impl Recorder {
         if !(wait || self.writing.as_ref().is_some_and(|w| w.handle.is_finished())) {
             return;
         }
-        if let Some(Writing { handle, frames }) = self.writing.take() {
-            let outcome = handle.join().unwrap_or_else(|_| {
-                Err((
-                    false,
+        if let Some(Writing { handle, frames, files }) = self.writing.take() {
+            let outcome = handle.join().unwrap_or_else(|_| CheckpointOutcome {
+                result: Err((
+                    Reached::Nothing,
                     RecordError::Io { path: self.dir.display().to_string(), message: "checkpoint failed".into() },
-                ))
+                )),
+                unsynced: files,
             });
             if let Err(e) = self.apply_checkpoint(frames, outcome) {
                 self.error.get_or_insert(e);
@@ -821,16 +848,23 @@ impl Recorder {
 
     /// Files the outcome of a checkpoint of `frames` frames.
     fn apply_checkpoint(&mut self, frames: u64, outcome: CheckpointOutcome) -> Result<(), RecordError> {
-        match outcome {
+        let CheckpointOutcome { result, mut unsynced } = outcome;
+        // files it did not make durable are made so by the next checkpoint, before labels list them again
+        if !unsynced.is_empty() {
+            unsynced.append(&mut self.unsynced);
+            self.unsynced = unsynced;
+        }
+        match result {
             Ok(()) => {
                 self.texts_written = true;
                 self.on_disk = frames;
                 Ok(())
             }
-            Err((texts_on_disk, e)) => {
-                if texts_on_disk {
-                    self.texts_written = true;
+            Err((reached, e)) => {
+                if reached != Reached::Nothing {
+                    // the labels list these frames; the MOT file is rewritten next time unless it was written too
                     self.on_disk = frames;
+                    self.texts_written = reached == Reached::Texts;
                 }
                 Err(e)
             }
@@ -939,6 +973,36 @@ mod tests {
 
     fn labels(frame: u64) -> FrameLabels {
         FrameLabels { frame, t_s: frame as f64 * 0.1, targets: Vec::new() }
+    }
+
+    /// A checkpoint that fails hands back the files it did not make durable (the next one syncs them before its
+    /// labels list them) and says how far it got (labels written and not the MOT file: the labels are what is on
+    /// disk).
+    #[test]
+    fn a_failed_checkpoint_hands_back_its_files_and_says_how_far_it_got() {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-ckpt-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("frames")).unwrap();
+        let frame = dir.join("frames").join("000000.png");
+        std::fs::write(&frame, b"frame").unwrap();
+        let job = |d: &Path| CheckpointJob {
+            dir: d.to_path_buf(),
+            frames: 1,
+            unsynced: vec![frame.clone()],
+            texts: Some(("labels\n".into(), "mot\n".into())),
+            manifest: "{}".into(),
+        };
+        // a directory that is not there: the sync fails, nothing is written, the file comes back
+        let out = job(&dir.join("missing")).write();
+        assert!(matches!(out.result, Err((Reached::Nothing, _))), "{:?}", out.result.err());
+        assert_eq!(out.unsynced, [frame.clone()]);
+        // the MOT file's name taken by a directory: the labels are written, the MOT file is not
+        std::fs::create_dir_all(dir.join("gt_mot.txt")).unwrap();
+        let out = job(&dir).write();
+        assert!(matches!(out.result, Err((Reached::Labels, _))), "{:?}", out.result.err());
+        assert!(out.unsynced.is_empty(), "synced before the labels were written");
+        assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap(), "labels\n");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
