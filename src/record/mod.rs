@@ -995,7 +995,7 @@ mod tests {
         // a directory that is not there: the sync fails, nothing is written, the file comes back
         let out = job(&dir.join("missing")).write();
         assert!(matches!(out.result, Err((Reached::Nothing, _))), "{:?}", out.result.err());
-        assert_eq!(out.unsynced, [frame.clone()]);
+        assert_eq!(out.unsynced, std::slice::from_ref(&frame));
         // the MOT file's name taken by a directory: the labels are written, the MOT file is not
         std::fs::create_dir_all(dir.join("gt_mot.txt")).unwrap();
         let out = job(&dir).write();
