@@ -76,29 +76,40 @@ fn prefiltered_sky_is_closer_to_the_exact_blur_than_the_frame_blur() {
 
 /// A frame's background depends on its own camera alone, not on what its buffer held before: sense_and_avoid's
 /// first frame (the horizon's tiles blurred per frame, whose skip test reads a pixel into the texture's tiles
-/// beyond them) is the same bits over a buffer of zeros, of a large value and of NaN.
+/// beyond them, and whose FFT blur reads the whole frame) is the same bits over a buffer of zeros, of a large
+/// value and of NaN, with the separable kernel and with the FFT.
 #[test]
 fn a_frame_s_background_does_not_depend_on_its_buffer_s_old_pixels() {
-    let s = load(&root().join("scenarios/sense_and_avoid.toml")).unwrap();
-    let first = |old: Option<f32>| {
-        let mut app = build_app(&s, RunOptions { noise: false, ..RunOptions::default() }).unwrap();
-        if let Some(v) = old {
-            let world = app.world_mut();
-            let mut sf = world.query::<&mut SensorFrame>().single_mut(world).unwrap();
-            let (w, h) = (sf.background.width(), sf.background.height());
-            sf.background = Frame::from_pixels(w, h, vec![v; w * h]);
+    use irsim::imaging::psf::ConvolutionMethod;
+    for (method, skip_below_dn) in [(ConvolutionMethod::Separable, None), (ConvolutionMethod::Fft, Some(0.0))] {
+        let mut s = load(&root().join("scenarios/sense_and_avoid.toml")).unwrap();
+        let mut psf = s.sensor.psf.unwrap();
+        psf.method = method;
+        if let Some(dn) = skip_below_dn {
+            // the whole frame blurred at once
+            psf.skip_below_dn = dn;
         }
-        step(&mut app);
-        let world = app.world_mut();
-        let sf = world.query::<&SensorFrame>().single(world).unwrap();
-        assert!(sf.background_stats.tiles_prefiltered > 0, "part of the frame from the texture");
-        sf.background.clone()
-    };
-    let blank = first(None);
-    for old in [1e6, -1.0, f32::NAN] {
-        let again = first(Some(old));
-        for (i, (a, b)) in blank.pixels().iter().zip(again.pixels()).enumerate() {
-            assert_eq!(a.to_bits(), b.to_bits(), "pixel {i} over a buffer of {old}");
+        s.sensor.psf = Some(psf);
+        let first = |old: Option<f32>| {
+            let mut app = build_app(&s, RunOptions { noise: false, ..RunOptions::default() }).unwrap();
+            if let Some(v) = old {
+                let world = app.world_mut();
+                let mut sf = world.query::<&mut SensorFrame>().single_mut(world).unwrap();
+                let (w, h) = (sf.background.width(), sf.background.height());
+                sf.background = Frame::from_pixels(w, h, vec![v; w * h]);
+            }
+            step(&mut app);
+            let world = app.world_mut();
+            let sf = world.query::<&SensorFrame>().single(world).unwrap();
+            assert!(sf.background_stats.tiles_prefiltered > 0, "part of the frame from the texture");
+            sf.background.clone()
+        };
+        let blank = first(None);
+        for old in [1e6, -1.0, f32::NAN] {
+            let again = first(Some(old));
+            for (i, (a, b)) in blank.pixels().iter().zip(again.pixels()).enumerate() {
+                assert_eq!(a.to_bits(), b.to_bits(), "{method:?}: pixel {i} over a buffer of {old}");
+            }
         }
     }
 }

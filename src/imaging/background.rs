@@ -143,7 +143,8 @@ pub struct BackgroundRenderer {
     rest: Vec<bool>,
     /// Per tile: in `rest` or within the frame kernel's reach of a tile that is.
     near: Vec<bool>,
-    /// Per tile: in `clean`, not in `near`, next to a tile that is.
+    /// Per tile: in `clean`, not in `near`, next to a tile that is (with the FFT method, every tile in `clean`
+    /// and not in `near`).
     ring: Vec<bool>,
 }
 
@@ -235,11 +236,13 @@ impl BackgroundRenderer {
         } else {
             // the ring of the texture's tiles just beyond the reached ones first: the blur's skip test reads one
             // pixel into it (the curvature at the reached tiles' edge), which must be this frame's, never the
-            // last frame's
+            // last frame's; an FFT blur of the whole frame reads every pixel, so for it all the texture's tiles
+            // beyond the reached ones
             let tw = frame.width().div_ceil(t);
+            let whole = b.method == ConvolutionMethod::Fft;
             tiles_within_reach(&self.near, tw, 1, &mut self.ring);
             for ((r, &c), &n) in self.ring.iter_mut().zip(&self.clean).zip(&self.near) {
-                *r = *r && c && !n;
+                *r = (*r || whole) && c && !n;
             }
             texture.render_tiles(camera, texture_sampling, sky.miss, t, &self.ring, frame);
             plane.render_tiles(camera, sky.sampling, sky.miss, t, &self.near, frame);
