@@ -386,3 +386,90 @@ fn frames_leave_the_schedule_as_frame_ready_messages() {
         assert!(float.pixels().iter().zip(ready.frame.pixels()).all(|(f, q)| (f - q).abs() <= 0.5 + 1e-3));
     }
 }
+
+/// A camera at 2 km looking at `{}`, with a generated cumulus layer on a vertical plane 30 km north (1–5 km up).
+const LAYER_AHEAD: &str = r#"
+[run]
+frame_rate_hz = 25
+frames = 4
+seed = 9
+[sensor]
+width = 128
+height = 96
+pixel_pitch_um = 17
+focal_length_mm = 50
+aperture_mm = 50
+band_um = [8, 12]
+[observer]
+trajectory = { kind = "constant_velocity", position_m = [0, 0, 2000] }
+pointing = { mode = "look_at", target_m = TARGET }
+[sky]
+generate = { kind = "cumulus", cover = 0.45, seed = 3 }
+anchor_m = [0, 30000, 3000]
+normal = [0, -1, 0]
+width_m = 20000
+height_m = 4000
+max_texels = 512
+[atmosphere]
+model = "us_standard_1976"
+aerosol = "rural"
+visibility_km = 23
+[[targets]]
+name = "ball"
+trajectory = { kind = "constant_velocity", position_m = [0, 8000, 2100], velocity_m_s = [50, 0, 0] }
+semi_axes_m = [1, 1, 1]
+"#;
+
+/// A generated layer that no planned view sees is made only when a camera first may see it, and then holds the
+/// pixels a run that sees it from the start makes at set-up: the frame that first sees it is the same bits in
+/// both runs, whatever the deferred run rendered before.
+#[test]
+fn an_unseen_sky_layer_is_made_when_first_seen_as_at_set_up() {
+    use irsim::imaging::background::SkyBlur;
+    use irsim::sim::{Aim, SensorFrame, Sky};
+    let load = |target: &str| {
+        let mut s = scenario(&LAYER_AHEAD.replace("TARGET", target));
+        // the same blur in both runs (`auto` plans it from the run's views)
+        let mut psf = s.sensor.psf.expect("the lens has a PSF");
+        psf.sky_blur = SkyBlur::Prefilter;
+        s.sensor.psf = Some(psf);
+        s
+    };
+    // 30° up, and at the layer
+    let (away, toward) = (load("[0, 5000, 4887]"), load("[0, 30000, 3000]"));
+    let options = RunOptions { noise: false, vibration: false, ..RunOptions::default() };
+    let mut deferred = build_app(&away, options).unwrap();
+    let mut eager = build_app(&toward, options).unwrap();
+    let sky = |app: &mut bevy::app::App| {
+        let world = app.world_mut();
+        world.query::<&Sky>().single(world).unwrap().clone()
+    };
+    assert!(sky(&mut deferred).plane_pending(), "no planned view sees the layer");
+    assert!(!sky(&mut eager).plane_pending(), "every planned view sees the layer");
+    for _ in 0..2 {
+        step(&mut deferred);
+        step(&mut eager);
+    }
+    assert!(sky(&mut deferred).plane_pending(), "frames looking away leave it unmade");
+    {
+        let world = deferred.world_mut();
+        let mut aim = world.query::<&mut Aim>().single_mut(world).unwrap();
+        aim.pointing = toward.spec.observer.pointing.clone();
+    }
+    step(&mut deferred);
+    step(&mut eager);
+    let (made, built) = (sky(&mut deferred), sky(&mut eager));
+    assert!(!made.plane_pending(), "the frame that sees it made it");
+    let (a, b) = (made.plane().unwrap().image(), built.plane().unwrap().image());
+    assert_eq!((a.width(), a.height()), (b.width(), b.height()));
+    assert!(a.pixels().iter().zip(b.pixels()).all(|(x, y)| x.to_bits() == y.to_bits()), "the layer's texels");
+    let background = |app: &mut bevy::app::App| {
+        let world = app.world_mut();
+        world.query::<&SensorFrame>().single(world).unwrap().background.clone()
+    };
+    let (fa, fb) = (background(&mut deferred), background(&mut eager));
+    assert!(fa.pixels().iter().zip(fb.pixels()).all(|(x, y)| x.to_bits() == y.to_bits()), "frame 2's background");
+    let lo = fb.pixels().iter().copied().fold(f32::INFINITY, f32::min);
+    let hi = fb.pixels().iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    assert!(hi > 1.05 * lo, "the view holds cloud against sky ({lo} … {hi})");
+}

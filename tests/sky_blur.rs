@@ -37,7 +37,7 @@ fn prefiltered_sky_is_closer_to_the_exact_blur_than_the_frame_blur() {
     let world = app.world_mut();
     let camera =
         world.query_filtered::<&CameraPose, bevy::ecs::prelude::With<Observer>>().single(world).unwrap().current;
-    let plane = world.query::<&Sky>().single(world).unwrap().plane.clone().unwrap();
+    let plane = world.query::<&Sky>().single(world).unwrap().plane().cloned().unwrap();
     let sensor = world.query::<&Sensor>().single(world).unwrap().clone();
     let psf = sensor.psf.clone().unwrap();
     let (w, h) = (pre.width(), pre.height());

@@ -139,16 +139,118 @@ pub struct CameraPose {
 }
 
 /// The sky: the clear-sky dome and, optionally, a radiance image placed as a plane.
+///
+/// A generated layer that no planned view of the run sees (and whose misses take the dome) is made when a camera
+/// first may see it ([`Sky::plane_for`]), or when something asks for its pixels ([`Sky::plane`]): until then
+/// every view of it is the dome alone, so the run's frames are the same whenever it is made, and a run that never
+/// sees it never spends the set-up's time on it.
 #[derive(Component, Debug, Clone)]
 pub struct Sky {
     /// The placed radiance image.
-    pub plane: Option<Arc<SkyPlane>>,
+    plane: PlaneSource,
     /// Sampling.
     pub sampling: Sampling,
     /// Fill for rays that miss the plane.
     pub miss: MissFill,
     /// The clear sky and ground.
     pub dome: Arc<Dome>,
+}
+
+/// Where a [`Sky`]'s plane comes from.
+#[derive(Clone)]
+enum PlaneSource {
+    /// No plane.
+    None,
+    /// Made at set-up.
+    Ready(Arc<SkyPlane>),
+    /// Made when first needed.
+    Deferred(Arc<DeferredPlane>),
+}
+
+impl std::fmt::Debug for PlaneSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::None => f.write_str("None"),
+            Self::Ready(plane) => f.debug_tuple("Ready").field(plane).finish(),
+            Self::Deferred(d) => f.debug_struct("Deferred").field("made", &d.made.get().is_some()).finish(),
+        }
+    }
+}
+
+/// A plane made when first needed: its placement (an image of its size, blank) and what makes it.
+struct DeferredPlane {
+    geometry: SkyPlane,
+    made: std::sync::OnceLock<Arc<SkyPlane>>,
+    make: Box<dyn Fn(&SkyPlane) -> SkyPlane + Send + Sync>,
+}
+
+impl DeferredPlane {
+    fn get(&self) -> &Arc<SkyPlane> {
+        self.made.get_or_init(|| Arc::new((self.make)(&self.geometry)))
+    }
+}
+
+impl Sky {
+    /// A sky with `plane` (none: the dome alone).
+    pub fn new(plane: Option<Arc<SkyPlane>>, sampling: Sampling, miss: MissFill, dome: Arc<Dome>) -> Self {
+        let plane = plane.map_or(PlaneSource::None, PlaneSource::Ready);
+        Self { plane, sampling, miss, dome }
+    }
+
+    /// A sky whose plane `make` makes from `geometry` when first needed; `geometry` is the same plane holding a
+    /// blank image of the size `make` gives (its placement, to tell whether a camera may see it). Its misses take
+    /// the dome (the views that do not see the plane are the dome alone whatever its pixels).
+    pub fn deferred(
+        geometry: SkyPlane,
+        make: impl Fn(&SkyPlane) -> SkyPlane + Send + Sync + 'static,
+        sampling: Sampling,
+        dome: Arc<Dome>,
+    ) -> Self {
+        let deferred = DeferredPlane { geometry, made: std::sync::OnceLock::new(), make: Box::new(make) };
+        Self { plane: PlaneSource::Deferred(Arc::new(deferred)), sampling, miss: MissFill::Dome, dome }
+    }
+
+    /// Whether the sky has a plane (made or not).
+    pub fn has_plane(&self) -> bool {
+        !matches!(self.plane, PlaneSource::None)
+    }
+
+    /// Whether the plane is still to be made.
+    pub fn plane_pending(&self) -> bool {
+        matches!(&self.plane, PlaneSource::Deferred(d) if d.made.get().is_none())
+    }
+
+    /// The plane with its pixels, made now if it was deferred.
+    pub fn plane(&self) -> Option<&Arc<SkyPlane>> {
+        match &self.plane {
+            PlaneSource::None => None,
+            PlaneSource::Ready(plane) => Some(plane),
+            PlaneSource::Deferred(d) => Some(d.get()),
+        }
+    }
+
+    /// The plane's placement: the plane itself, or before a deferred one is made the same plane with a blank
+    /// image of its size (its pixels must not be read).
+    pub fn plane_geometry(&self) -> Option<&SkyPlane> {
+        match &self.plane {
+            PlaneSource::None => None,
+            PlaneSource::Ready(plane) => Some(plane),
+            PlaneSource::Deferred(d) => Some(d.made.get().map_or(&d.geometry, |p| &**p)),
+        }
+    }
+
+    /// The plane for rendering `camera`'s view: made now if this camera may see it; before then, the blank
+    /// placement, which the renderer only asks whether the camera sees it (it does not: the view is the dome).
+    pub fn plane_for(&self, camera: &Camera) -> Option<&SkyPlane> {
+        match &self.plane {
+            PlaneSource::Deferred(d)
+                if self.miss == MissFill::Dome && d.made.get().is_none() && !d.geometry.seen_by(camera) =>
+            {
+                Some(&d.geometry)
+            }
+            _ => self.plane().map(|p| &**p),
+        }
+    }
 }
 
 /// The sensor: radiometry, optics blur, readout, non-idealities.

@@ -50,7 +50,6 @@ pub fn render_sky(
 /// Renders the background `camera` sees into `sf.background` (on a sensor with a coarse grid: into the coarse
 /// frame, upsampled into both `sf.background` and `sf.frame`, and returns true: the frame holds it already).
 pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf: &mut SensorFrame) -> bool {
-    let view = SkyView { plane: sky.plane.as_deref(), dome: &sky.dome, sampling: sky.sampling, miss: sky.miss };
     let step = sensor.background_step;
     // on the coarse grid: the optics seen from pixels `step` times larger
     let psf = if step > 1 { &sensor.coarse_psf } else { &sensor.psf };
@@ -66,18 +65,27 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
         }),
         _ => None,
     };
+    // a plane still to be made is made now if this view may see it
+    let view = |camera: &Camera| SkyView {
+        plane: sky.plane_for(camera),
+        dome: &sky.dome,
+        sampling: sky.sampling,
+        miss: sky.miss,
+    };
     match sf.coarse.as_mut() {
         Some(coarse) => {
             let mut camera = *camera;
             camera.intrinsics.width /= step as u32;
             camera.intrinsics.height /= step as u32;
             camera.intrinsics.pixel_pitch_m *= step as f64;
+            let view = view(&camera);
             sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
             // the frame gets each row as it is made
             sf.background.upsample_bilinear(coarse, step, Some(&mut sf.frame));
             true
         }
         None => {
+            let view = view(camera);
             sf.background_stats = sf.renderer.render(&view, camera, blur.as_ref(), &mut sf.background);
             false
         }

@@ -18,8 +18,9 @@ use crate::imaging::frame::Frame;
 use crate::imaging::psf::{Psf, PsfOptics, PsfSpec};
 use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air};
 use crate::imaging::sky_gen::{CloudLayer, SkyGenSpec, generate};
-use crate::imaging::sky_plane::{SkyImage, SkyPlane};
+use crate::imaging::sky_plane::{MissFill, SkyImage, SkyPlacement, SkyPlane};
 use crate::imaging::vibration::Vibration;
+use crate::physics::atmosphere::AirTemperature;
 use crate::physics::lowtran_paths::{ClearSky, LowtranAtmosphere};
 use crate::physics::nonideal::{FocalPlane, NonIdeal};
 use crate::physics::random::SplitMix64;
@@ -91,11 +92,23 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         mask_fraction: spec.labels.mask_fraction,
     });
     let (p0, v0) = scenario.observer_trajectory.state(spec.run.start_time_s);
+    // a generated layer no planned view sees is made when a view first may see it (its placement now)
+    let layer_plan = plan_layer(scenario, p0);
     // independent parts side by side (each has stretches on one thread: the generated layer's noise, the
     // table's logarithms, the image's decoding): the atmosphere's tables and the clear sky from them, the
     // generated cloud layer, the optics' PSFs, and the radiance table with the sky image calibrated by it
     let ((atmosphere, layer), (psfs, (lut, image))) = rayon::join(
-        || rayon::join(|| atmosphere_and_clear_sky(scenario, p0), || generated_layer(scenario, p0, seed)),
+        || {
+            rayon::join(
+                || atmosphere_and_clear_sky(scenario, p0),
+                || {
+                    layer_plan
+                        .as_ref()
+                        .filter(|plan| !plan.unseen)
+                        .and_then(|plan| generated_layer(scenario, plan, seed))
+                },
+            )
+        },
         || {
             rayon::join(
                 || sensor_psfs(&sensor_spec),
@@ -120,9 +133,10 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
 
     let intrinsics = sensor_spec.intrinsics;
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
-    let sky = build_sky(scenario, &scene, p0, SkyParts { layer, clear_sky, lut, image })?;
+    let sky = build_sky(scenario, &scene, p0, SkyParts { layer, layer_plan, clear_sky, lut, image, seed })?;
     let mut sensor = build_sensor(&sensor_spec, &sky, seed, psfs?)?;
-    if let (Some(plane), Some(psf), Some(cfg), true) = (&sky.plane, &sensor.psf, sensor_spec.psf, sensor.blur_frame)
+    if let (Some(plane), Some(psf), Some(cfg), true) =
+        (sky.plane_geometry(), &sensor.psf, sensor_spec.psf, sensor.blur_frame)
         && cfg.sky_blur == SkyBlur::Auto
     {
         let plan = plan_sky_blur(plane, psf, cfg.prefilter_tolerance, (w, h), planned_views(scenario));
@@ -147,7 +161,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     // buffers held)
     if sensor.blur_frame
         && sensor.sky_blur == SkyBlur::Prefilter
-        && sky.plane.is_some()
+        && sky.has_plane()
         && let Some(first) = planned_views(scenario).next()
     {
         render_background(&sensor, &sky, &first, &mut sensor_frame);
@@ -246,8 +260,12 @@ fn calibrated_image(scenario: &CheckedScenario, lut: &RadianceLut) -> Option<Res
 
 /// What the sky is built from, made beside the atmosphere ([`spawn_scenario`]).
 struct SkyParts {
-    /// The generated cloud layer, for a generated sky.
+    /// The generated cloud layer, for a generated sky a planned view sees.
     layer: Option<CloudLayer>,
+    /// A generated layer's size and placement, and whether no planned view sees it.
+    layer_plan: Option<LayerPlan>,
+    /// The run's seed (a deferred layer's).
+    seed: u64,
     /// The clear sky from the LOWTRAN tables, where the dome takes it from them.
     clear_sky: Result<Option<ClearSky>, SetupError>,
     /// Band radiance by temperature.
@@ -258,7 +276,7 @@ struct SkyParts {
 
 /// The dome for the observer's start, and the sky image (calibrated) or generated layer (baked) on its plane.
 fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts: SkyParts) -> Result<Sky, SetupError> {
-    let SkyParts { layer, clear_sky, lut, image } = parts;
+    let SkyParts { layer, layer_plan, seed, clear_sky, lut, image } = parts;
     let sky = &scenario.spec.sky;
     let model = &scenario.sensor.model;
     let (band, measure) = (model.band, model.measure());
@@ -291,25 +309,36 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
             };
             Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
         }
-        (Some(_), None, Some(placement)) => {
-            let layer = layer.ok_or_else(|| setup("sky.generate")("no layer was generated".into()))?;
-            let (tw, th) = (layer.width, layer.height);
-            let blank = SkyImage::from_f32(tw, th, vec![0.0; tw * th]).map_err(|e| setup("sky")(e.to_string()))?;
-            let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
-            let air = |z: f64| scene.air_temp_k(z);
-            let image = bake_layer(&LayerBake {
-                layer: &layer,
-                plane: &geometry,
+        (Some(gen_spec), None, Some(placement)) => {
+            let plan = layer_plan.ok_or_else(|| setup("sky.generate")("no layer was planned".into()))?;
+            let geometry = plan.geometry?;
+            let maker = LayerMaker {
+                spec: layer_spec(gen_spec, seed),
+                size: plan.size,
+                placement,
                 eye_m: eye,
-                dome: &dome,
-                air_temp_k: &air,
-                atmosphere: &scene.atmosphere,
-                lut: &lut,
+                dome: Arc::clone(&dome),
+                air: scene.air,
+                atmosphere: scene.atmosphere.clone(),
+                lut,
                 cloud_offset_k: sky.cloud_offset_k,
                 cloud_base_m: sky.cloud_base_m,
-            })
-            .map_err(|e| setup("sky.generate")(e.to_string()))?;
-            Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
+                span_tolerance_px: scenario.quality.span_tolerance_px,
+            };
+            match layer {
+                Some(layer) => Some(maker.plane(&layer, &geometry)?),
+                None => {
+                    let mut geometry = geometry;
+                    geometry.set_span_tolerance(scenario.quality.span_tolerance_px);
+                    // its pixels: the layer generated and baked as at set-up (a pure function of these inputs);
+                    // the placement and the bake's inputs were checked here, so the bake cannot fail
+                    let make = move |geometry: &SkyPlane| {
+                        let layer = generate(&maker.spec, maker.size.0, maker.size.1);
+                        maker.plane(&layer, geometry).expect("a layer checked at set-up bakes")
+                    };
+                    return Ok(Sky::deferred(geometry, make, scenario.quality.sky_sampling, dome));
+                }
+            }
         }
         _ => None,
     };
@@ -317,7 +346,75 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
         p.set_span_tolerance(scenario.quality.span_tolerance_px);
         Arc::new(p)
     });
-    Ok(Sky { plane, sampling: scenario.quality.sky_sampling, miss: sky.miss, dome })
+    Ok(Sky::new(plane, scenario.quality.sky_sampling, sky.miss, dome))
+}
+
+/// What makes a generated layer's plane: the layer's parameters (its seed the run's) and size, and what its bake
+/// reads, owned (a deferred plane is made during the run).
+struct LayerMaker {
+    spec: SkyGenSpec,
+    size: (usize, usize),
+    placement: SkyPlacement,
+    eye_m: DVec3,
+    dome: Arc<Dome>,
+    air: AirTemperature,
+    atmosphere: SceneAtmosphere,
+    lut: RadianceLut,
+    cloud_offset_k: f64,
+    cloud_base_m: Option<f64>,
+    span_tolerance_px: f64,
+}
+
+impl LayerMaker {
+    /// `layer` baked into radiance over the dome, placed as `geometry` (the same plane holding any image of the
+    /// layer's size).
+    fn plane(&self, layer: &CloudLayer, geometry: &SkyPlane) -> Result<SkyPlane, SetupError> {
+        let air = |z: f64| self.air.clamped_k(z);
+        let image = bake_layer(&LayerBake {
+            layer,
+            plane: geometry,
+            eye_m: self.eye_m,
+            dome: &self.dome,
+            air_temp_k: &air,
+            atmosphere: &self.atmosphere,
+            lut: &self.lut,
+            cloud_offset_k: self.cloud_offset_k,
+            cloud_base_m: self.cloud_base_m,
+        })
+        .map_err(|e| setup("sky.generate")(e.to_string()))?;
+        let mut plane = SkyPlane::new(image, &self.placement, self.eye_m).map_err(|e| setup("sky")(e.to_string()))?;
+        plane.set_span_tolerance(self.span_tolerance_px);
+        Ok(plane)
+    }
+}
+
+/// A generated layer's size, its placement (the plane holding a blank image of that size, or the placement's
+/// error), and whether no planned view may see it, its misses taking the dome: such a layer is made when a view
+/// first may ([`Sky::deferred`]).
+struct LayerPlan {
+    size: (usize, usize),
+    geometry: Result<SkyPlane, SetupError>,
+    unseen: bool,
+}
+
+/// The plan of a scenario's generated layer (none for a sky image or no plane), from the observer's start `eye`.
+fn plan_layer(scenario: &CheckedScenario, eye: DVec3) -> Option<LayerPlan> {
+    let sky = &scenario.spec.sky;
+    let (Some(_), None, Some(placement)) = (&sky.generate, &scenario.sky_image, sky.placement()) else {
+        return None;
+    };
+    let size = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
+    // zeros from the allocator: the blank image's pages are not touched unless read
+    let blank = SkyImage::from_finite(size.0, size.1, vec![0.0; size.0 * size.1]);
+    let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| setup("sky")(e.to_string()));
+    let unseen = sky.miss == MissFill::Dome
+        && geometry.as_ref().is_ok_and(|g| planned_views(scenario).all(|camera| !g.seen_by(&camera)));
+    Some(LayerPlan { size, geometry, unseen })
+}
+
+/// A layer's parameters with its seed mixed with the run's `seed`.
+fn layer_spec(spec: &SkyGenSpec, seed: u64) -> SkyGenSpec {
+    SkyGenSpec { seed: spec.seed ^ seed.wrapping_mul(SplitMix64::GAMMA), ..*spec }
 }
 
 /// The steady cameras (no vibration, no pointing noise) of the run's frames, for planning: every frame up to
@@ -338,18 +435,11 @@ pub(crate) fn planned_views(scenario: &CheckedScenario) -> impl Iterator<Item = 
     })
 }
 
-/// The generated cloud layer of a scenario whose sky is generated (none for an image or no plane): its size
-/// from [`layer_size`] at the observer's start `eye`, its seed the layer's own mixed with the run's.
-fn generated_layer(scenario: &CheckedScenario, eye: DVec3, seed: u64) -> Option<CloudLayer> {
-    let sky = &scenario.spec.sky;
-    match (&sky.generate, &scenario.sky_image, sky.placement()) {
-        (Some(gen_spec), None, Some(placement)) => {
-            let (tw, th) = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
-            let gen_spec = SkyGenSpec { seed: gen_spec.seed ^ seed.wrapping_mul(SplitMix64::GAMMA), ..*gen_spec };
-            Some(generate(&gen_spec, tw, th))
-        }
-        _ => None,
-    }
+/// The generated cloud layer of `plan` (a scenario's generated sky), its seed the layer's own mixed with the
+/// run's.
+fn generated_layer(scenario: &CheckedScenario, plan: &LayerPlan, seed: u64) -> Option<CloudLayer> {
+    let gen_spec = scenario.spec.sky.generate.as_ref()?;
+    Some(generate(&layer_spec(gen_spec, seed), plan.size.0, plan.size.1))
 }
 
 /// Texels of a generated layer: at least one per sensor pixel at the plane's distance from the observer's
@@ -440,7 +530,7 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64, psfs: SensorPsf
         _ => false,
     };
     // an image layer may be seen in any frame
-    let blur_frame = psf.is_some() && (blur_dome || sky.plane.is_some());
+    let blur_frame = psf.is_some() && (blur_dome || sky.has_plane());
     let report = model.report(300.0);
     let nonideal = if resolved.nonideal.is_ideal() {
         None

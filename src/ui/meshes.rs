@@ -78,7 +78,7 @@ pub(super) fn sync_sky_quad(
     mut images: ResMut<Assets<Image>>,
     mut materials: ResMut<Assets<ViewMaterial>>,
 ) {
-    let plane = sky.iter().find_map(|s| s.plane.clone());
+    let plane = sky.iter().find_map(|s| s.plane().cloned());
     let same_plane = match (&plane, &quad.plane) {
         (Some(a), Some(b)) => Arc::ptr_eq(a, b),
         (None, None) => true,

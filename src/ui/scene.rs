@@ -320,7 +320,7 @@ pub fn draw_encounter(
     gizmos.line(Vec3::new(0.0, 0.01, 0.0), Vec3::new(10.0, 0.01, 0.0), Color::srgb(0.9, 0.9, 0.9));
     // sky plane outline
     if let Ok(sky) = sky.single()
-        && let Some(plane) = &sky.plane
+        && let Some(plane) = sky.plane_geometry()
     {
         let (w, h) = (plane.image().width() as f64, plane.image().height() as f64);
         let corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h), (0.0, 0.0)]
@@ -353,7 +353,7 @@ pub fn draw_encounter(
         gizmos.cross(Isometry3d::from_translation(eye), 0.3, Color::WHITE);
         // the frustum to the farthest target (at least 2 km)
         let reach = aircraft.iter().map(|(_, k, _, _)| k.position_m.distance(cam.position_m)).fold(2000.0, f64::max);
-        let plane = sky.single().ok().and_then(|s| s.plane.as_ref());
+        let plane = sky.single().ok().and_then(|s| s.plane_geometry());
         let (w, h) = (f64::from(cam.intrinsics.width), f64::from(cam.intrinsics.height));
         let f = cam.intrinsics.focal_px();
         // each corner's ray to the sky plane where it meets it ahead (within 100 km): the frustum ends on the part
