@@ -21,8 +21,10 @@ use crate::imaging::sky_gen::{CloudLayer, SkyGenSpec, generate};
 use crate::imaging::sky_plane::{MissFill, SkyImage, SkyPlacement, SkyPlane};
 use crate::imaging::vibration::Vibration;
 use crate::physics::atmosphere::AirTemperature;
+use crate::physics::lowtran::{AtmosphereError, Weather};
 use crate::physics::lowtran_paths::{ClearSky, LowtranAtmosphere};
 use crate::physics::nonideal::{FocalPlane, NonIdeal};
+use crate::physics::planck::{Band, Measure};
 use crate::physics::random::SplitMix64;
 use crate::physics::reflection::SphereQuadrature;
 use crate::physics::sky::{ClearSkyModel, Dome, DomeInputs};
@@ -234,13 +236,13 @@ fn atmosphere_and_clear_sky(
         return Ok((SceneAtmosphere::Override(spec.atmosphere.override_transmittance()), Ok(None)));
     };
     let model = &scenario.sensor.model;
-    let lowtran = LowtranAtmosphere::new(weather, model.band, model.measure(), eye.z, spec.sun.temp_k)
-        .map_err(|e| setup("atmosphere.model")(e.to_string()))?;
+    let key = (weather, model.band, model.measure(), eye.z.to_bits(), spec.sun.temp_k.to_bits());
+    let lowtran = shared_lowtran(key).map_err(|e| setup("atmosphere.model")(e.to_string()))?;
     let clear_sky = match spec.sky.dome.clear_sky {
         Some(ClearSkyModel::Parametric) => Ok(None),
-        _ => lowtran.clear_sky().map(Some).map_err(|e| setup("sky.dome.clear_sky")(e.to_string())),
+        _ => shared_clear_sky(key, &lowtran).map(Some).map_err(|e| setup("sky.dome.clear_sky")(e.to_string())),
     };
-    Ok((SceneAtmosphere::Lowtran(Arc::new(lowtran)), clear_sky))
+    Ok((SceneAtmosphere::Lowtran(lowtran), clear_sky))
 }
 
 /// A scenario's sky image loaded and calibrated to radiance by `lut` (none for a generated sky or no plane).
@@ -261,7 +263,7 @@ fn calibrated_image(scenario: &CheckedScenario, lut: &RadianceLut) -> Option<Res
 /// What the sky is built from, made beside the atmosphere ([`spawn_scenario`]).
 struct SkyParts {
     /// The generated cloud layer, for a generated sky a planned view sees.
-    layer: Option<CloudLayer>,
+    layer: Option<Arc<CloudLayer>>,
     /// A generated layer's size and placement, and whether no planned view sees it.
     layer_plan: Option<LayerPlan>,
     /// The run's seed (a deferred layer's).
@@ -333,7 +335,7 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
                     // its pixels: the layer generated and baked as at set-up (a pure function of these inputs);
                     // the placement and the bake's inputs were checked here, so the bake cannot fail
                     let make = move |geometry: &SkyPlane| {
-                        let layer = generate(&maker.spec, maker.size.0, maker.size.1);
+                        let layer = shared_layer(&maker.spec, maker.size.0, maker.size.1);
                         maker.plane(&layer, geometry).expect("a layer checked at set-up bakes")
                     };
                     return Ok(Sky::deferred(geometry, make, scenario.quality.sky_sampling, dome));
@@ -437,9 +439,9 @@ pub(crate) fn planned_views(scenario: &CheckedScenario) -> impl Iterator<Item = 
 
 /// The generated cloud layer of `plan` (a scenario's generated sky), its seed the layer's own mixed with the
 /// run's.
-fn generated_layer(scenario: &CheckedScenario, plan: &LayerPlan, seed: u64) -> Option<CloudLayer> {
+fn generated_layer(scenario: &CheckedScenario, plan: &LayerPlan, seed: u64) -> Option<Arc<CloudLayer>> {
     let gen_spec = scenario.spec.sky.generate.as_ref()?;
-    Some(generate(&layer_spec(gen_spec, seed), plan.size.0, plan.size.1))
+    Some(shared_layer(&layer_spec(gen_spec, seed), plan.size.0, plan.size.1))
 }
 
 /// Texels of a generated layer: at least one per sensor pixel at the plane's distance from the observer's
@@ -464,23 +466,79 @@ fn layer_size(
     (side(placement.width_m), side(placement.height_m))
 }
 
-/// The PSF of `spec` and `optics`, built once per process for each (the last few kept): a dataset's sequences
-/// draw their cameras from a few presets, and building a PSF (its OTF sampled on fine grids) takes a good part
-/// of a scenario's set-up. `Psf::new` is a pure function of its inputs, so a kept one is the one a build gives.
+/// The last few results of a pure function, kept for the process by their inputs. The same inputs come back
+/// often: a dataset spawns each sequence up to four times (its SNR solve, its frames, the noise-free and the
+/// clean extras) and draws its cameras from a few presets, and the viewer respawns the scenario at every edit.
+/// A kept result is the one a new call gives, so keeping it changes no output.
+struct Kept<K, V> {
+    room: usize,
+    entries: std::sync::Mutex<Vec<(K, V)>>,
+}
+
+impl<K: PartialEq, V: Clone> Kept<K, V> {
+    const fn new(room: usize) -> Self {
+        Self { room, entries: std::sync::Mutex::new(Vec::new()) }
+    }
+
+    /// The kept result for `key`, or `make`'s, kept (the oldest let go beyond the room); errors are not kept.
+    fn get_or<E>(&self, key: K, make: impl FnOnce() -> Result<V, E>) -> Result<V, E> {
+        let lock = || self.entries.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((_, v)) = lock().iter().find(|(k, _)| *k == key) {
+            return Ok(v.clone());
+        }
+        // made without the lock: two runs asking at once both make it, and keep the same value
+        let v = make()?;
+        let mut kept = lock();
+        if !kept.iter().any(|(k, _)| *k == key) {
+            if kept.len() >= self.room {
+                kept.remove(0);
+            }
+            kept.push((key, v.clone()));
+        }
+        Ok(v)
+    }
+}
+
+/// The PSF of `spec` and `optics`, built once per process for each (the last 8 kept): building one (its OTF
+/// sampled on fine grids) takes a good part of a scenario's set-up.
 fn shared_psf(spec: &PsfSpec, optics: &PsfOptics) -> Result<Arc<Psf>, crate::physics::ParamError> {
-    type Kept = Vec<(PsfSpec, PsfOptics, Arc<Psf>)>;
-    static KEPT: std::sync::Mutex<Kept> = std::sync::Mutex::new(Vec::new());
-    let lock = || KEPT.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    if let Some((_, _, psf)) = lock().iter().find(|(s, o, _)| s == spec && o == optics) {
-        return Ok(Arc::clone(psf));
+    static KEPT: Kept<(PsfSpec, PsfOptics), Arc<Psf>> = Kept::new(8);
+    KEPT.get_or((*spec, *optics), || Psf::new(spec, optics).map(Arc::new))
+}
+
+/// What an observer's LOWTRAN tables are a function of: the weather, the band and measure, the observer's
+/// starting altitude and the sun's temperature (the floats by their bits).
+type AtmosphereKey = (Weather, Band, Measure, u64, u64);
+
+/// The observer's LOWTRAN tables for `key`'s inputs, made once per process for each (the last 4 kept: they
+/// take most of a scenario's set-up).
+fn shared_lowtran(key: AtmosphereKey) -> Result<Arc<LowtranAtmosphere>, AtmosphereError> {
+    static KEPT: Kept<AtmosphereKey, Arc<LowtranAtmosphere>> = Kept::new(4);
+    let (weather, band, measure, eye_z, sun_k) = key;
+    KEPT.get_or(key, || {
+        LowtranAtmosphere::new(weather, band, measure, f64::from_bits(eye_z), f64::from_bits(sun_k)).map(Arc::new)
+    })
+}
+
+/// The clear sky of `lowtran`, whose inputs are `key`, made once per process for each (the last 4 kept).
+fn shared_clear_sky(key: AtmosphereKey, lowtran: &LowtranAtmosphere) -> Result<ClearSky, AtmosphereError> {
+    static KEPT: Kept<AtmosphereKey, ClearSky> = Kept::new(4);
+    KEPT.get_or(key, || lowtran.clear_sky())
+}
+
+/// Texels of the largest generated layer kept for the process (2048², 32 MiB): a larger one is generated for
+/// each use rather than held for the run.
+const KEPT_LAYER_TEXELS: usize = 2048 * 2048;
+
+/// The layer of `spec` at `width × height` ([`generate`]), generated once per process for each (the last 2
+/// up to [`KEPT_LAYER_TEXELS`] kept).
+fn shared_layer(spec: &SkyGenSpec, width: usize, height: usize) -> Arc<CloudLayer> {
+    static KEPT: Kept<(SkyGenSpec, usize, usize), Arc<CloudLayer>> = Kept::new(2);
+    let make = || Ok::<_, std::convert::Infallible>(Arc::new(generate(spec, width, height)));
+    if width * height > KEPT_LAYER_TEXELS {
+        return make().unwrap_or_else(|never| match never {});
     }
-    let psf = Arc::new(Psf::new(spec, optics)?);
-    let mut kept = lock();
-    if kept.len() >= 8 {
-        kept.remove(0);
-    }
-    kept.push((*spec, *optics, Arc::clone(&psf)));
-    Ok(psf)
+    KEPT.get_or((*spec, width, height), make).unwrap_or_else(|never| match never {})
 }
 
 /// A sensor's PSFs: at its pixels, and at the coarse background's (`background_step` pixels a side, where
@@ -569,4 +627,51 @@ fn dome_needs_blur(psf: &Psf, cfg: &PsfSettings, sky: &Sky, sensor: &ResolvedSen
     let curvature_per_px2 = sky.dome.max_curvature_per_rad2() * ifov * ifov;
     let change_dn = 0.5 * psf.point_kernel().second_moment_px2() * curvature_per_px2 * dn_per_radiance;
     change_dn > cfg.skip_below_dn
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kept_results_are_returned_until_the_oldest_is_let_go() {
+        let kept: Kept<u32, Arc<u32>> = Kept::new(2);
+        let made = std::cell::Cell::new(0);
+        let get = |k: u32| {
+            kept.get_or(k, || {
+                made.set(made.get() + 1);
+                Ok::<_, ()>(Arc::new(k * 10))
+            })
+            .unwrap()
+        };
+        let first = get(1);
+        assert!(Arc::ptr_eq(&first, &get(1)), "kept");
+        get(2);
+        get(3); // lets 1 go
+        assert_eq!(*get(1), 10);
+        assert_eq!(made.get(), 4, "1, 2, 3, then 1 again");
+        // an error is returned and not kept
+        assert_eq!(kept.get_or(7, || Err::<Arc<u32>, _>("no")), Err("no"));
+        assert_eq!(*kept.get_or(7, || Ok::<_, ()>(Arc::new(70))).unwrap(), 70);
+    }
+
+    #[test]
+    fn a_kept_layer_is_the_one_a_new_generation_gives() {
+        let spec = SkyGenSpec {
+            kind: crate::imaging::sky_gen::SkyKind::Cumulus,
+            seed: 5,
+            psd_slope: -3.0,
+            cover: 0.4,
+            scale: 0.25,
+            edge: 0.05,
+            texture_k: 1.5,
+            haze: 0.3,
+        };
+        // (other tests share the process's kept layers, so this one may have been let go since)
+        let kept = shared_layer(&spec, 96, 64);
+        assert_eq!(*kept, generate(&spec, 96, 64));
+        assert_eq!(*shared_layer(&spec, 96, 64), *kept);
+        let other = shared_layer(&SkyGenSpec { seed: 6, ..spec }, 96, 64);
+        assert_ne!(*other, *kept);
+    }
 }
