@@ -387,23 +387,14 @@ fn frames_leave_the_schedule_as_frame_ready_messages() {
     }
 }
 
-/// A camera at 2 km looking at `{}`, with a generated cumulus layer on a vertical plane 30 km north (1–5 km up).
-const LAYER_AHEAD: &str = r#"
-[run]
-frame_rate_hz = 25
-frames = 4
-seed = 9
-[sensor]
-width = 128
-height = 96
-pixel_pitch_um = 17
-focal_length_mm = 50
-aperture_mm = 50
-band_um = [8, 12]
-[observer]
-trajectory = { kind = "constant_velocity", position_m = [0, 0, 2000] }
-pointing = { mode = "look_at", target_m = TARGET }
-[sky]
+/// [`CONSTANT_VELOCITY`]'s camera at 2 km looking at `target` (a point in TOML), with a generated cumulus layer
+/// on a vertical plane 30 km north (1–5 km up).
+fn layer_ahead(target: &str) -> String {
+    let observer = r#"pointing = { mode = "yaw_pitch_roll", yaw_deg = 0, pitch_deg = 0, roll_deg = 0 }"#;
+    let text = CONSTANT_VELOCITY
+        .replace("position_m = [0, 0, 8000] }", "position_m = [0, 0, 2000] }")
+        .replace(observer, &format!(r#"pointing = {{ mode = "look_at", target_m = {target} }}"#));
+    text + r#"[sky]
 generate = { kind = "cumulus", cover = 0.45, seed = 3 }
 anchor_m = [0, 30000, 3000]
 normal = [0, -1, 0]
@@ -414,11 +405,8 @@ max_texels = 512
 model = "us_standard_1976"
 aerosol = "rural"
 visibility_km = 23
-[[targets]]
-name = "ball"
-trajectory = { kind = "constant_velocity", position_m = [0, 8000, 2100], velocity_m_s = [50, 0, 0] }
-semi_axes_m = [1, 1, 1]
-"#;
+"#
+}
 
 /// A generated layer that no planned view sees is made only when a camera first may see it, and then holds the
 /// pixels a run that sees it from the start makes at set-up: the frame that first sees it is the same bits in
@@ -428,7 +416,7 @@ fn an_unseen_sky_layer_is_made_when_first_seen_as_at_set_up() {
     use irsim::imaging::background::SkyBlur;
     use irsim::sim::{Aim, SensorFrame, Sky};
     let load = |target: &str| {
-        let mut s = scenario(&LAYER_AHEAD.replace("TARGET", target));
+        let mut s = scenario(&layer_ahead(target));
         // the same blur in both runs (`auto` plans it from the run's views)
         let mut psf = s.sensor.psf.expect("the lens has a PSF");
         psf.sky_blur = SkyBlur::Prefilter;
