@@ -143,7 +143,8 @@ pub struct CameraPose {
 /// A generated layer that no planned view of the run sees (and whose misses take the dome) is made when a camera
 /// first may see it ([`Sky::plane_for`]), or when something asks for its pixels ([`Sky::plane`]): until then
 /// every view of it is the dome alone, so the run's frames are the same whenever it is made, and a run that never
-/// sees it never spends the set-up's time on it.
+/// sees it never spends the set-up's time on it. Clones share the plane once made (and the making): give each
+/// world its own `Sky` (a world stepped on a rayon worker that waits for another world's making could deadlock).
 #[derive(Component, Debug, Clone)]
 pub struct Sky {
     /// The placed radiance image.

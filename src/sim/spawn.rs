@@ -106,7 +106,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
                 || {
                     layer_plan
                         .as_ref()
-                        .filter(|plan| !plan.unseen)
+                        .filter(|plan| !plan.unseen && plan.geometry.is_ok())
                         .and_then(|plan| generated_layer(scenario, plan, seed))
                 },
             )
@@ -332,8 +332,9 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
                 None => {
                     let mut geometry = geometry;
                     geometry.set_span_tolerance(scenario.quality.span_tolerance_px);
-                    // its pixels: the layer generated and baked as at set-up (a pure function of these inputs);
-                    // the placement and the bake's inputs were checked here, so the bake cannot fail
+                    // its pixels: the layer generated and baked as at set-up (a pure function of these inputs).
+                    // The placement was checked here; the bake fails only on a texel that is not finite, which the
+                    // finite dome and the radiance table (clamped to its temperatures) never give
                     let make = move |geometry: &SkyPlane| {
                         let layer = shared_layer(&maker.spec, maker.size.0, maker.size.1);
                         maker.plane(&layer, geometry).expect("a layer checked at set-up bakes")
