@@ -325,19 +325,21 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
                 lut,
                 cloud_offset_k: sky.cloud_offset_k,
                 cloud_base_m: sky.cloud_base_m,
-                span_tolerance_px: scenario.quality.span_tolerance_px,
             };
             match layer {
                 Some(layer) => Some(maker.plane(&layer, &geometry)?),
                 None => {
+                    let tolerance = scenario.quality.span_tolerance_px;
                     let mut geometry = geometry;
-                    geometry.set_span_tolerance(scenario.quality.span_tolerance_px);
+                    geometry.set_span_tolerance(tolerance);
                     // its pixels: the layer generated and baked as at set-up (a pure function of these inputs).
                     // The placement was checked here; the bake fails only on a texel that is not finite, which the
                     // finite dome and the radiance table (clamped to its temperatures) never give
                     let make = move |geometry: &SkyPlane| {
                         let layer = shared_layer(&maker.spec, maker.size.0, maker.size.1);
-                        maker.plane(&layer, geometry).expect("a layer checked at set-up bakes")
+                        let mut plane = maker.plane(&layer, geometry).expect("a layer checked at set-up bakes");
+                        plane.set_span_tolerance(tolerance);
+                        plane
                     };
                     return Ok(Sky::deferred(geometry, make, scenario.quality.sky_sampling, dome));
                 }
@@ -365,12 +367,11 @@ struct LayerMaker {
     lut: RadianceLut,
     cloud_offset_k: f64,
     cloud_base_m: Option<f64>,
-    span_tolerance_px: f64,
 }
 
 impl LayerMaker {
     /// `layer` baked into radiance over the dome, placed as `geometry` (the same plane holding any image of the
-    /// layer's size).
+    /// layer's size), at the default span tolerance.
     fn plane(&self, layer: &CloudLayer, geometry: &SkyPlane) -> Result<SkyPlane, SetupError> {
         let air = |z: f64| self.air.clamped_k(z);
         let image = bake_layer(&LayerBake {
@@ -385,9 +386,7 @@ impl LayerMaker {
             cloud_base_m: self.cloud_base_m,
         })
         .map_err(|e| setup("sky.generate")(e.to_string()))?;
-        let mut plane = SkyPlane::new(image, &self.placement, self.eye_m).map_err(|e| setup("sky")(e.to_string()))?;
-        plane.set_span_tolerance(self.span_tolerance_px);
-        Ok(plane)
+        SkyPlane::new(image, &self.placement, self.eye_m).map_err(|e| setup("sky")(e.to_string()))
     }
 }
 
@@ -535,11 +534,14 @@ const KEPT_LAYER_TEXELS: usize = 2048 * 2048;
 /// up to [`KEPT_LAYER_TEXELS`] kept).
 fn shared_layer(spec: &SkyGenSpec, width: usize, height: usize) -> Arc<CloudLayer> {
     static KEPT: Kept<(SkyGenSpec, usize, usize), Arc<CloudLayer>> = Kept::new(2);
-    let make = || Ok::<_, std::convert::Infallible>(Arc::new(generate(spec, width, height)));
+    let make = || Arc::new(generate(spec, width, height));
     if width * height > KEPT_LAYER_TEXELS {
-        return make().unwrap_or_else(|never| match never {});
+        return make();
     }
-    KEPT.get_or((*spec, width, height), make).unwrap_or_else(|never| match never {})
+    match KEPT.get_or((*spec, width, height), || Ok::<_, std::convert::Infallible>(make())) {
+        Ok(layer) => layer,
+        Err(never) => match never {},
+    }
 }
 
 /// A sensor's PSFs: at its pixels, and at the coarse background's (`background_step` pixels a side, where
