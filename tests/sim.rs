@@ -328,7 +328,7 @@ fn no_cloud_below_the_cloud_base() {
         step(&mut app);
         current_frame(&mut app).clone()
     };
-    let layer = "generate = { kind = \"cumulus\", cover = 0.6, psd_slope = -3.0, scale = 0.3, seed = 3 }";
+    let layer = "generate = { kind = \"cumulus\", cover = 0.9, psd_slope = -3.0, scale = 0.3, seed = 3 }";
     let (clear, cloudy) = (frame(""), frame(layer));
     let based = frame(&format!("{layer}\ncloud_base_m = 11000"));
     let worst = |a: &irsim::imaging::frame::Frame, b: &irsim::imaging::frame::Frame| {

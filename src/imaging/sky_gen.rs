@@ -214,45 +214,41 @@ fn quantile(values: &[f32], q: f64) -> f32 {
 /// A periodic Gaussian random field, mean 0 and standard deviation 1, whose power spectrum falls as
 /// `max(f, 1/outer_px)^slope`.
 ///
-/// The spectrum's white noise is drawn in order (one generator, two normals a texel, row after row), so the
-/// field is a function of the seed alone; the rest runs on every thread without changing a bit: the amplitude
-/// depends on `|f_x|` and `|f_y|` only, so it is computed once per quadrant's texel; each band of rows is
-/// transformed while the next is drawn; then the columns ([`fft_columns`]).
+/// The spectrum's white noise is a function of the seed and of each frequency alone, in cycles per layer: the
+/// row of vertical frequency `k_y` is drawn from its own stream (keyed by [`frequency_order`]`(k_y)`), two
+/// normals per frequency, its horizontal frequencies in the order `0, 1, −1, 2, −2, …`. A layer of any size
+/// therefore holds the same coefficients at the frequencies it has: generated at half the size (and half the
+/// outer scale in texels) it is the same clouds without their finest detail, not other clouds. The rows are
+/// drawn and transformed on every thread without changing a bit (each row's stream is its own); then the
+/// columns ([`fft_columns`]).
 pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, seed: u64, substream: u64) -> Vec<f32> {
     use rayon::prelude::*;
-    let mut rng = stream_rng(seed, stage::SKY, 0, substream);
     let f0 = 1.0 / outer_px.max(1.0);
-    let freq = |k: usize, n: usize| if k <= n / 2 { k as f64 } else { k as f64 - n as f64 } / n as f64;
-    // |freq(k, n)| is freq(min(k, n − k), n) exactly (k − n is −(n − k) exactly), and hypot takes magnitudes
     let (half_w, half_h) = (width / 2 + 1, height / 2 + 1);
-    let fold = |k: usize, n: usize| if k <= n / 2 { k } else { n - k };
+    // |f| depends on |k_x| and |k_y| alone: the amplitude once per quadrant's texel
     let amplitude: Vec<f64> = (0..half_w * half_h)
         .into_par_iter()
         .map(|i| {
             let (x, y) = (i % half_w, i / half_w);
-            let f = freq(x, width).hypot(freq(y, height));
+            let f = (x as f64 / width as f64).hypot(y as f64 / height as f64);
             if x == 0 && y == 0 { 0.0 } else { f.max(f0).powf(0.5 * slope) }
         })
         .collect();
-    let mut planner = FftPlanner::<f32>::new();
-    let rows = planner.plan_fft_inverse(width);
+    let rows = FftPlanner::<f32>::new().plan_fft_inverse(width);
     let mut data = vec![Complex::new(0.0f32, 0.0); width * height];
-    // bands of about 64 KiB: the last band drawn is transformed while the next is drawn
-    let band_rows = (8192 / width).max(1);
-    rayon::scope(|scope| {
-        for (b, band) in data.chunks_mut(band_rows * width).enumerate() {
-            for (r, row) in band.chunks_mut(width).enumerate() {
-                let y = b * band_rows + r;
-                let amp_row = &amplitude[fold(y, height) * half_w..][..half_w];
-                for (x, c) in row.iter_mut().enumerate() {
-                    let amp = amp_row[fold(x, width)];
-                    let (re, im) = (standard_normal(&mut rng), standard_normal(&mut rng));
-                    *c = Complex::new((amp * re) as f32, (amp * im) as f32);
-                }
-            }
-            let rows = &rows;
-            scope.spawn(move |_| band.chunks_mut(width).for_each(|row| rows.process(row)));
+    data.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        let ky = signed_frequency(y, height);
+        let amp_row = &amplitude[ky.unsigned_abs() as usize * half_w..][..half_w];
+        let mut rng = stream_rng(seed, stage::SKY, frequency_order(ky), substream);
+        for p in 0..width as u64 {
+            // the p-th horizontal frequency of the order 0, 1, −1, 2, −2, …, at its index in the row
+            let kx = if p % 2 == 1 { p.div_ceil(2) as i64 } else { -((p / 2) as i64) };
+            let x = kx.rem_euclid(width as i64) as usize;
+            let amp = amp_row[kx.unsigned_abs() as usize];
+            let (re, im) = (standard_normal(&mut rng), standard_normal(&mut rng));
+            row[x] = Complex::new((amp * re) as f32, (amp * im) as f32);
         }
+        rows.process(row);
     });
     fft_columns(&mut data, width, height, FftDirection::Inverse);
     // the real part of the transform of white complex noise is a real Gaussian field with the same spectrum;
@@ -267,13 +263,25 @@ pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, se
     real
 }
 
+/// The frequency, in cycles per side, of index `k` of an `n`-point transform: `k` up to `n/2`, `k − n` above.
+fn signed_frequency(k: usize, n: usize) -> i64 {
+    if k <= n / 2 { k as i64 } else { k as i64 - n as i64 }
+}
+
+/// The place of frequency `k` in the order `0, 1, −1, 2, −2, …`: the first `n` places are an `n`-point
+/// transform's frequencies, whatever `n`.
+fn frequency_order(k: i64) -> u64 {
+    if k > 0 { 2 * k as u64 - 1 } else { 2 * k.unsigned_abs() }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::imaging::fft2d::fft2;
     use crate::imaging::psd::psd_slope;
 
-    /// [`gaussian_field`] as first written: one thread drawing, the amplitude per texel, then the 2D FFT.
+    /// [`gaussian_field`] from its definition, on one thread: each frequency's coefficient is the pair of
+    /// normals at its place in its row's stream, then the 2D FFT.
     fn gaussian_field_serial(
         width: usize,
         height: usize,
@@ -282,15 +290,18 @@ mod tests {
         seed: u64,
         substream: u64,
     ) -> Vec<f32> {
-        let mut rng = stream_rng(seed, stage::SKY, 0, substream);
         let f0 = 1.0 / outer_px.max(1.0);
-        let freq = |k: usize, n: usize| if k <= n / 2 { k as f64 } else { k as f64 - n as f64 } / n as f64;
         let mut data: Vec<Complex<f32>> = Vec::with_capacity(width * height);
         for y in 0..height {
+            let ky = signed_frequency(y, height);
+            let mut rng = stream_rng(seed, stage::SKY, frequency_order(ky), substream);
+            let draws: Vec<(f64, f64)> =
+                (0..width).map(|_| (standard_normal(&mut rng), standard_normal(&mut rng))).collect();
             for x in 0..width {
-                let f = freq(x, width).hypot(freq(y, height));
+                let kx = signed_frequency(x, width);
+                let f = (kx.abs() as f64 / width as f64).hypot(ky.abs() as f64 / height as f64);
                 let amp = if x == 0 && y == 0 { 0.0 } else { f.max(f0).powf(0.5 * slope) };
-                let (re, im) = (standard_normal(&mut rng), standard_normal(&mut rng));
+                let (re, im) = draws[frequency_order(kx) as usize];
                 data.push(Complex::new((amp * re) as f32, (amp * im) as f32));
             }
         }
@@ -301,6 +312,41 @@ mod tests {
         let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
         let sd = if sd > 0.0 { sd } else { 1.0 };
         values.iter().map(|v| ((v - mean) / sd) as f32).collect()
+    }
+
+    #[test]
+    fn a_smaller_field_holds_the_same_coefficients() {
+        use crate::imaging::fft2d::fft2;
+        // odd and even sides; half the size and half the outer scale in texels: the same frequencies in cycles
+        // per side have the same coefficient up to one factor (the amplitudes' common scale and the
+        // standardization), the Nyquist row and column of the smaller aside (they alias ±n/2)
+        for ((w, h), (sw, sh)) in [((64, 48), (32, 24)), ((90, 66), (45, 33)), ((96, 60), (32, 20))] {
+            let spectrum = |w: usize, h: usize| {
+                let g = gaussian_field(w, h, -3.0, 0.5 * w as f64, 9, 1);
+                let mut c: Vec<Complex<f32>> = g.iter().map(|&v| Complex::new(v, 0.0)).collect();
+                fft2(&mut c, w, h, FftDirection::Forward);
+                c
+            };
+            let (big, small) = (spectrum(w, h), spectrum(sw, sh));
+            let at = |c: &[Complex<f32>], n: (usize, usize), kx: i64, ky: i64| {
+                c[ky.rem_euclid(n.1 as i64) as usize * n.0 + kx.rem_euclid(n.0 as i64) as usize]
+            };
+            let (mut ratios, mut peak) = (Vec::new(), 0.0f32);
+            for ky in -(sh as i64 - 1) / 2..=(sh as i64 - 1) / 2 {
+                for kx in -(sw as i64 - 1) / 2..=(sw as i64 - 1) / 2 {
+                    let (b, s) = (at(&big, (w, h), kx, ky), at(&small, (sw, sh), kx, ky));
+                    peak = peak.max(s.norm());
+                    if (kx, ky) != (0, 0) {
+                        ratios.push((b, s));
+                    }
+                }
+            }
+            // one real factor: b = c·s at every frequency
+            let c = ratios.iter().map(|(b, s)| (b * s.conj()).re).sum::<f32>()
+                / ratios.iter().map(|(_, s)| s.norm_sqr()).sum::<f32>();
+            let worst = ratios.iter().map(|(b, s)| (b - s * c).norm()).fold(0.0f32, f32::max);
+            assert!(worst <= 1e-3 * c.abs() * peak, "{w}x{h} against {sw}x{sh}: off by {worst}, factor {c}");
+        }
     }
 
     #[test]

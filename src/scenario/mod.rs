@@ -202,9 +202,8 @@ pub struct SkySpec {
     /// 100 m above); default none, clouds wherever the layer is.
     #[serde(default)]
     pub cloud_base_m: Option<f64>,
-    /// Largest side of a generated layer, texels (its resolution follows the sensor's footprint up to this).
-    /// Part of the scene, not an accuracy switch: the layer is generated at this resolution, and another
-    /// resolution generates other clouds.
+    /// Largest side of a generated layer, texels (its resolution follows the sensor's footprint up to this). A
+    /// smaller layer is the same clouds without their finest detail ([`crate::imaging::sky_gen::gaussian_field`]).
     #[serde(default = "default_max_texels")]
     pub max_texels: usize,
     /// World position of the anchor point P, m.
