@@ -461,3 +461,38 @@ fn an_unseen_sky_layer_is_made_when_first_seen_as_at_set_up() {
     let hi = fb.pixels().iter().copied().fold(f32::NEG_INFINITY, f32::max);
     assert!(hi > 1.05 * lo, "the view holds cloud against sky ({lo} … {hi})");
 }
+
+#[test]
+fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
+    use irsim::sim::Sky;
+    let layer = |texel_px: f64| {
+        // a layer under its largest side (the fine one 1961 × 393 texels)
+        let mut s = scenario(&layer_ahead("[0, 30000, 3000]").replace("max_texels = 512", "max_texels = 4096"));
+        s.quality.sky_texel_px = texel_px;
+        let mut app = build_app(&s, RunOptions { noise: false, vibration: false, ..RunOptions::default() }).unwrap();
+        let world = app.world_mut();
+        let sky = world.query::<&Sky>().single(world).unwrap().clone();
+        sky.plane().unwrap().image().clone()
+    };
+    let (fine, coarse) = (layer(1.0), layer(2.0));
+    let (w, h) = (fine.width(), fine.height());
+    let (cw, ch) = (coarse.width(), coarse.height());
+    assert_eq!((cw, ch), (w.div_ceil(2), h.div_ceil(2)), "{w}x{h}");
+    // each coarse texel against the fine texels over its place on the plane (the 2 × 2 from where it starts):
+    // the same clouds correlate near 1, another realization of the same spectrum near 0
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for y in 0..ch {
+        for x in 0..cw {
+            let (fx, fy) = ((x * w / cw).min(w - 2), (y * h / ch).min(h - 2));
+            let at = |dx: usize, dy: usize| f64::from(fine.pixels()[(fy + dy) * w + fx + dx]);
+            a.push(0.25 * (at(0, 0) + at(1, 0) + at(0, 1) + at(1, 1)));
+            b.push(f64::from(coarse.pixels()[y * cw + x]));
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (ma, mb) = (mean(&a), mean(&b));
+    let cov = a.iter().zip(&b).map(|(x, y)| (x - ma) * (y - mb)).sum::<f64>();
+    let var = |v: &[f64], m: f64| v.iter().map(|x| (x - m).powi(2)).sum::<f64>();
+    let r = cov / (var(&a, ma) * var(&b, mb)).sqrt();
+    assert!(r > 0.99, "correlation {r}");
+}

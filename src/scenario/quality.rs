@@ -101,6 +101,11 @@ pub struct Quality {
     /// it, and interpolated bilinearly between (1: at every pixel; a frame whose width or height is not a
     /// multiple of it is made at every pixel).
     pub background_step_px: usize,
+    /// A generated cloud or haze layer's texel, in sensor pixels at the plane's distance (1: a texel a pixel, up
+    /// to the layer's `max_texels`). A coarser layer is the same clouds without their finest detail: its
+    /// spectrum holds the same coefficients at the frequencies it has ([`crate::imaging::sky_gen`]), and it costs
+    /// the square of this fewer texels to generate and bake.
+    pub sky_texel_px: f64,
     /// Quadrature of a target's ellipse ⊗ PSF.
     pub target_method: TargetMethod,
     /// Spacing of the quadrature's ring nodes in a target's ellipse, px (both methods; `auto` takes seven
@@ -159,6 +164,7 @@ impl Quality {
             sky_blur: SkyBlur::Prefilter,
             prefilter_tolerance: 0.05,
             background_step_px: 1,
+            sky_texel_px: 1.0,
             target_method: TargetMethod::Auto,
             target_node_spacing_px: target_psf::NODE_SPACING_PX,
             blob_sampling: BlobSampling::Auto,
@@ -208,6 +214,7 @@ impl Quality {
                 sky_blur: SkyBlur::Auto,
                 prefilter_tolerance: 0.2,
                 background_step_px: DRAFT_BACKGROUND_STEP_PX,
+                sky_texel_px: DRAFT_SKY_TEXEL_PX,
                 target_node_spacing_px: DRAFT_TARGET_NODE_SPACING_PX,
                 blob_sampling: BlobSampling::Point,
                 blob_roi_fraction: 1e-2,
@@ -256,7 +263,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 26] = [
+pub const SWITCHES: [&str; 27] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -268,6 +275,7 @@ pub const SWITCHES: [&str; 26] = [
     "sky_blur",
     "prefilter_tolerance",
     "background_step_px",
+    "sky_texel_px",
     "target_method",
     "target_node_spacing_px",
     "blob_sampling",
@@ -318,6 +326,10 @@ pub const DRAFT_TARGET_NODE_SPACING_PX: f64 = 0.6;
 pub const DRAFT_BACKGROUND_STEP_PX: usize = 2;
 /// Largest `background_step_px`.
 pub const MAX_BACKGROUND_STEP_PX: usize = 4;
+/// The draft preset's `sky_texel_px`: the texels of the background's own 2 px grid.
+pub const DRAFT_SKY_TEXEL_PX: f64 = 2.0;
+/// Smallest and largest `sky_texel_px`.
+pub const SKY_TEXEL_RANGE_PX: (f64, f64) = (0.5, 8.0);
 /// Smallest `blob_roi_fraction`.
 pub const MIN_ROI_FRACTION: f64 = 1e-9;
 /// Largest `poisson_normal_threshold_e`: every count exact.
@@ -359,6 +371,9 @@ pub struct QualitySpec {
     /// See [`Quality::background_step_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_step_px: Option<usize>,
+    /// See [`Quality::sky_texel_px`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sky_texel_px: Option<f64>,
     /// See [`Quality::target_method`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_method: Option<TargetMethod>,
@@ -442,6 +457,7 @@ impl QualitySpec {
             sky_blur,
             prefilter_tolerance,
             background_step_px,
+            sky_texel_px,
             target_method,
             target_node_spacing_px,
             blob_sampling,
@@ -486,6 +502,7 @@ impl QualitySpec {
                 format!("{} must be in 1 … {MAX_BACKGROUND_STEP_PX} px", q.background_step_px),
             ));
         }
+        range("sky_texel_px", q.sky_texel_px, SKY_TEXEL_RANGE_PX.0, SKY_TEXEL_RANGE_PX.1, " px")?;
         if let BlobSampling::Integrated { n } = q.blob_sampling
             && !(1..=16).contains(&n)
         {
@@ -584,6 +601,8 @@ mod tests {
             ("reflection_skip_below_dn = -1", "quality.reflection_skip_below_dn"),
             ("background_step_px = 0", "quality.background_step_px"),
             ("background_step_px = 9", "quality.background_step_px"),
+            ("sky_texel_px = 0.1", "quality.sky_texel_px"),
+            ("sky_texel_px = nan", "quality.sky_texel_px"),
             (
                 "fusion_solver = { method = \"jacobi\", tolerance = 0, max_iterations = 10 }",
                 "quality.fusion_solver.tolerance",

@@ -405,7 +405,7 @@ fn plan_layer(scenario: &CheckedScenario, eye: DVec3) -> Option<LayerPlan> {
     let (Some(_), None, Some(placement)) = (&sky.generate, &scenario.sky_image, sky.placement()) else {
         return None;
     };
-    let size = layer_size(&scenario.sensor, &placement, eye, sky.max_texels);
+    let size = layer_size(&scenario.sensor, &placement, eye, sky.max_texels, scenario.quality.sky_texel_px);
     // zeros from the allocator: the blank image's pages are not touched unless read
     let blank = SkyImage::from_finite(size.0, size.1, vec![0.0; size.0 * size.1]);
     let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| setup("sky")(e.to_string()));
@@ -444,13 +444,14 @@ fn generated_layer(scenario: &CheckedScenario, plan: &LayerPlan, seed: u64) -> O
     Some(shared_layer(&layer_spec(gen_spec, seed), plan.size.0, plan.size.1))
 }
 
-/// Texels of a generated layer: at least one per sensor pixel at the plane's distance from the observer's
+/// Texels of a generated layer: one per `texel_px` sensor pixels at the plane's distance from the observer's
 /// start (its nearest point), up to `max_texels` per side.
 fn layer_size(
     sensor: &ResolvedSensor,
     placement: &crate::imaging::sky_plane::SkyPlacement,
     eye: DVec3,
     max_texels: usize,
+    texel_px: f64,
 ) -> (usize, usize) {
     let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
     let normal = placement.normal.map_or_else(
@@ -461,7 +462,7 @@ fn layer_size(
         |n| n.normalize_or(DVec3::Y),
     );
     let distance = (eye - placement.anchor_m).dot(normal).abs().max(1.0);
-    let texel_m = ifov * distance;
+    let texel_m = ifov * distance * texel_px;
     let side = |extent_m: f64| ((extent_m / texel_m).ceil() as usize).clamp(16, max_texels);
     (side(placement.width_m), side(placement.height_m))
 }
