@@ -215,8 +215,8 @@ fn quantile(values: &[f32], q: f64) -> f32 {
 /// `max(f, 1/outer_px)^slope`.
 ///
 /// The spectrum's white noise is a function of the seed and of each frequency alone, in cycles per layer: the
-/// row of vertical frequency `k_y` is drawn from its own stream (keyed by [`frequency_order`]`(k_y)`), two
-/// normals per frequency, its horizontal frequencies in the order `0, 1, −1, 2, −2, …`. A layer of any size
+/// row of vertical frequency `k_y` is drawn from its own stream (keyed by the place of `k_y` in the order
+/// `0, 1, −1, 2, −2, …`), two normals per frequency, its horizontal frequencies in that order. A layer of any size
 /// therefore holds the same coefficients at the frequencies it has: generated at half the size (and half the
 /// outer scale in texels) it is the same clouds without their finest detail, not other clouds. The rows are
 /// drawn and transformed on every thread without changing a bit (each row's stream is its own); then the
