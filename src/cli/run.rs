@@ -553,23 +553,30 @@ fn write_sky(a: &SkyArgs) -> Result<(), CliError> {
         |z: f64| crate::physics::atmosphere::ambient_temperature_k(z.clamp(0.0, 80_000.0), a.t0_k).unwrap_or(a.t0_k);
     let range_m = a.cloud_range_km * 1000.0;
     let eye = glam::DVec3::new(0.0, 0.0, a.altitude_m);
-    let mut pixels = Vec::with_capacity(a.width * a.height);
-    for y in 0..a.height {
+    // rows side by side; a row's cloudless pixels are its clear sky, whose temperature (the inversion of the
+    // band radiance, most of the time) is found once
+    use rayon::prelude::*;
+    let mut pixels = vec![0.0f32; a.width * a.height];
+    pixels.par_chunks_mut(a.width).enumerate().for_each(|(y, row)| {
         let e = (top + (bottom - top) * (y as f64 + 0.5) / a.height as f64).to_radians();
         let dir = glam::DVec3::new(0.0, e.cos(), e.sin());
         let clear = f64::from(dome.radiance_toward(dir));
         let cloud_at = eye + dir * range_m;
         let tau = atmosphere.along_segment(eye, cloud_at);
         let path = (1.0 - tau) * lut.radiance(air(0.5 * (eye.z + cloud_at.z)));
-        for x in 0..a.width {
+        let level = |l: f64| (brightness_temperature(Measure::Energy, band, l).unwrap_or(0.0) * 100.0).round() as f32;
+        let clear_level = level(clear);
+        for (x, p) in row.iter_mut().enumerate() {
             let i = y * a.width + x;
             let alpha = f64::from(layer.opacity[i]);
-            let cloud = tau * lut.radiance(air(cloud_at.z) + f64::from(layer.temp_offset_k[i])) + path;
-            let l = alpha * cloud + (1.0 - alpha) * clear;
-            let t = brightness_temperature(Measure::Energy, band, l).unwrap_or(0.0);
-            pixels.push((t * 100.0).round() as f32);
+            *p = if alpha == 0.0 {
+                clear_level
+            } else {
+                let cloud = tau * lut.radiance(air(cloud_at.z) + f64::from(layer.temp_offset_k[i])) + path;
+                level(alpha * cloud + (1.0 - alpha) * clear)
+            };
         }
-    }
+    });
     let frame = Frame::from_pixels(a.width, a.height, pixels);
     let mut bytes = Vec::new();
     frame.write_png16(u16::MAX, &mut bytes).map_err(|e| CliError::Failed(e.to_string()))?;
