@@ -483,13 +483,22 @@ fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
     let (mut a, mut b) = (Vec::new(), Vec::new());
     for y in 0..ch {
         for x in 0..cw {
-            let (fx, fy) = ((x * w / cw).min(w - 2), (y * h / ch).min(h - 2));
+            // the 2 × 2 fine texels centred nearest the coarse texel's centre, (x + ½)·w/cw in fine texels
+            let start = |x: usize, w: usize, cw: usize| ((2 * x + 1) * w / (2 * cw)).saturating_sub(1).min(w - 2);
+            let (fx, fy) = (start(x, w, cw), start(y, h, ch));
             let at = |dx: usize, dy: usize| f64::from(fine.pixels()[(fy + dy) * w + fx + dx]);
             a.push(0.25 * (at(0, 0) + at(1, 0) + at(0, 1) + at(1, 1)));
             b.push(f64::from(coarse.pixels()[y * cw + x]));
         }
     }
+    // less each row's mean: the baked radiance's fall with elevation is common to any clouds
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    for v in [&mut a, &mut b] {
+        for row in v.chunks_mut(cw) {
+            let m = mean(row);
+            row.iter_mut().for_each(|x| *x -= m);
+        }
+    }
     let (ma, mb) = (mean(&a), mean(&b));
     let cov = a.iter().zip(&b).map(|(x, y)| (x - ma) * (y - mb)).sum::<f64>();
     let var = |v: &[f64], m: f64| v.iter().map(|x| (x - m).powi(2)).sum::<f64>();

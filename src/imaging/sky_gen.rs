@@ -217,8 +217,9 @@ fn quantile(values: &[f32], q: f64) -> f32 {
 /// The spectrum's white noise is a function of the seed and of each frequency alone, in cycles per layer: the
 /// row of vertical frequency `k_y` is drawn from its own stream (keyed by the place of `k_y` in the order
 /// `0, 1, −1, 2, −2, …`), two normals per frequency, its horizontal frequencies in that order. A layer of any size
-/// therefore holds the same coefficients at the frequencies it has: generated at half the size (and half the
-/// outer scale in texels) it is the same clouds without their finest detail, not other clouds. The rows are
+/// therefore holds the same coefficients at the frequencies it has, and each texel the field at its centre:
+/// generated at half the size (and half the outer scale in texels) it is the same clouds, in the same place,
+/// without their finest detail, not other clouds. The rows are
 /// drawn and transformed on every thread without changing a bit (each row's stream is its own); then the
 /// columns ([`fft_columns`]).
 pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, seed: u64, substream: u64) -> Vec<f32> {
@@ -234,11 +235,16 @@ pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, se
             if x == 0 && y == 0 { 0.0 } else { f.max(f0).powf(0.5 * slope) }
         })
         .collect();
+    // texel i holds the field at its centre, (i + ½)/n of the layer: each coefficient turned by e^{iπk/n} on
+    // both axes, so that every size samples the same field at its own texels' centres
+    let turn = |k: i64, n: usize| Complex::from_polar(1.0, std::f64::consts::PI * k as f64 / n as f64);
+    let column_turn: Vec<Complex<f64>> = (0..width).map(|x| turn(signed_frequency(x, width), width)).collect();
     let rows = FftPlanner::<f32>::new().plan_fft_inverse(width);
     let mut data = vec![Complex::new(0.0f32, 0.0); width * height];
     data.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
         let ky = signed_frequency(y, height);
         let amp_row = &amplitude[ky.unsigned_abs() as usize * half_w..][..half_w];
+        let row_turn = turn(ky, height);
         let mut rng = stream_rng(seed, stage::SKY, frequency_order(ky), substream);
         for p in 0..width as u64 {
             // the p-th horizontal frequency of the order 0, 1, −1, 2, −2, …, at its index in the row
@@ -246,7 +252,8 @@ pub fn gaussian_field(width: usize, height: usize, slope: f64, outer_px: f64, se
             let x = kx.rem_euclid(width as i64) as usize;
             let amp = amp_row[kx.unsigned_abs() as usize];
             let (re, im) = (standard_normal(&mut rng), standard_normal(&mut rng));
-            row[x] = Complex::new((amp * re) as f32, (amp * im) as f32);
+            let c = Complex::new(amp * re, amp * im) * row_turn * column_turn[x];
+            row[x] = Complex::new(c.re as f32, c.im as f32);
         }
         rows.process(row);
     });
@@ -302,7 +309,9 @@ mod tests {
                 let f = (kx.abs() as f64 / width as f64).hypot(ky.abs() as f64 / height as f64);
                 let amp = if x == 0 && y == 0 { 0.0 } else { f.max(f0).powf(0.5 * slope) };
                 let (re, im) = draws[frequency_order(kx) as usize];
-                data.push(Complex::new((amp * re) as f32, (amp * im) as f32));
+                let turn = |k: i64, n: usize| Complex::from_polar(1.0, std::f64::consts::PI * k as f64 / n as f64);
+                let c = Complex::new(amp * re, amp * im) * turn(ky, height) * turn(kx, width);
+                data.push(Complex::new(c.re as f32, c.im as f32));
             }
         }
         fft2(&mut data, width, height, FftDirection::Inverse);
@@ -334,7 +343,13 @@ mod tests {
             let (mut ratios, mut peak) = (Vec::new(), 0.0f32);
             for ky in -(sh as i64 - 1) / 2..=(sh as i64 - 1) / 2 {
                 for kx in -(sw as i64 - 1) / 2..=(sw as i64 - 1) / 2 {
-                    let (b, s) = (at(&big, (w, h), kx, ky), at(&small, (sw, sh), kx, ky));
+                    // less each size's turn to its texels' centres (the same field, sampled at other points)
+                    let untwist = |n: (usize, usize)| {
+                        let a = -std::f32::consts::PI * (kx as f32 / n.0 as f32 + ky as f32 / n.1 as f32);
+                        Complex::from_polar(1.0, a)
+                    };
+                    let b = at(&big, (w, h), kx, ky) * untwist((w, h));
+                    let s = at(&small, (sw, sh), kx, ky) * untwist((sw, sh));
                     peak = peak.max(s.norm());
                     if (kx, ky) != (0, 0) {
                         ratios.push((b, s));

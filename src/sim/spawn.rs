@@ -445,7 +445,7 @@ fn generated_layer(scenario: &CheckedScenario, plan: &LayerPlan, seed: u64) -> O
 }
 
 /// Texels of a generated layer: one per `texel_px` sensor pixels at the plane's distance from the observer's
-/// start (its nearest point), up to `max_texels` per side.
+/// start (its nearest point), square, and larger where a side would pass `max_texels`.
 fn layer_size(
     sensor: &ResolvedSensor,
     placement: &crate::imaging::sky_plane::SkyPlacement,
@@ -462,7 +462,9 @@ fn layer_size(
         |n| n.normalize_or(DVec3::Y),
     );
     let distance = (eye - placement.anchor_m).dot(normal).abs().max(1.0);
-    let texel_m = ifov * distance * texel_px;
+    // square texels: where a side would pass `max_texels`, both grow (a layer's spectrum is isotropic in texels)
+    let max = max_texels as f64;
+    let texel_m = (ifov * distance * texel_px).max(placement.width_m / max).max(placement.height_m / max);
     let side = |extent_m: f64| ((extent_m / texel_m).ceil() as usize).clamp(16, max_texels);
     (side(placement.width_m), side(placement.height_m))
 }
