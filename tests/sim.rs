@@ -113,7 +113,7 @@ fn runs_are_deterministic_and_thread_count_independent() {
 /// the hashes with the values printed in the failure message, and say why in the commit. If the change was not
 /// meant to change frames, the failure is a regression.
 const GOLDEN_PAPER_CLEAR_SKY: [u64; 3] =
-    [6_758_955_201_885_425_263, 879_402_588_203_864_116, 11_720_114_098_679_478_473];
+    [17_365_888_609_287_998_850, 11_529_315_217_195_343_541, 17_839_533_008_730_060_259];
 
 #[test]
 fn golden_frame_hashes() {
