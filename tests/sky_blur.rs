@@ -66,12 +66,14 @@ fn prefiltered_sky_is_closer_to_the_exact_blur_than_the_frame_blur() {
         "{name}, {counted} pixels, DN against the brute-force blur: prefilter worst {worst_pre:.3} rms {rms_pre:.3}; \
          frame worst {worst_ref:.3} rms {rms_ref:.3}"
     );
-    // measured: prefilter worst 8.6 DN, rms 3.4; frame worst 31.1, rms 19.7 (the camera's temporal noise is 2 DN).
+    // measured: prefilter worst 12.2 DN, rms 4.5; frame worst 37.3, rms 19.4 (the camera's temporal noise is 2 DN;
+    // the bounds hold for a realization of the clouds, whose sharpest edges set the worst pixel: the layer drawn
+    // texel by texel gave prefilter 8.6 / 3.4, frame 31.1 / 19.7).
     // With the parametric clear sky the clouds stood out less against it (prefilter 3.1 / 1.3, frame 12.1 / 6.7):
     // LOWTRAN's sky behind them is colder (the parametric one was 10–25 K too warm at 2–30° elevation from 0–3 km
     // against direct LOWTRAN runs), so their edges carry more DN
     assert!(worst_pre < 0.5 * worst_ref && rms_pre < 0.5 * rms_ref);
-    assert!(worst_pre < 12.0 && rms_pre < 5.0, "{worst_pre} DN, rms {rms_pre}");
+    assert!(worst_pre < 16.0 && rms_pre < 6.0, "{worst_pre} DN, rms {rms_pre}");
 }
 
 /// A frame's background depends on its own camera alone, not on what its buffer held before: sense_and_avoid's
