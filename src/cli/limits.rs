@@ -9,7 +9,8 @@
 //!   row (a turned, scaled view, so neighbouring pixels read neighbouring texels, as the sky's ray cast does), and
 //!   the store: the bound of the `render` stage.
 //! - `normal`: one standard normal deviate per pixel (Box–Muller on a counter-based hash, 24-bit uniforms, a
-//!   table-free logarithm and sine/cosine polynomials: the `box_muller` sampler's transform) and the store.
+//!   table-free logarithm and sine/cosine polynomials: the `box_muller` sampler's transform, sixteen pairs to
+//!   an AVX-512 register where the CPU has it) and the store.
 //! - `readout`: the detector on a frame in place: signal, a normal deviate, shot and read noise, the ADC,
 //!   rounding and clamping: the bound of the `noise` stage.
 //! - `fused`: bilinear sample → signal → noise → ADC → round, in one pass: the bound of a whole frame.
@@ -24,7 +25,7 @@ use rayon::prelude::*;
 
 use super::CliError;
 use super::run::{StageSplit, bench_dir, bench_scenario, time_stages};
-use crate::physics::random::{NormalSampler, SplitMix64, box_muller, mix64};
+use crate::physics::random::{NormalSampler, SplitMix64, box_muller_fill, mix64};
 use crate::physics::simd::{Level, widest};
 use crate::scenario::load::load_for_frames;
 
@@ -144,31 +145,25 @@ impl Bound {
     /// Row `j` of the bound, for frame `frame` (its random stream).
     #[inline(always)]
     fn row(self, s: &Setup, frame: u64, j: usize, row: &mut [f32]) {
+        // pair p's draw is mix64(key + (p + 1)·GAMMA), the deviates made 64 at a time (as the readout does)
+        const BLOCK: usize = 64;
         let key = mix64(frame ^ ((j as u64) << 32));
-        let draw = |p: usize| mix64(key.wrapping_add((p as u64 + 1).wrapping_mul(SplitMix64::GAMMA)));
+        let state = |at: usize| key.wrapping_add((at as u64 / 2).wrapping_mul(SplitMix64::GAMMA));
+        let mut z = [0f32; BLOCK];
         match self {
             Self::Store => row.fill(frame as f32),
             Self::Bilinear => s.sample_row(j, row),
-            Self::Normal => {
-                for (p, pair) in row.chunks_exact_mut(2).enumerate() {
-                    let (a, b) = box_muller(draw(p));
-                    pair[0] = a;
-                    pair[1] = b;
+            Self::Normal => box_muller_fill(key, row),
+            Self::Readout | Self::Fused => {
+                if self == Self::Fused {
+                    s.sample_row(j, row);
                 }
-            }
-            Self::Readout => {
-                for (p, pair) in row.chunks_exact_mut(2).enumerate() {
-                    let (a, b) = box_muller(draw(p));
-                    pair[0] = s.read(s.gain * pair[0] + s.dark, a);
-                    pair[1] = s.read(s.gain * pair[1] + s.dark, b);
-                }
-            }
-            Self::Fused => {
-                s.sample_row(j, row);
-                for (p, pair) in row.chunks_exact_mut(2).enumerate() {
-                    let (a, b) = box_muller(draw(p));
-                    pair[0] = s.read(s.gain * pair[0] + s.dark, a);
-                    pair[1] = s.read(s.gain * pair[1] + s.dark, b);
+                for (b, block) in row.chunks_mut(BLOCK).enumerate() {
+                    let z = &mut z[..block.len()];
+                    box_muller_fill(state(b * BLOCK), z);
+                    for (p, &z) in block.iter_mut().zip(z.iter()) {
+                        *p = s.read(s.gain * *p + s.dark, z);
+                    }
                 }
             }
         }
