@@ -837,8 +837,13 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
     let px = frame.pixels();
     // a band of tiles a task: the wanted tiles are often a few bands
     out.par_chunks_mut(tw).enumerate().with_max_len(split_finely(1)).for_each(|(ty, tiles)| {
-        CURVATURE_ROW.with_borrow_mut(|line| {
+        CURVATURE_ROW.with_borrow_mut(|(line, most, nan)| {
             line.resize(w, 0.0);
+            // each tile's largest value so far in each of sixteen lanes, and whether it met a NaN
+            most.clear();
+            most.resize(tw, [0.0; 16]);
+            nan.clear();
+            nan.resize(tw, false);
             let wanted = &wanted[ty * tw..(ty + 1) * tw];
             widest(
                 #[inline(always)]
@@ -849,27 +854,37 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                         for run in true_runs(wanted) {
                             let (x0, x1) = (run.start * t, (run.end * t).min(w));
                             curvature_row(up, mid, down, x0..x1, line);
-                            for (k, tile) in tiles.iter_mut().enumerate().take(run.end).skip(run.start) {
+                            for k in run {
                                 let c = &line[k * t..((k + 1) * t).min(w)];
-                                // NaN sticks; the values are ≥ 0, so their largest is the same in any order
-                                let nan = c.iter().fold(false, |any, v| any | v.is_nan());
-                                *tile = if nan || tile.is_nan() {
-                                    f32::NAN
-                                } else {
-                                    c.iter().fold(*tile, |m, &v| m.max(v))
-                                };
+                                for chunk in c.chunks(16) {
+                                    for (m, &v) in most[k].iter_mut().zip(chunk) {
+                                        nan[k] |= v.is_nan();
+                                        *m = if v > *m { v } else { *m };
+                                    }
+                                }
                             }
                         }
                     }
                 },
             );
+            // NaN sticks; the values are ≥ 0, so their largest is the same in any order (here lane by lane, in
+            // vector registers, then across the lanes)
+            for (k, tile) in tiles.iter_mut().enumerate() {
+                if wanted[k] {
+                    *tile =
+                        if nan[k] || tile.is_nan() { f32::NAN } else { most[k].iter().fold(*tile, |m, &v| m.max(v)) };
+                }
+            }
         });
     });
 }
 
 thread_local! {
-    /// Each thread's row of curvatures for [`tile_curvature`] (kept from frame to frame).
-    static CURVATURE_ROW: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// Each thread's row of curvatures for [`tile_curvature`], with its tiles' lane maxima and NaN flags (kept
+    /// from frame to frame).
+    #[allow(clippy::type_complexity)]
+    static CURVATURE_ROW: std::cell::RefCell<(Vec<f32>, Vec<[f32; 16]>, Vec<bool>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
     /// Each thread's tile columns that a padded row's horizontal pass covers, for
     /// [`Convolver::apply_where_needed_in`] (kept from frame to frame).
     static BLURRED_COLUMNS: std::cell::RefCell<Vec<bool>> = const { std::cell::RefCell::new(Vec::new()) };
@@ -975,8 +990,28 @@ pub struct BlurStats {
 #[inline(always)]
 fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
     const LANES: usize = 16;
+    // four blocks of sixteen outputs at a time: four independent sums, where one block's waited on each add
+    const WIDE: usize = 4 * LANES;
     let w = out.len();
     let mut x = 0;
+    while x + WIDE <= w {
+        let (mut a0, mut a1, mut a2, mut a3) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        for (row, &c) in rows.iter().zip(v) {
+            let p: &[f32; WIDE] = row[x..x + WIDE].try_into().expect("four blocks of LANES");
+            for j in 0..LANES {
+                a0[j] += c * p[j];
+                a1[j] += c * p[LANES + j];
+                a2[j] += c * p[2 * LANES + j];
+                a3[j] += c * p[3 * LANES + j];
+            }
+        }
+        for (b, acc) in [a0, a1, a2, a3].iter().enumerate() {
+            for (o, a) in out[x + b * LANES..x + (b + 1) * LANES].iter_mut().zip(acc) {
+                *o += a;
+            }
+        }
+        x += WIDE;
+    }
     while x + LANES <= w {
         let mut acc = [0.0f32; LANES];
         for (row, &c) in rows.iter().zip(v) {
@@ -995,13 +1030,33 @@ fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
     }
 }
 
-/// `out[x] = Σ_k v[k]·src[x + k]`, sixteen outputs at a time in registers (`src` holds `out.len() + v.len() − 1`
-/// values).
+/// `out[x] = Σ_k v[k]·src[x + k]`, sixteen outputs at a time in registers, four such blocks side by side
+/// (`src` holds `out.len() + v.len() − 1` values). Every output's sum runs over `k` in order, whatever the
+/// blocking.
 #[inline(always)]
 fn correlate_row(src: &[f32], v: &[f32], out: &mut [f32]) {
     const LANES: usize = 16;
+    const WIDE: usize = 4 * LANES;
     let w = out.len();
+    let taps = v.len();
     let mut x = 0;
+    while x + WIDE <= w {
+        let window = &src[x..x + WIDE + taps - 1];
+        let (mut a0, mut a1, mut a2, mut a3) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        for (k, &c) in v.iter().enumerate() {
+            let p: &[f32; WIDE] = window[k..k + WIDE].try_into().expect("four blocks of LANES");
+            for j in 0..LANES {
+                a0[j] += c * p[j];
+                a1[j] += c * p[LANES + j];
+                a2[j] += c * p[2 * LANES + j];
+                a3[j] += c * p[3 * LANES + j];
+            }
+        }
+        for (b, acc) in [a0, a1, a2, a3].iter().enumerate() {
+            out[x + b * LANES..x + (b + 1) * LANES].copy_from_slice(acc);
+        }
+        x += WIDE;
+    }
     while x + LANES <= w {
         let mut acc = [0.0f32; LANES];
         for (k, &c) in v.iter().enumerate() {
