@@ -856,12 +856,22 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                             curvature_row(up, mid, down, x0..x1, line);
                             for k in run {
                                 let c = &line[k * t..((k + 1) * t).min(w)];
+                                let (mut lanes, mut any) = (most[k], false);
                                 for chunk in c.chunks(16) {
-                                    for (m, &v) in most[k].iter_mut().zip(chunk) {
-                                        nan[k] |= v.is_nan();
-                                        *m = if v > *m { v } else { *m };
+                                    if let Ok(chunk) = <&[f32; 16]>::try_from(chunk) {
+                                        for (m, &v) in lanes.iter_mut().zip(chunk) {
+                                            any |= v.is_nan();
+                                            *m = if v > *m { v } else { *m };
+                                        }
+                                    } else {
+                                        for (m, &v) in lanes.iter_mut().zip(chunk) {
+                                            any |= v.is_nan();
+                                            *m = if v > *m { v } else { *m };
+                                        }
                                     }
                                 }
+                                most[k] = lanes;
+                                nan[k] |= any;
                             }
                         }
                     }
