@@ -290,6 +290,24 @@ impl Psf {
     /// nodes).
     #[allow(clippy::too_many_arguments)]
     pub fn add_point(&self, x: f64, y: f64, weight: f32, [x0, y0, x1, y1]: [usize; 4], out: &mut [f32], width: usize) {
+        self.add_point_rows(x, y, weight, [x0, y0, x1, y1], y0..y1, out, width);
+    }
+
+    /// [`Psf::add_point`] on the pixel rows `rows` of the box alone (`rows.start ≥ y0`), into `out` whose first
+    /// element is pixel `(x0, rows.start)`: each of those pixels gets the same value, to the bit, as from
+    /// [`Psf::add_point`] on the whole box (the interpolation weights are the box's), so a box may be split into
+    /// bands of rows filled side by side.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_point_rows(
+        &self,
+        x: f64,
+        y: f64,
+        weight: f32,
+        [x0, y0, x1, y1]: [usize; 4],
+        rows: std::ops::Range<usize>,
+        out: &mut [f32],
+        width: usize,
+    ) {
         let per = FINE_PER_PX as f64;
         let half = (self.fine_side / 2) as f64;
         let limit = (self.fine_side - 1) as f64;
@@ -302,7 +320,10 @@ impl Psf {
         };
         let (kx0, kx1) = (first(fx0), count(fx0, x1.saturating_sub(x0)));
         let (ky0, ky1) = (first(fy0), count(fy0, y1.saturating_sub(y0)));
-        if kx0 >= kx1 || ky0 >= ky1 {
+        // the rows written, from the box's first row, and the first of them (out's first row)
+        let (r0, r1) = (rows.start.saturating_sub(y0), rows.end.min(y1).saturating_sub(y0));
+        let (ky_lo, ky_hi) = (ky0.max(r0), ky1.min(r1));
+        if kx0 >= kx1 || ky_lo >= ky_hi {
             return;
         }
         let fx = fx0 + per * kx0 as f64;
@@ -317,9 +338,9 @@ impl Psf {
         #[cfg(target_arch = "x86_64")]
         if crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512 {
             let (steps, table) = (self.fine.steps, &self.fine.values);
-            let start = |qy: usize, qx: usize| self.fine.row_start(qy, qx, j0) + i0;
+            let start = |qy: usize, qx: usize| self.fine.row_start(qy, qx, j0 + ky_lo - ky0) + i0;
             let starts = [start(py, px), start(py, px + 1), start(py + 1, px), start(py + 1, px + 1)];
-            let (count, at) = (ky1 - ky0, ky0 * width + kx0);
+            let (count, at) = (ky_hi - ky_lo, (ky_lo - r0) * width + kx0);
             // every row read and written lies inside its buffer (the same rows as the loop below would slice)
             assert!(i0 + n <= steps && starts.iter().all(|&s| s + (count - 1) * steps + n <= table.len()));
             assert!(at + (count - 1) * width + n <= out.len());
@@ -330,12 +351,13 @@ impl Psf {
         widest(
             #[inline(always)]
             || {
-                for ky in ky0..ky1 {
+                for ky in ky_lo..ky_hi {
                     let j = j0 + ky - ky0;
                     let row = |qy: usize, qx: usize| &self.fine.row(qy, qx, j)[i0..i0 + n];
                     let (a, b) = (row(py, px), row(py, px + 1));
                     let (c, d) = (row(py + 1, px), row(py + 1, px + 1));
-                    let out = &mut out[ky * width + kx0..ky * width + kx1];
+                    let at = (ky - r0) * width;
+                    let out = &mut out[at + kx0..at + kx1];
                     for k in 0..n {
                         let t = a[k] + (b[k] - a[k]) * tx;
                         let bottom = c[k] + (d[k] - c[k]) * tx;

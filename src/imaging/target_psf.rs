@@ -113,8 +113,11 @@ pub fn render_target(
         TargetMethod::Auto => (spec.node_spacing_px, spec.seven_point_max_px),
         TargetMethod::Reference => (spec.node_spacing_px, 0.0),
     };
-    let rings = quadrature_nodes(ellipse, psf, spacing, seven_point_max, |x, y, weight| {
-        scatter(psf, x, y, weight, rect, out);
+    let rings = NODES.with_borrow_mut(|nodes| {
+        nodes.clear();
+        let rings = quadrature_nodes(ellipse, psf, spacing, seven_point_max, |x, y, weight| nodes.push((x, y, weight)));
+        scatter_nodes(psf, nodes, rect, out);
+        rings
     });
     if rings {
         fill_deep_pixels(ellipse, psf, rect, out);
@@ -217,20 +220,58 @@ fn fill_deep_pixels(e: &ImageEllipse, psf: &Psf, rect: PixelRect, out: &mut [f32
     }
 }
 
-/// Adds a point source of `weight` px² at `(x, y)` to the pixels of `rect` within the PSF's reach.
+thread_local! {
+    /// Each thread's quadrature nodes `(x, y, weight)` of the target it renders (kept from call to call).
+    static NODES: std::cell::RefCell<Vec<(f64, f64, f32)>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Rows of the bands a large patch is split into, filled side by side.
+const BAND_ROWS: usize = 32;
+/// Fewest nodes worth splitting a patch for.
+const BAND_MIN_NODES: usize = 2_000;
+
+/// Adds every node's point source ([`scatter`]) to the patch `rect` (`out`). A patch of many nodes and rows is
+/// split into bands of [`BAND_ROWS`] rows, filled in parallel, each from the nodes that reach it in their order:
+/// every pixel gets the same sums, to the bit, as from one pass (the bands depend on the patch, not on the
+/// threads), where one large target had filled its patch on one thread.
+fn scatter_nodes(psf: &Psf, nodes: &[(f64, f64, f32)], rect: PixelRect, out: &mut [f32]) {
+    use rayon::prelude::*;
+    let rows = rect.height();
+    let w = rect.width();
+    if nodes.len() < BAND_MIN_NODES || rows < 2 * BAND_ROWS {
+        for &(x, y, weight) in nodes {
+            scatter(psf, x, y, weight, rect, rect.y0..rect.y1, out);
+        }
+        return;
+    }
+    out[..rows * w].par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(b, band)| {
+        let (y0, y1) = (rect.y0 + b * BAND_ROWS, (rect.y0 + (b + 1) * BAND_ROWS).min(rect.y1));
+        // a node reaches the rows within the PSF's reach of it (as scatter clips them)
+        let reach = psf.radius_px() as f64 + 1.0;
+        for &(x, y, weight) in nodes {
+            if y + reach > y0 as f64 - 1.0 && y - reach < y1 as f64 + 1.0 {
+                scatter(psf, x, y, weight, rect, y0..y1, band);
+            }
+        }
+    });
+}
+
+/// Adds a point source of `weight` px² at `(x, y)` to the pixels of `rect` within the PSF's reach, on the rows
+/// `rows` of the patch alone, into `out`, whose first element is pixel `(rect.x0, rows.start)`.
 #[inline]
-fn scatter(psf: &Psf, x: f64, y: f64, weight: f32, rect: PixelRect, out: &mut [f32]) {
+fn scatter(psf: &Psf, x: f64, y: f64, weight: f32, rect: PixelRect, rows: std::ops::Range<usize>, out: &mut [f32]) {
     let reach = psf.radius_px() as f64 + 1.0;
     let lo = |v: f64, min: usize| ((v - reach).floor().max(min as f64)) as usize;
     let hi = |v: f64, max: usize| ((v + reach).ceil().max(0.0) as usize).min(max);
     let (px0, px1) = (lo(x, rect.x0), hi(x, rect.x1));
     let (py0, py1) = (lo(y, rect.y0), hi(y, rect.y1));
-    if px0 >= px1 || py0 >= py1 {
+    let (r0, r1) = (py0.max(rows.start), py1.min(rows.end));
+    if px0 >= px1 || r0 >= r1 {
         return;
     }
     let w = rect.width();
-    let start = (py0 - rect.y0) * w + px0 - rect.x0;
-    psf.add_point(x, y, weight, [px0, py0, px1, py1], &mut out[start..], w);
+    let start = (r0 - rows.start) * w + px0 - rect.x0;
+    psf.add_point_rows(x, y, weight, [px0, py0, px1, py1], r0..r1, &mut out[start..], w);
 }
 
 #[cfg(test)]
@@ -338,6 +379,26 @@ mod tests {
 
     /// Largest error of rings 0.6 px apart against the reference, as a fraction of the target's peak.
     const DRAFT_SPACING_MAX_ERROR: f32 = 0.03;
+
+    #[test]
+    fn a_banded_patch_is_the_one_pass_patch_bit_for_bit() {
+        let psf = psf();
+        let e = ImageEllipse { center: DVec2::new(100.3, 90.7), a: 45.0, b: 30.0, angle_rad: 0.4 };
+        let rect = psf_region(&e, &psf, 200, 200);
+        let mut nodes = Vec::new();
+        quadrature_nodes(&e, &psf, NODE_SPACING_PX, 0.6, |x, y, w| nodes.push((x, y, w)));
+        assert!(nodes.len() >= BAND_MIN_NODES && rect.height() >= 2 * BAND_ROWS, "the patch is split");
+        let mut banded = vec![0f32; rect.width() * rect.height()];
+        scatter_nodes(&psf, &nodes, rect, &mut banded);
+        let mut one = vec![0f32; rect.width() * rect.height()];
+        for &(x, y, w) in &nodes {
+            scatter(&psf, x, y, w, rect, rect.y0..rect.y1, &mut one);
+        }
+        assert!(one.iter().any(|&v| v > 0.5));
+        for (i, (a, b)) in banded.iter().zip(&one).enumerate() {
+            assert_eq!(a.to_bits(), b.to_bits(), "pixel {i}");
+        }
+    }
 
     #[test]
     fn a_point_target_is_the_psf() {
