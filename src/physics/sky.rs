@@ -358,7 +358,7 @@ impl Dome {
         if !(len > 0.0) {
             return self.horizon_sky as f32;
         }
-        let sin_e = (z / len).max(-1.0).min(1.0);
+        let sin_e = (z / len).clamp(-1.0, 1.0);
         let at = (sin_e + 1.0) * 0.5 * (TABLE_SAMPLES - 1) as f32;
         let j = (at as i32).min(TABLE_SAMPLES as i32 - 2) as usize;
         let frac = at - j as f32;
