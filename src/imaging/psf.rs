@@ -308,6 +308,7 @@ impl Psf {
         out: &mut [f32],
         width: usize,
     ) {
+        debug_assert!(rows.start >= y0, "the rows start inside the box");
         let per = FINE_PER_PX as f64;
         let half = (self.fine_side / 2) as f64;
         let limit = (self.fine_side - 1) as f64;

@@ -886,10 +886,11 @@ impl RowGeometry {
                 px[yi * w + xi]
             };
             *o = if accumulate { *o + value } else { value };
-            x += dx;
-            y += dy;
-            dx += ddx;
-            dy += ddy;
+            // wrapping, as the vector path steps: the step after the last pixel is never read
+            x = x.wrapping_add(dx);
+            y = y.wrapping_add(dy);
+            dx = dx.wrapping_add(ddx);
+            dy = dy.wrapping_add(ddy);
         }
         true
     }

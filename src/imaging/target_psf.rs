@@ -113,12 +113,13 @@ pub fn render_target(
         TargetMethod::Auto => (spec.node_spacing_px, spec.seven_point_max_px),
         TargetMethod::Reference => (spec.node_spacing_px, 0.0),
     };
-    let rings = NODES.with_borrow_mut(|nodes| {
-        nodes.clear();
-        let rings = quadrature_nodes(ellipse, psf, spacing, seven_point_max, |x, y, weight| nodes.push((x, y, weight)));
-        scatter_nodes(psf, nodes, rect, out);
-        rings
-    });
+    // the thread's buffer is taken out while the bands run: a thread waiting for a band may run another target
+    // (rayon runs queued work while it waits), which must not find the buffer borrowed
+    let mut nodes = NODES.take();
+    nodes.clear();
+    let rings = quadrature_nodes(ellipse, psf, spacing, seven_point_max, |x, y, weight| nodes.push((x, y, weight)));
+    scatter_nodes(psf, &nodes, rect, out);
+    NODES.set(nodes);
     if rings {
         fill_deep_pixels(ellipse, psf, rect, out);
     }
@@ -397,6 +398,28 @@ mod tests {
         assert!(one.iter().any(|&v| v > 0.5));
         for (i, (a, b)) in banded.iter().zip(&one).enumerate() {
             assert_eq!(a.to_bits(), b.to_bits(), "pixel {i}");
+        }
+    }
+
+    #[test]
+    fn large_targets_render_side_by_side() {
+        // several split patches at once on a pool of two (a thread waiting for one target's band may run another
+        // target's work, which must find its node buffer free): each patch is what it is alone
+        let psf = psf();
+        let ellipses: Vec<ImageEllipse> = (0..12)
+            .map(|k| {
+                let a = 30.0 + 5.0 * (k % 4) as f64;
+                ImageEllipse { center: DVec2::new(100.3 + k as f64, 90.7), a, b: 0.7 * a, angle_rad: 0.4 }
+            })
+            .collect();
+        let alone: Vec<Vec<f32>> = ellipses.iter().map(|e| render(e, &psf, TargetMethod::Auto).1).collect();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        for _ in 0..10 {
+            let together: Vec<Vec<f32>> = pool.install(|| {
+                use rayon::prelude::*;
+                ellipses.par_iter().with_max_len(1).map(|e| render(e, &psf, TargetMethod::Auto).1).collect()
+            });
+            assert_eq!(together, alone);
         }
     }
 
