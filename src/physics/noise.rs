@@ -134,9 +134,49 @@ impl Readout {
             let span = row * width..(row + 1) * width;
             let gain = maps.gain.map(|g| &g[span.clone()]);
             let offset = maps.offset_dn.map(|o| &o[span]);
+            // one loop per sampler, the sampler's fill inlined into it (a loop that chose the sampler block by
+            // block compiled the table's fill to slower code once the Box–Muller fill got its own vector kernel)
+            let columns = maps.column_dn;
             widest(
                 #[inline(always)]
-                || self.apply_row(line, gain, offset, maps.column_dn, noise, key, row as u64, max_level),
+                || match self.normal_sampler {
+                    NormalSampler::Ziggurat => self.apply_row(
+                        line,
+                        gain,
+                        offset,
+                        columns,
+                        noise,
+                        key,
+                        row as u64,
+                        max_level,
+                        #[inline(always)]
+                        |r, z| NormalSampler::Ziggurat.fill(r, z),
+                    ),
+                    NormalSampler::Table => self.apply_row(
+                        line,
+                        gain,
+                        offset,
+                        columns,
+                        noise,
+                        key,
+                        row as u64,
+                        max_level,
+                        #[inline(always)]
+                        |r, z| NormalSampler::Table.fill(r, z),
+                    ),
+                    NormalSampler::BoxMuller => self.apply_row(
+                        line,
+                        gain,
+                        offset,
+                        columns,
+                        noise,
+                        key,
+                        row as u64,
+                        max_level,
+                        #[inline(always)]
+                        |r, z| NormalSampler::BoxMuller.fill(r, z),
+                    ),
+                },
             );
         });
     }
@@ -155,6 +195,7 @@ impl Readout {
         key: u64,
         row: u64,
         max_level: Option<f32>,
+        fill_normals: impl Fn(&mut SplitMix64, &mut [f32]),
     ) {
         const BLOCK: usize = 64;
         const ONES: [f32; BLOCK] = [1.0; BLOCK];
@@ -175,7 +216,7 @@ impl Readout {
             }
             if noisy {
                 let z = &mut z[..n];
-                self.normal_sampler.fill(&mut normals, z);
+                fill_normals(&mut normals, z);
                 if block.iter().fold(true, |all, &s| all & (s >= threshold)) {
                     let shot = if self.shot_noise { 1.0 } else { 0.0 };
                     for (s, &z) in block.iter_mut().zip(z.iter()) {
