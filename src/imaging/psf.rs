@@ -1019,26 +1019,32 @@ pub struct BlurStats {
     pub tiles: usize,
 }
 
+/// Four sums of sixteen lanes, `acc.b[j] += c·p[16b + j]`: the blur passes' step over four blocks of outputs
+/// side by side (four independent sums, where one block's sum waited on each add).
+#[inline(always)]
+fn add_four_blocks(acc: &mut ([f32; 16], [f32; 16], [f32; 16], [f32; 16]), c: f32, p: &[f32; 64]) {
+    for j in 0..16 {
+        acc.0[j] += c * p[j];
+        acc.1[j] += c * p[16 + j];
+        acc.2[j] += c * p[32 + j];
+        acc.3[j] += c * p[48 + j];
+    }
+}
+
 /// `out[x] += Σ_k v[k]·src[k][x]` for every `x` of `out`, sixteen outputs at a time in registers.
 #[inline(always)]
 fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
     const LANES: usize = 16;
-    // four blocks of sixteen outputs at a time: four independent sums, where one block's waited on each add
+    // four blocks of sixteen outputs at a time (add_four_blocks)
     const WIDE: usize = 4 * LANES;
     let w = out.len();
     let mut x = 0;
     while x + WIDE <= w {
-        let (mut a0, mut a1, mut a2, mut a3) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        let mut acc = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
         for (row, &c) in rows.iter().zip(v) {
-            let p: &[f32; WIDE] = row[x..x + WIDE].try_into().expect("four blocks of LANES");
-            for j in 0..LANES {
-                a0[j] += c * p[j];
-                a1[j] += c * p[LANES + j];
-                a2[j] += c * p[2 * LANES + j];
-                a3[j] += c * p[3 * LANES + j];
-            }
+            add_four_blocks(&mut acc, c, row[x..x + WIDE].try_into().expect("four blocks of LANES"));
         }
-        for (b, acc) in [a0, a1, a2, a3].iter().enumerate() {
+        for (b, acc) in [acc.0, acc.1, acc.2, acc.3].iter().enumerate() {
             for (o, a) in out[x + b * LANES..x + (b + 1) * LANES].iter_mut().zip(acc) {
                 *o += a;
             }
@@ -1075,17 +1081,11 @@ fn correlate_row(src: &[f32], v: &[f32], out: &mut [f32]) {
     let mut x = 0;
     while x + WIDE <= w {
         let window = &src[x..x + WIDE + taps - 1];
-        let (mut a0, mut a1, mut a2, mut a3) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        let mut acc = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
         for (k, &c) in v.iter().enumerate() {
-            let p: &[f32; WIDE] = window[k..k + WIDE].try_into().expect("four blocks of LANES");
-            for j in 0..LANES {
-                a0[j] += c * p[j];
-                a1[j] += c * p[LANES + j];
-                a2[j] += c * p[2 * LANES + j];
-                a3[j] += c * p[3 * LANES + j];
-            }
+            add_four_blocks(&mut acc, c, window[k..k + WIDE].try_into().expect("four blocks of LANES"));
         }
-        for (b, acc) in [a0, a1, a2, a3].iter().enumerate() {
+        for (b, acc) in [acc.0, acc.1, acc.2, acc.3].iter().enumerate() {
             out[x + b * LANES..x + (b + 1) * LANES].copy_from_slice(acc);
         }
         x += WIDE;

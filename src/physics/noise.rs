@@ -137,45 +137,28 @@ impl Readout {
             // one loop per sampler, the sampler's fill inlined into it (a loop that chose the sampler block by
             // block compiled the table's fill to slower code once the Box–Muller fill got its own vector kernel)
             let columns = maps.column_dn;
+            macro_rules! rows_with {
+                ($sampler:expr) => {
+                    self.apply_row(
+                        line,
+                        gain,
+                        offset,
+                        columns,
+                        noise,
+                        key,
+                        row as u64,
+                        max_level,
+                        #[inline(always)]
+                        |r, z| $sampler.fill(r, z),
+                    )
+                };
+            }
             widest(
                 #[inline(always)]
                 || match self.normal_sampler {
-                    NormalSampler::Ziggurat => self.apply_row(
-                        line,
-                        gain,
-                        offset,
-                        columns,
-                        noise,
-                        key,
-                        row as u64,
-                        max_level,
-                        #[inline(always)]
-                        |r, z| NormalSampler::Ziggurat.fill(r, z),
-                    ),
-                    NormalSampler::Table => self.apply_row(
-                        line,
-                        gain,
-                        offset,
-                        columns,
-                        noise,
-                        key,
-                        row as u64,
-                        max_level,
-                        #[inline(always)]
-                        |r, z| NormalSampler::Table.fill(r, z),
-                    ),
-                    NormalSampler::BoxMuller => self.apply_row(
-                        line,
-                        gain,
-                        offset,
-                        columns,
-                        noise,
-                        key,
-                        row as u64,
-                        max_level,
-                        #[inline(always)]
-                        |r, z| NormalSampler::BoxMuller.fill(r, z),
-                    ),
+                    NormalSampler::Ziggurat => rows_with!(NormalSampler::Ziggurat),
+                    NormalSampler::Table => rows_with!(NormalSampler::Table),
+                    NormalSampler::BoxMuller => rows_with!(NormalSampler::BoxMuller),
                 },
             );
         });
