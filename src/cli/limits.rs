@@ -25,7 +25,7 @@ use rayon::prelude::*;
 
 use super::CliError;
 use super::run::{StageSplit, bench_dir, bench_scenario, time_stages};
-use crate::physics::random::{NormalSampler, SplitMix64, box_muller_fill, mix64};
+use crate::physics::random::{NormalSampler, SplitMix64, box_muller_fill, mix64, with_normal_fill};
 use crate::physics::simd::{Level, widest};
 use crate::scenario::load::load_for_frames;
 
@@ -203,6 +203,14 @@ fn time_bound(bound: Bound, s: &Setup, width: usize, height: usize, frames: u64)
     super::report::median(&mut times)
 }
 
+/// `row` filled with normal deviates by `fill`, in blocks of 64 (as the readout draws them).
+#[inline(always)]
+fn fill_blocks(row: &mut [f32], rng: &mut SplitMix64, fill: impl Fn(&mut SplitMix64, &mut [f32])) {
+    for block in row.chunks_mut(64) {
+        fill(rng, block);
+    }
+}
+
 /// Median µs per frame of the pipeline's normal generator (`sampler`) alone: one deviate per pixel, a stream
 /// per row as the readout draws them.
 fn time_sampler(sampler: NormalSampler, width: usize, height: usize, frames: u64) -> f64 {
@@ -216,22 +224,7 @@ fn time_sampler(sampler: NormalSampler, width: usize, height: usize, frames: u64
                     let mut rng = SplitMix64::substream(k, j as u64);
                     widest(
                         #[inline(always)]
-                        || {
-                            // one loop per sampler, as the readout runs them (a loop that picks the sampler
-                            // block by block compiles the table's fill to slower code)
-                            macro_rules! blocks {
-                                ($sampler:expr) => {
-                                    for block in row.chunks_mut(64) {
-                                        $sampler.fill(&mut rng, block);
-                                    }
-                                };
-                            }
-                            match sampler {
-                                NormalSampler::Ziggurat => blocks!(NormalSampler::Ziggurat),
-                                NormalSampler::Table => blocks!(NormalSampler::Table),
-                                NormalSampler::BoxMuller => blocks!(NormalSampler::BoxMuller),
-                            }
-                        },
+                        || with_normal_fill!(sampler, fill_blocks, (row, &mut rng)),
                     );
                 });
                 t.elapsed().as_secs_f64() * 1e6

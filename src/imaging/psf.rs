@@ -879,22 +879,13 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                             curvature_row(up, mid, down, x0..x1, line);
                             for k in run {
                                 let c = &line[k * t..((k + 1) * t).min(w)];
-                                let (mut lanes, mut any) = (most[k], false);
                                 for chunk in c.chunks(16) {
-                                    if let Ok(chunk) = <&[f32; 16]>::try_from(chunk) {
-                                        for (m, &v) in lanes.iter_mut().zip(chunk) {
-                                            any |= v.is_nan();
-                                            *m = if v > *m { v } else { *m };
-                                        }
-                                    } else {
-                                        for (m, &v) in lanes.iter_mut().zip(chunk) {
-                                            any |= v.is_nan();
-                                            *m = if v > *m { v } else { *m };
-                                        }
-                                    }
+                                    // a whole tile row as one fixed-length vector
+                                    nan[k] |= match <&[f32; 16]>::try_from(chunk) {
+                                        Ok(whole) => lane_max(&mut most[k], whole),
+                                        Err(_) => lane_max(&mut most[k], chunk),
+                                    };
                                 }
-                                most[k] = lanes;
-                                nan[k] |= any;
                             }
                         }
                     }
@@ -910,6 +901,19 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
             }
         });
     });
+}
+
+/// `lanes[j] = max(lanes[j], chunk[j])` for the values `≥ 0` of `chunk` (at most sixteen), a NaN leaving its lane
+/// as it was; returns whether `chunk` holds a NaN. Taken in locals, so the loop is one vector compare and max.
+#[inline(always)]
+fn lane_max(lanes: &mut [f32; 16], chunk: &[f32]) -> bool {
+    let (mut most, mut any) = (*lanes, false);
+    for (m, &v) in most.iter_mut().zip(chunk) {
+        any |= v.is_nan();
+        *m = if v > *m { v } else { *m };
+    }
+    *lanes = most;
+    any
 }
 
 thread_local! {

@@ -19,7 +19,7 @@
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::random::{NormalSampler, SplitMix64};
+use super::random::{NormalSampler, SplitMix64, with_normal_fill};
 use super::simd::widest;
 
 /// Identifiers of the stochastic stages; each keys its own random streams.
@@ -134,31 +134,14 @@ impl Readout {
             let span = row * width..(row + 1) * width;
             let gain = maps.gain.map(|g| &g[span.clone()]);
             let offset = maps.offset_dn.map(|o| &o[span]);
-            // one loop per sampler, the sampler's fill inlined into it (a loop that chose the sampler block by
-            // block compiled the table's fill to slower code once the Box–Muller fill got its own vector kernel)
-            let columns = maps.column_dn;
-            macro_rules! rows_with {
-                ($sampler:expr) => {
-                    self.apply_row(
-                        line,
-                        gain,
-                        offset,
-                        columns,
-                        noise,
-                        key,
-                        row as u64,
-                        max_level,
-                        #[inline(always)]
-                        |r, z| $sampler.fill(r, z),
-                    )
-                };
-            }
             widest(
                 #[inline(always)]
-                || match self.normal_sampler {
-                    NormalSampler::Ziggurat => rows_with!(NormalSampler::Ziggurat),
-                    NormalSampler::Table => rows_with!(NormalSampler::Table),
-                    NormalSampler::BoxMuller => rows_with!(NormalSampler::BoxMuller),
+                || {
+                    with_normal_fill!(
+                        self.normal_sampler,
+                        Self::apply_row,
+                        (self, line, gain, offset, maps.column_dn, noise, key, row as u64, max_level)
+                    )
                 },
             );
         });

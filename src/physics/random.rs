@@ -45,6 +45,29 @@ pub enum NormalSampler {
     BoxMuller,
 }
 
+/// Calls `$f($args…, fill)` with `fill` the fill of `$sampler` ([`NormalSampler::fill`] of that one variant, as
+/// an `#[inline(always)]` closure), choosing the variant once: a per-pixel loop over blocks that calls `$f` gets
+/// one copy per sampler, each with its fill inlined, where a loop that matched on the sampler block by block had
+/// compiled the table's fill to code twice as slow (the readout of the `draft` preset on paper_vibration, 31–34
+/// against 64–74 µs a frame). Inside [`crate::physics::simd::widest`], `$f` must be `#[inline(always)]` too.
+macro_rules! with_normal_fill {
+    ($sampler:expr, $f:path, ($($arg:expr),* $(,)?)) => {{
+        use $crate::physics::random::{NormalSampler, SplitMix64};
+        match $sampler {
+            NormalSampler::Ziggurat => $f($($arg,)* #[inline(always)] |r: &mut SplitMix64, z: &mut [f32]| {
+                NormalSampler::Ziggurat.fill(r, z)
+            }),
+            NormalSampler::Table => $f($($arg,)* #[inline(always)] |r: &mut SplitMix64, z: &mut [f32]| {
+                NormalSampler::Table.fill(r, z)
+            }),
+            NormalSampler::BoxMuller => $f($($arg,)* #[inline(always)] |r: &mut SplitMix64, z: &mut [f32]| {
+                NormalSampler::BoxMuller.fill(r, z)
+            }),
+        }
+    }};
+}
+pub(crate) use with_normal_fill;
+
 impl NormalSampler {
     /// Fills `out` with standard normal deviates from `rng`.
     #[inline(always)]
