@@ -47,6 +47,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use super::planck::{Band, Measure, band_radiance, band_radiance_in};
+use super::simd::{exp, widest};
 
 /// The shipped table.
 const SHIPPED: &[u8] = include_bytes!("../../assets/atmosphere/lowtran7.irat");
@@ -754,10 +755,16 @@ impl AtmosphereTable {
         let (rows, logs) = profile;
         let (a, b) = (&rows[i * nb + b0..][..n], &rows[(i + 1) * nb + b0..][..n]);
         let (la, lb) = (&logs[i * nb + b0..][..n], &logs[(i + 1) * nb + b0..][..n]);
-        for k in 0..n {
-            let (x, y) = (a[k], b[k]);
-            out[k] = if linear || x <= 0.0 || y <= 0.0 { x + f * (y - x) } else { (la[k] + f * (lb[k] - la[k])).exp() };
-        }
+        widest(
+            #[inline(always)]
+            || {
+                for (((o, (&x, &y)), &l0), &l1) in out.iter_mut().zip(a.iter().zip(b)).zip(la).zip(lb) {
+                    // both sides, then the choice: the loop vectorizes
+                    let log_linear = exp(l0 + f * (l1 - l0));
+                    *o = if linear | (x <= 0.0) | (y <= 0.0) { x + f * (y - x) } else { log_linear };
+                }
+            },
+        );
     }
 
     /// The aerosol settings and weights for a weather (linear in 1/visibility between the tabulated ones).
@@ -907,17 +914,34 @@ impl AtmosphereTable {
                 std::mem::swap(&mut prev, &mut cur);
             }
         }
-        let aerosol_depth = |t: f64, b: usize| -> f64 {
+        // τ = e^−(molecular + aerosol depth) at fraction t of the path, per bin, at most `ceiling`'s
+        let tau_at = |t: f64, od: &[f64], ceiling: &[f64], out: &mut [f64]| {
             let x = t * AEROSOL_STEPS as f64;
             let k = (x.floor() as usize).min(AEROSOL_STEPS - 1);
             let f = x - k as f64;
-            aer[k][b] + f * (aer[k + 1][b] - aer[k][b])
+            let (a0, a1) = (&aer[k], &aer[k + 1]);
+            widest(
+                #[inline(always)]
+                || {
+                    for (((o, &d), (&x0, &x1)), &c) in out.iter_mut().zip(od).zip(a0.iter().zip(a1)).zip(ceiling) {
+                        let v = exp(-(d + (x0 + f * (x1 - x0))));
+                        // clamped by comparisons (a NaN passes through), which vectorize
+                        *o = if v < 0.0 {
+                            0.0
+                        } else if v > c {
+                            c
+                        } else {
+                            v
+                        };
+                    }
+                },
+            );
         };
         let mut info = CornerInfo::default();
         let mut od = vec![0.0; nb];
         self.molecular_into(m, (lo, hi, range_km), b0, &mut od, &mut info);
-        let transmittance: Vec<f64> =
-            (0..nb).map(|b| (-(od[b] + aerosol_depth(1.0, b))).exp().clamp(0.0, 1.0)).collect();
+        let mut transmittance = vec![0.0; nb];
+        tau_at(1.0, &od, &vec![1.0; nb], &mut transmittance);
         let cell_info = info;
 
         // path radiance: the emission of each segment, seen through the path before it
@@ -925,6 +949,7 @@ impl AtmosphereTable {
         let mut radiance = vec![0.0; nb];
         let mut tau_prev = vec![1.0; nb];
         let mut tau_cur = vec![0.0; nb];
+        let mut planck = vec![0.0; nb];
         let mut scratch = CornerInfo::default();
         for k in 1..=PATH_RADIANCE_SEGMENTS {
             let t = k as f64 / PATH_RADIANCE_SEGMENTS as f64;
@@ -935,15 +960,14 @@ impl AtmosphereTable {
                 let s = (t * range_km).max((h - h1).abs());
                 let (l, u) = if h1 <= h { (h1, h) } else { (h, h1) };
                 self.molecular_into(m, (l, u, s), b0, &mut od, &mut scratch);
-                for b in 0..nb {
-                    tau_cur[b] = (-(od[b] + aerosol_depth(t, b))).exp().clamp(0.0, tau_prev[b]);
-                }
+                tau_at(t, &od, &tau_prev, &mut tau_cur);
             }
             let temp = profile.temperature_at(chord.altitude_km(t - 0.5 / PATH_RADIANCE_SEGMENTS as f64));
+            self.bin_mean_planck_into(b0, temp, &mut planck);
             for b in 0..nb {
                 let d = tau_prev[b] - tau_cur[b];
                 if d > 0.0 {
-                    radiance[b] += d * self.bin_mean_planck(b0 + b, temp);
+                    radiance[b] += d * planck[b];
                 }
             }
             std::mem::swap(&mut tau_prev, &mut tau_cur);
@@ -1101,28 +1125,58 @@ impl AtmosphereTable {
         let sin_e = sin_e_top.clamp(1e-6, 1.0);
         // the ray's distance from the top to radius r
         let reach = |r: f64| -r0 * sin_e + (r0 * r0 * sin_e * sin_e + r * r - r0 * r0).max(0.0).sqrt();
+        let mut planck = vec![0.0; tau.len()];
+        let mut depth = vec![0.0; tau.len()];
         for l in 0..nl - 1 {
             let (z0, z1) = (self.above_km[l], self.above_km[l + 1]);
             let stretch = (reach(EARTH_RADIUS_KM + z1) - reach(EARTH_RADIUS_KM + z0)) / (z1 - z0);
             let temp = profile.temperature_at(0.5 * (z0 + z1));
-            for (k, (t, r)) in tau.iter_mut().zip(radiance.iter_mut()).enumerate() {
-                let b = b0 + k;
-                let depth = (od(l + 1, b) - od(l, b)).max(0.0) * stretch;
-                let after = *t * (-depth).exp();
-                *r += (*t - after) * self.bin_mean_planck(b, temp);
-                *t = after;
+            self.bin_mean_planck_into(b0, temp, &mut planck);
+            for (k, d) in depth.iter_mut().enumerate() {
+                *d = (od(l + 1, b0 + k) - od(l, b0 + k)).max(0.0) * stretch;
             }
+            widest(
+                #[inline(always)]
+                || {
+                    for ((t, r), (&d, &p)) in tau.iter_mut().zip(radiance.iter_mut()).zip(depth.iter().zip(&planck)) {
+                        let after = *t * exp(-d);
+                        *r += (*t - after) * p;
+                        *t = after;
+                    }
+                },
+            );
         }
     }
 
     /// The blackbody's mean spectral radiance over bin `b`, W m⁻² sr⁻¹ µm⁻¹: inside [`PLANCK_TABLE_K`] from a
     /// table at whole kelvins, its logarithm interpolated linearly in 1/T (exact in Wien's limit; the test
     /// `planck_table_is_close_to_exact` bounds the error), the exact integral outside.
+    #[cfg(test)]
     fn bin_mean_planck(&self, b: usize, temp_k: f64) -> f64 {
+        let mut out = [0.0];
+        self.bin_mean_planck_into(b, temp_k, &mut out);
+        out[0]
+    }
+
+    /// [`Self::bin_mean_planck`] for the bins from `b0` on (as many as `out` holds), into `out`.
+    fn bin_mean_planck_into(&self, b0: usize, temp_k: f64, out: &mut [f64]) {
         let (t0, t1) = PLANCK_TABLE_K;
-        let (lo, hi) = (self.edges_um[b], self.edges_um[b + 1]);
-        if temp_k >= t0 && temp_k < t1 {
+        let edges = |b: usize| (self.edges_um[b], self.edges_um[b + 1]);
+        if !(temp_k >= t0 && temp_k < t1) {
+            for (k, o) in out.iter_mut().enumerate() {
+                let (lo, hi) = edges(b0 + k);
+                *o = exact_bin_mean_planck(lo, hi, temp_k);
+            }
+            return;
+        }
+        let i = (temp_k - t0) as usize;
+        let (ta, tc) = (t0 + i as f64, t0 + i as f64 + 1.0);
+        let u = (1.0 / temp_k - 1.0 / ta) / (1.0 / tc - 1.0 / ta);
+        // each bin's logarithms at the bracketing kelvins, then their interpolation's exponentials side by side
+        for (k, o) in out.iter_mut().enumerate() {
+            let b = b0 + k;
             let row = self.planck[b].get_or_init(|| {
+                let (lo, hi) = edges(b);
                 (0..=(t1 - t0) as usize)
                     .map(|k| {
                         let v = exact_bin_mean_planck(lo, hi, t0 + k as f64);
@@ -1130,15 +1184,24 @@ impl AtmosphereTable {
                     })
                     .collect()
             });
-            let i = (temp_k - t0) as usize;
-            let (ta, tc) = (t0 + i as f64, t0 + i as f64 + 1.0);
             let ((a, la), (c, lc)) = (row[i], row[i + 1]);
-            if a > 0.0 && c > 0.0 {
-                let u = (1.0 / temp_k - 1.0 / ta) / (1.0 / tc - 1.0 / ta);
-                return (la + u * (lc - la)).exp();
+            // a bin with no emission at either kelvin: NaN marks it for the exact integral
+            *o = if a > 0.0 && c > 0.0 { la + u * (lc - la) } else { f64::NAN };
+        }
+        widest(
+            #[inline(always)]
+            || {
+                for o in out.iter_mut() {
+                    *o = exp(*o);
+                }
+            },
+        );
+        for (k, o) in out.iter_mut().enumerate() {
+            if o.is_nan() {
+                let (lo, hi) = edges(b0 + k);
+                *o = exact_bin_mean_planck(lo, hi, temp_k);
             }
         }
-        exact_bin_mean_planck(lo, hi, temp_k)
     }
 }
 
