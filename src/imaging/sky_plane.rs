@@ -828,8 +828,14 @@ impl RowGeometry {
         let scale = m * cx.hypot(cy) / (max_d * max_d);
         let tolerance = tolerance_px * scale.min(1.0);
         let third = 6.0 * m * slope.x * slope.x * cx.abs().max(cy.abs()) / min_d.powi(4);
-        let span = (tolerance * 216.0 / (3f64.sqrt() * third)).cbrt();
-        if span.is_nan() || span >= MAX_SPAN as f64 { MAX_SPAN } else { (span as usize).max(1) }
+        let cube = tolerance * 216.0 / (3f64.sqrt() * third);
+        // the longest span (or a NaN) without the cube root, a libm call that was a tenth of a draft frame's
+        // sky on paper_vibration (rows of 128 px there, each its own span)
+        if !(cube < (MAX_SPAN * MAX_SPAN * MAX_SPAN) as f64) {
+            return MAX_SPAN;
+        }
+        let span = cube.cbrt();
+        if span >= MAX_SPAN as f64 { MAX_SPAN } else { (span as usize).max(1) }
     }
 
     /// Samples the span's pixels in 24.40 fixed point, stepping the quadratic by forward differences, when
