@@ -127,7 +127,7 @@ unsafe fn with_avx512<R>(f: impl FnOnce() -> R) -> R {
 /// then times `2ᵏ` in two halves so that results down to 0 and up to ∞ come out right. NaN gives NaN.
 #[inline(always)]
 pub fn exp(x: f64) -> f64 {
-    const LN2_HI: f64 = 6.931_471_803_691_238_164_9e-1;
+    const LN2_HI: f64 = 6.931_471_803_691_238e-1;
     const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
     // adding 1.5·2⁵² rounds to a whole number held in the mantissa's low bits
     const SHIFT: f64 = 6_755_399_441_055_744.0;
@@ -147,14 +147,8 @@ pub fn exp(x: f64) -> f64 {
         1.0 / 479_001_600.0,
         1.0 / 6_227_020_800.0,
     ];
-    // past these e^x is 0 or ∞ in f64; a NaN stays NaN through the comparisons' selects
-    let x = if x < -746.0 {
-        -746.0
-    } else if x > 710.0 {
-        710.0
-    } else {
-        x
-    };
+    // past these e^x is 0 or ∞ in f64 (a NaN stays NaN)
+    let x = x.clamp(-746.0, 710.0);
     let t = x * std::f64::consts::LOG2_E + SHIFT;
     let kf = t - SHIFT;
     let k = (t.to_bits() as i64).wrapping_sub(SHIFT.to_bits() as i64);
