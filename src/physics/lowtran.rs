@@ -244,6 +244,36 @@ pub struct AtmosphereTable {
     edges_um: Vec<f64>,
     samples: Vec<u32>,
     od_scale: f64,
+    settings: Vec<(Aerosol, f64)>,
+    profiles: Vec<Profile>,
+    /// Levels of the columns above the grid's altitudes, km, the top itself first.
+    above_km: Vec<f64>,
+    /// The compressed payload, decoded into [`Self::data`] when a path first needs it (the header alone answers
+    /// a scenario's checks: the grids, the visibilities, the bands and the profiles).
+    packed: Packed,
+    data: OnceLock<Result<Payload, AtmosphereError>>,
+    /// Per bin, made when the bin is first asked for (a run's band holds a third of the bins or fewer): the mean
+    /// blackbody radiance over the bin at each whole kelvin of [`PLANCK_TABLE_K`], with its logarithm (NaN where
+    /// the radiance is not positive).
+    planck: Vec<OnceLock<PlanckRow>>,
+    /// The aerosol profiles of the weathers asked for last (a run asks for one weather's paths thousands of
+    /// times): `(model, settings and weights' bits)` and [`Self::aerosol_profile`]'s result.
+    profile_cache: std::sync::Mutex<Vec<(ProfileKey, std::sync::Arc<AerosolProfile>)>>,
+}
+
+/// A table's zlib payload as the file holds it.
+#[derive(Debug, Clone, Copy)]
+struct Packed {
+    bytes: &'static [u8],
+    /// The decoded length the header gives.
+    raw_len: u64,
+    /// CRC-32 of the decoded payload.
+    crc: u32,
+}
+
+/// The table's arrays.
+#[derive(Debug)]
+struct Payload {
     /// Molecular optical depth, quantized, [model][pair][range node][bin].
     od: Vec<u16>,
     /// 1 where LOWTRAN could not trace the node's path (it holds a neighbour's values).
@@ -252,20 +282,9 @@ pub struct AtmosphereTable {
     traced_km: Vec<f32>,
     /// Aerosol extinction per km, [model][aerosol setting][altitude][bin].
     ext: Vec<f32>,
-    settings: Vec<(Aerosol, f64)>,
-    profiles: Vec<Profile>,
-    /// Levels of the columns above the grid's altitudes, km, the top itself first.
-    above_km: Vec<f64>,
     /// Optical depth per bin of the vertical path from each grid altitude to each of `above_km` (0 where the level
     /// is not above it), `[model][altitude][level][bin]`.
     above_od: Vec<f32>,
-    /// Per bin, made when the bin is first asked for (a run's band holds a third of the bins or fewer): the mean
-    /// blackbody radiance over the bin at each whole kelvin of [`PLANCK_TABLE_K`], with its logarithm (NaN where
-    /// the radiance is not positive).
-    planck: Vec<OnceLock<PlanckRow>>,
-    /// The aerosol profiles of the weathers asked for last (a run asks for one weather's paths thousands of
-    /// times): `(model, settings and weights' bits)` and [`Self::aerosol_profile`]'s result.
-    profile_cache: std::sync::Mutex<Vec<(ProfileKey, std::sync::Arc<AerosolProfile>)>>,
 }
 
 /// A weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`) and its logarithm.
@@ -369,7 +388,7 @@ impl AtmosphereTable {
     /// [`AtmosphereError::Table`] if the built-in table is damaged (a build problem).
     pub fn shipped() -> Result<&'static AtmosphereTable, AtmosphereError> {
         static TABLE: OnceLock<Result<AtmosphereTable, AtmosphereError>> = OnceLock::new();
-        TABLE.get_or_init(|| AtmosphereTable::parse(SHIPPED)).as_ref().map_err(Clone::clone)
+        TABLE.get_or_init(|| AtmosphereTable::read(SHIPPED)).as_ref().map_err(Clone::clone)
     }
 
     /// Reads and checks a table: magic, version, header, lengths, CRC-32 and grids.
@@ -377,6 +396,33 @@ impl AtmosphereTable {
     /// # Errors
     /// [`AtmosphereError::Table`] saying what is wrong.
     pub fn parse(bytes: &[u8]) -> Result<Self, AtmosphereError> {
+        // the payload decoded now, from the borrowed bytes
+        let mut table = Self::read_with(bytes, |_| &[])?;
+        let packed = Self::packed_part(bytes)?;
+        let data = decode(packed, &table);
+        table.data = OnceLock::from(Ok(data?));
+        Ok(table)
+    }
+
+    /// [`AtmosphereTable::parse`] of a table that lives as long as the program, its payload decoded when a path
+    /// first needs it ([`Self::data`]): a scenario's checks read the header alone, and the decoding (the most of
+    /// the table's loading) runs beside the rest of a run's set-up.
+    fn read(bytes: &'static [u8]) -> Result<Self, AtmosphereError> {
+        Self::read_with(bytes, |packed| packed)
+    }
+
+    /// The compressed payload's bytes: what follows the header.
+    fn packed_part(bytes: &[u8]) -> Result<&[u8], AtmosphereError> {
+        let mut r = Reader { bytes, at: 12 };
+        let hlen = r.u32("header length")? as usize;
+        r.take(hlen, "header")?;
+        let plen = r.u64("payload length")?;
+        r.take(12, "payload length")?;
+        r.take(usize::try_from(plen).map_err(|_| bad("payload too long"))?, "payload")
+    }
+
+    /// The header read and checked, the payload's bytes kept as `keep` gives them.
+    fn read_with<'a>(bytes: &'a [u8], keep: impl FnOnce(&'a [u8]) -> &'static [u8]) -> Result<Self, AtmosphereError> {
         let mut r = Reader { bytes, at: 0 };
         if r.take(8, "magic")? != b"IRSIMATM" {
             return Err(bad("not an irsim atmosphere table (no IRSIMATM magic)"));
@@ -389,26 +435,15 @@ impl AtmosphereTable {
         let head: Header = serde_json::from_slice(r.take(hlen, "header")?).map_err(|e| bad(format!("header: {e}")))?;
         let plen = r.u64("payload length")?;
         let crc = r.u32("checksum")?;
-        let rawlen = r.u64("payload length")?;
+        let raw_len = r.u64("payload length")?;
         let packed = r.take(usize::try_from(plen).map_err(|_| bad("payload too long"))?, "payload")?;
         if r.at != bytes.len() {
             return Err(bad(format!("{} bytes after the payload", bytes.len() - r.at)));
         }
-        let mut payload = Vec::with_capacity(usize::try_from(rawlen.min(1 << 30)).unwrap_or(0));
-        flate2::read::ZlibDecoder::new(packed)
-            .take(rawlen.saturating_add(1))
-            .read_to_end(&mut payload)
-            .map_err(|e| bad(format!("payload: {e}")))?;
-        if payload.len() as u64 != rawlen {
-            return Err(bad(format!("payload is {} bytes, the header says {rawlen}", payload.len())));
-        }
-        if crc32fast::hash(&payload) != crc {
-            return Err(bad("payload checksum (CRC-32) does not match"));
-        }
-        Self::from_parts(head, &payload)
+        Self::from_header(head, Packed { bytes: keep(packed), raw_len, crc })
     }
 
-    fn from_parts(head: Header, payload: &[u8]) -> Result<Self, AtmosphereError> {
+    fn from_header(head: Header, packed: Packed) -> Result<Self, AtmosphereError> {
         increasing("altitudes_km", &head.altitudes_km, 2)?;
         increasing("ranges_km", &head.ranges_km, 2)?;
         increasing("bin_edges_um", &head.bin_edges_um, 2)?;
@@ -454,52 +489,46 @@ impl AtmosphereTable {
             }
             settings.push((a, s.visibility_km));
         }
-        let nalt = head.altitudes_km.len();
-        let npairs = nalt * (nalt + 1) / 2;
-        let nodes = 6 * npairs * (1 + head.ranges_km.len());
-        let nod = nodes * nbins;
-        let next = 6 * settings.len() * nalt * nbins;
-        let nabove = 6 * nalt * above_km.len() * nbins;
-        let want = 2 * nod + nodes + 4 * nodes + 4 * next + 4 * nabove;
-        if payload.len() != want {
-            return Err(bad(format!("payload is {} bytes, the grid needs {want}", payload.len())));
-        }
-        let (hi, rest) = payload.split_at(nod);
-        let (lo, rest) = rest.split_at(nod);
-        let od = hi.iter().zip(lo).map(|(&h, &l)| u16::from(h) << 8 | u16::from(l)).collect();
-        let (flags, rest) = rest.split_at(nodes);
-        let (traced, rest) = rest.split_at(4 * nodes);
-        let f32s = |b: &[u8]| -> Vec<f32> {
-            b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
-        };
-        let (ext, above) = rest.split_at(4 * next);
-        let ext = f32s(ext);
-        if ext.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
-            return Err(bad("aerosol extinction must be finite and not negative"));
-        }
-        let above_od = f32s(above);
-        if above_od.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
-            return Err(bad("optical depths above the top must be finite and not negative"));
-        }
-        let alt_coord = head.altitudes_km.iter().map(|&h| altitude_coord(h)).collect();
-        Ok(AtmosphereTable {
-            alt_coord,
+        let table = AtmosphereTable {
+            alt_coord: head.altitudes_km.iter().map(|&h| altitude_coord(h)).collect(),
             alt_km: head.altitudes_km,
             ranges_km: head.ranges_km,
             edges_um: head.bin_edges_um,
             samples: head.bin_samples,
             od_scale: head.optical_depth_scale,
-            od,
-            flags: flags.to_vec(),
-            traced_km: f32s(traced),
-            ext,
             settings,
             profiles,
             above_km,
-            above_od,
+            packed,
+            data: OnceLock::new(),
             planck: (0..nbins).map(|_| OnceLock::new()).collect(),
             profile_cache: std::sync::Mutex::new(Vec::new()),
-        })
+        };
+        if usize::try_from(packed.raw_len).ok() != Some(table.payload_len()) {
+            return Err(bad(format!("payload is {} bytes, the grid needs {}", packed.raw_len, table.payload_len())));
+        }
+        Ok(table)
+    }
+
+    /// The decoded payload's length the grid needs, bytes.
+    fn payload_len(&self) -> usize {
+        let (nodes, nod, next, nabove) = self.payload_parts();
+        2 * nod + nodes + 4 * nodes + 4 * next + 4 * nabove
+    }
+
+    /// Nodes of the molecular grid, their values (nodes × bins), aerosol values and values above the top.
+    fn payload_parts(&self) -> (usize, usize, usize, usize) {
+        let (nalt, nbins) = (self.alt_km.len(), self.nbins());
+        let nodes = 6 * self.npairs() * self.nodes_per_pair();
+        (nodes, nodes * nbins, 6 * self.settings.len() * nalt * nbins, 6 * nalt * self.above_km.len() * nbins)
+    }
+
+    /// The table's arrays, decoded from the payload the first time they are asked for.
+    ///
+    /// # Errors
+    /// [`AtmosphereError::Table`] for a payload that does not decode, or does not match its checksum or grid.
+    fn data(&self) -> Result<&Payload, AtmosphereError> {
+        self.data.get_or_init(|| decode(self.packed.bytes, self)).as_ref().map_err(Clone::clone)
     }
 
     fn nbins(&self) -> usize {
@@ -551,7 +580,15 @@ impl AtmosphereTable {
     /// Molecular optical depth per bin of the path between altitudes `lo ≤ hi` (km) over `range_km`, into `out`
     /// (the bins from `b0` on, as many as it holds); the flags and first traced lengths of the nodes used are
     /// collected in `info`.
-    fn molecular_into(&self, m: usize, (lo, hi, range_km): Span, b0: usize, out: &mut [f64], info: &mut CornerInfo) {
+    fn molecular_into(
+        &self,
+        d: &Payload,
+        m: usize,
+        (lo, hi, range_km): Span,
+        b0: usize,
+        out: &mut [f64],
+        info: &mut CornerInfo,
+    ) {
         let ia = bracket(&self.alt_km, lo);
         let ib = bracket(&self.alt_km, hi);
         let c = altitude_coord;
@@ -567,7 +604,7 @@ impl AtmosphereTable {
         ];
         let short = corners.iter().any(|&(x, y, w)| w > 0.0 && (self.alt_km[x] - self.alt_km[y]).abs() > range_km);
         if short && hi - lo <= SHORT_PATH_MAX_RISE_KM {
-            self.horizontal_mean_into(m, (lo, hi, range_km), b0, out, info);
+            self.horizontal_mean_into(d, m, (lo, hi, range_km), b0, out, info);
             return;
         }
         let mut buf = Vec::new();
@@ -578,7 +615,7 @@ impl AtmosphereTable {
             let (p, q) = (x.min(y), x.max(y));
             let dhc = self.alt_km[q] - self.alt_km[p];
             if range_km >= dhc {
-                self.pair_into(m, p, q, (range_km, w), b0, out, info);
+                self.pair_into(d, m, p, q, (range_km, w), b0, out, info);
                 continue;
             }
             // a corner whose shortest path (vertical, dhc) is longer than the path asked: its vertical path
@@ -592,11 +629,11 @@ impl AtmosphereTable {
             let (ar, rest) = rest.split_at_mut(nb);
             let (ad, rest) = rest.split_at_mut(nb);
             let (br, bd) = rest.split_at_mut(nb);
-            self.pair_into(m, p, q, (dhc, 1.0), b0, v, info);
-            self.pair_into(m, p, p, (range_km, 1.0), b0, ar, info);
-            self.pair_into(m, p, p, (dhc, 1.0), b0, ad, info);
-            self.pair_into(m, q, q, (range_km, 1.0), b0, br, info);
-            self.pair_into(m, q, q, (dhc, 1.0), b0, bd, info);
+            self.pair_into(d, m, p, q, (dhc, 1.0), b0, v, info);
+            self.pair_into(d, m, p, p, (range_km, 1.0), b0, ar, info);
+            self.pair_into(d, m, p, p, (dhc, 1.0), b0, ad, info);
+            self.pair_into(d, m, q, q, (range_km, 1.0), b0, br, info);
+            self.pair_into(d, m, q, q, (dhc, 1.0), b0, bd, info);
             let ratio = |x: f64, y: f64| if y > 0.0 { x / y } else { range_km / dhc };
             for b in 0..nb {
                 out[b] += w * v[b] * 0.5 * (ratio(ar[b], ad[b]) + ratio(br[b], bd[b]));
@@ -610,6 +647,7 @@ impl AtmosphereTable {
     /// between the horizontal paths at the bracketing altitudes, in the altitude coordinate.
     fn horizontal_mean_into(
         &self,
+        d: &Payload,
         m: usize,
         (lo, hi, range_km): Span,
         b0: usize,
@@ -628,7 +666,7 @@ impl AtmosphereTable {
         }
         for (node, &w) in weights.iter().enumerate() {
             if w > 0.0 {
-                self.pair_into(m, node, node, (range_km, w), b0, out, info);
+                self.pair_into(d, m, node, node, (range_km, w), b0, out, info);
             }
         }
     }
@@ -638,6 +676,7 @@ impl AtmosphereTable {
     #[allow(clippy::too_many_arguments)]
     fn pair_into(
         &self,
+        d: &Payload,
         m: usize,
         p: usize,
         q: usize,
@@ -648,7 +687,7 @@ impl AtmosphereTable {
     ) {
         let nb = self.nbins();
         let n = out.len();
-        let row = |node: usize| &self.od[node * nb + b0..][..n];
+        let row = |node: usize| &d.od[node * nb + b0..][..n];
         let dh = self.alt_km[q] - self.alt_km[p];
         // the pair's axis: node 0 at the vertical range dh, then the grid's ranges beyond it (range k is node k + 1)
         let first = self.ranges_km.partition_point(|&r| r <= dh + 1e-9);
@@ -670,7 +709,7 @@ impl AtmosphereTable {
             // a horizontal path shorter than the first range: each bin's own curve of growth between the first two
             // ranges, carried down as a power law (its exponent between ½, saturated lines, and 1, weak ones)
             let (a, b) = (base + 1, base + 2);
-            info.untraceable |= self.flags[a] != 0 || self.flags[b] != 0;
+            info.untraceable |= d.flags[a] != 0 || d.flags[b] != 0;
             if info.range.is_none() {
                 info.range = Some([0.0, r1]);
             }
@@ -688,10 +727,10 @@ impl AtmosphereTable {
                 continue;
             }
             let idx = base + node;
-            info.untraceable |= self.flags[idx] != 0;
-            if self.traced_km[idx] > 0.0 {
+            info.untraceable |= d.flags[idx] != 0;
+            if d.traced_km[idx] > 0.0 {
                 // stored as f32: to the metre LOWTRAN prints
-                info.traced.push((f64::from(self.traced_km[idx]) * 1000.0).round() / 1000.0);
+                info.traced.push((f64::from(d.traced_km[idx]) * 1000.0).round() / 1000.0);
             }
             for (o, &v) in out.iter_mut().zip(row(idx)) {
                 *o += weight * w * f64::from(v) * self.od_scale;
@@ -709,13 +748,13 @@ impl AtmosphereTable {
 
     /// The weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`, weighted over the
     /// bracketing visibilities), and its logarithm.
-    fn aerosol_profile(&self, m: usize, vis: &[(usize, f64)]) -> std::sync::Arc<AerosolProfile> {
+    fn aerosol_profile(&self, d: &Payload, m: usize, vis: &[(usize, f64)]) -> std::sync::Arc<AerosolProfile> {
         let key: ProfileKey = (m, vis.iter().map(|&(s, w)| (s, w.to_bits())).collect());
         let cache = || self.profile_cache.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         if let Some((_, p)) = cache().iter().find(|(k, _)| *k == key) {
             return std::sync::Arc::clone(p);
         }
-        let profile = std::sync::Arc::new(self.aerosol_profile_uncached(m, vis));
+        let profile = std::sync::Arc::new(self.aerosol_profile_uncached(d, m, vis));
         let mut kept = cache();
         if kept.len() >= PROFILE_CACHE {
             kept.remove(0);
@@ -725,13 +764,13 @@ impl AtmosphereTable {
     }
 
     /// [`Self::aerosol_profile`], computed.
-    fn aerosol_profile_uncached(&self, m: usize, vis: &[(usize, f64)]) -> AerosolProfile {
+    fn aerosol_profile_uncached(&self, d: &Payload, m: usize, vis: &[(usize, f64)]) -> AerosolProfile {
         let nb = self.nbins();
         let nalt = self.alt_km.len();
         let mut rows = vec![0.0; nalt * nb];
         for &(s, w) in vis {
             let base = (m * self.settings.len() + s) * nalt * nb;
-            for (o, &e) in rows.iter_mut().zip(&self.ext[base..base + nalt * nb]) {
+            for (o, &e) in rows.iter_mut().zip(&d.ext[base..base + nalt * nb]) {
                 *o += w * f64::from(e);
             }
         }
@@ -895,12 +934,13 @@ impl AtmosphereTable {
         if range_km == 0.0 {
             return Ok(finish(vec![1.0; nb], vec![0.0; nb], CornerInfo::default()));
         }
+        let d = self.data()?;
         let chord = Chord::new(h1, h2, range_km);
         // cumulative aerosol optical depth along the line of sight, at AEROSOL_STEPS + 1 points
         let mut aer = vec![vec![0.0; nb]; AEROSOL_STEPS + 1];
         if !vis.is_empty() {
             // the visibilities are weighted at LOWTRAN's levels, then interpolated in altitude, as LOWTRAN does
-            let profile = self.aerosol_profile(m, &vis);
+            let profile = self.aerosol_profile(d, m, &vis);
             let mut prev = vec![0.0; nb];
             let mut cur = vec![0.0; nb];
             self.extinction_at(&profile, chord.altitude_km(0.0), b0, &mut prev);
@@ -939,7 +979,7 @@ impl AtmosphereTable {
         };
         let mut info = CornerInfo::default();
         let mut od = vec![0.0; nb];
-        self.molecular_into(m, (lo, hi, range_km), b0, &mut od, &mut info);
+        self.molecular_into(d, m, (lo, hi, range_km), b0, &mut od, &mut info);
         let mut transmittance = vec![0.0; nb];
         tau_at(1.0, &od, &vec![1.0; nb], &mut transmittance);
         let cell_info = info;
@@ -959,7 +999,7 @@ impl AtmosphereTable {
                 let h = chord.altitude_km(t).clamp(0.0, self.max_altitude_km());
                 let s = (t * range_km).max((h - h1).abs());
                 let (l, u) = if h1 <= h { (h1, h) } else { (h, h1) };
-                self.molecular_into(m, (l, u, s), b0, &mut od, &mut scratch);
+                self.molecular_into(d, m, (l, u, s), b0, &mut od, &mut scratch);
                 tau_at(t, &od, &tau_prev, &mut tau_cur);
             }
             let temp = profile.temperature_at(chord.altitude_km(t - 0.5 / PATH_RADIANCE_SEGMENTS as f64));
@@ -1090,7 +1130,14 @@ impl AtmosphereTable {
             return Ok((out, true));
         }
         let PathSpectrum { transmittance, path_radiance_w_m2_sr_um, .. } = &mut out;
-        self.add_above_top(weather.model, (h, (t_end + r0 * s) / rt), b0, transmittance, path_radiance_w_m2_sr_um);
+        self.add_above_top(
+            self.data()?,
+            weather.model,
+            (h, (t_end + r0 * s) / rt),
+            b0,
+            transmittance,
+            path_radiance_w_m2_sr_um,
+        );
         Ok((out, false))
     }
 
@@ -1103,6 +1150,7 @@ impl AtmosphereTable {
     /// temperature at its mid-height. `tau` and `radiance` hold the bins from `b0` on.
     fn add_above_top(
         &self,
+        d: &Payload,
         model: ModelAtmosphere,
         (observer_alt_km, sin_e_top): (f64, f64),
         b0: usize,
@@ -1117,7 +1165,7 @@ impl AtmosphereTable {
         let f = ((altitude_coord(observer_alt_km) - self.alt_coord[i]) / (self.alt_coord[i + 1] - self.alt_coord[i]))
             .clamp(0.0, 1.0);
         let od = |level: usize, b: usize| -> f64 {
-            let at = |row: usize| f64::from(self.above_od[((m * nalt + row) * nl + level) * nb + b]);
+            let at = |row: usize| f64::from(d.above_od[((m * nalt + row) * nl + level) * nb + b]);
             at(i) + f * (at(i + 1) - at(i))
         };
         let profile = &self.profiles[m];
@@ -1203,6 +1251,43 @@ impl AtmosphereTable {
             }
         }
     }
+}
+
+/// Inflates `packed`, the payload of `table`'s header, and checks its length, CRC-32 and values.
+fn decode(packed: &[u8], table: &AtmosphereTable) -> Result<Payload, AtmosphereError> {
+    let Packed { raw_len, crc, .. } = table.packed;
+    let mut payload = Vec::with_capacity(usize::try_from(raw_len.min(1 << 30)).unwrap_or(0));
+    flate2::read::ZlibDecoder::new(packed)
+        .take(raw_len.saturating_add(1))
+        .read_to_end(&mut payload)
+        .map_err(|e| bad(format!("payload: {e}")))?;
+    if payload.len() as u64 != raw_len {
+        return Err(bad(format!("payload is {} bytes, the header says {raw_len}", payload.len())));
+    }
+    if crc32fast::hash(&payload) != crc {
+        return Err(bad("payload checksum (CRC-32) does not match"));
+    }
+    let (nodes, nod, next, _) = table.payload_parts();
+    if payload.len() != table.payload_len() {
+        return Err(bad(format!("payload is {} bytes, the grid needs {}", payload.len(), table.payload_len())));
+    }
+    let (hi, rest) = payload.split_at(nod);
+    let (lo, rest) = rest.split_at(nod);
+    let od = hi.iter().zip(lo).map(|(&h, &l)| u16::from(h) << 8 | u16::from(l)).collect();
+    let (flags, rest) = rest.split_at(nodes);
+    let (traced, rest) = rest.split_at(4 * nodes);
+    let f32s =
+        |b: &[u8]| -> Vec<f32> { b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect() };
+    let (ext, above) = rest.split_at(4 * next);
+    let ext = f32s(ext);
+    if ext.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
+        return Err(bad("aerosol extinction must be finite and not negative"));
+    }
+    let above_od = f32s(above);
+    if above_od.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
+        return Err(bad("optical depths above the top must be finite and not negative"));
+    }
+    Ok(Payload { od, flags: flags.to_vec(), traced_km: f32s(traced), ext, above_od })
 }
 
 fn exact_bin_mean_planck(lo_um: f64, hi_um: f64, temp_k: f64) -> f64 {
@@ -1568,6 +1653,30 @@ mod tests {
         let mut v = SHIPPED.to_vec();
         v[8] = 9;
         assert!(matches!(AtmosphereTable::parse(&v), Err(AtmosphereError::Table(m)) if m.contains("version")));
+    }
+
+    #[test]
+    fn a_table_read_lazily_decodes_its_payload_when_a_path_needs_it() {
+        let w = MLS_RURAL_23;
+        let lazy = AtmosphereTable::read(SHIPPED).unwrap();
+        assert!(lazy.data.get().is_none(), "the header alone was read");
+        lazy.check_path(1.0, 3.0, 10.0).unwrap();
+        assert_eq!(lazy.visibilities_km(Aerosol::Rural), table().visibilities_km(Aerosol::Rural));
+        assert!(lazy.data.get().is_none(), "checks need the header alone");
+        let (a, b) = (lazy.path(&w, 1.0, 3.0, 10.0).unwrap(), table().path(&w, 1.0, 3.0, 10.0).unwrap());
+        assert_eq!(a.transmittance, b.transmittance);
+        assert_eq!(a.path_radiance_w_m2_sr_um, b.path_radiance_w_m2_sr_um);
+        let (a, _) = lazy.ray(&w, 2.0, 0.1).unwrap();
+        let (b, _) = table().ray(&w, 2.0, 0.1).unwrap();
+        assert_eq!(a.path_radiance_w_m2_sr_um, b.path_radiance_w_m2_sr_um);
+        // a damaged payload: the header reads, every path that needs the payload is an error (not a panic)
+        let mut bytes = SHIPPED.to_vec();
+        let n = bytes.len();
+        bytes[n - 100] ^= 0x40;
+        let damaged = AtmosphereTable::read(Vec::leak(bytes)).unwrap();
+        assert!(damaged.path(&w, 1.0, 1.0, 0.0).is_ok(), "a path of no length needs no payload");
+        assert!(matches!(damaged.path(&w, 1.0, 3.0, 10.0), Err(AtmosphereError::Table(_))));
+        assert!(matches!(damaged.ray(&w, 2.0, 0.1), Err(AtmosphereError::Table(_))));
     }
 
     #[test]
