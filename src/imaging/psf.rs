@@ -554,12 +554,32 @@ impl Otf {
 
     /// The OTF at `(fx, fy)` from its radial part `v` there; `aperture` includes the pixel aperture, `tent`
     /// the linear interpolant's `sinc²`.
+    /// (The tests' direct form; the grids use [`Otf::with_factors`], the same operations.)
+    #[cfg(test)]
     fn with_apertures(&self, mut v: f64, fx: f64, fy: f64, aperture: bool, tent: bool) -> f64 {
         if aperture && self.aperture_px > 0.0 {
             v *= sinc(self.aperture_px * fx) * sinc(self.aperture_px * fy);
         }
         if tent {
             v *= (sinc(fx) * sinc(fy)).powi(2);
+        }
+        v
+    }
+
+    /// The apertures' factors along one axis at frequency `f`: the pixel aperture's `sinc`, the tent's `sinc`.
+    fn factors(&self, f: f64) -> (f64, f64) {
+        (sinc(self.aperture_px * f), sinc(f))
+    }
+
+    /// [`Otf::with_apertures`] from each axis's [`Otf::factors`] (the OTF's apertures are separable, so a grid
+    /// needs them once per row and once per column, not per frequency).
+    #[inline]
+    fn with_factors(&self, mut v: f64, (ax, tx): (f64, f64), (ay, ty): (f64, f64), aperture: bool, tent: bool) -> f64 {
+        if aperture && self.aperture_px > 0.0 {
+            v *= ax * ay;
+        }
+        if tent {
+            v *= (tx * ty).powi(2);
         }
         v
     }
@@ -601,12 +621,11 @@ impl Otf {
         let fold = |k: usize| if k < n / 2 { k } else { n - k };
         // the quadrant's values with the apertures, then the grid filled from it
         let q = n / 2 + 1;
+        let factors: Vec<(f64, f64)> = (0..q).map(|m| self.factors(m as f64 / PERIOD_PX as f64)).collect();
         let mut quadrant = vec![0.0; q * q];
         quadrant.par_chunks_mut(q).enumerate().for_each(|(my, row)| {
-            let fy = my as f64 / PERIOD_PX as f64;
             for (mx, v) in row.iter_mut().enumerate() {
-                let fx = mx as f64 / PERIOD_PX as f64;
-                *v = self.with_apertures(radial[my * half + mx], fx, fy, aperture, tent);
+                *v = self.with_factors(radial[my * half + mx], factors[mx], factors[my], aperture, tent);
             }
         });
         let mut planner = rustfft::FftPlanner::new();
