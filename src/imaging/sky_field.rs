@@ -170,7 +170,15 @@ pub fn calibrate(
     let mut out = Vec::with_capacity(image.pixels().len());
     // the radiance a calibration may give: that of the hottest temperature the calibrations take
     let highest = lut.radiance(RadianceLut::HI_K);
+    // an 8- or 16-bit image holds at most 65 536 values: each whole value's radiance is worked out once, at its
+    // first pixel (NaN: not yet), the same value a pixel of its own would get
+    let mut known = vec![f32::NAN; 1 << 16];
     for (i, &v) in image.pixels().iter().enumerate() {
+        let whole = (0.0..=65_535.0).contains(&v) && f32::from(v as u16) == v;
+        if whole && !known[v as usize].is_nan() {
+            out.push(known[v as usize]);
+            continue;
+        }
         let l = match calibration.temperature_k(f64::from(v)) {
             Some(t) => {
                 if !(RadianceLut::LO_K..=RadianceLut::HI_K).contains(&t) {
@@ -204,6 +212,9 @@ pub fn calibrate(
                     RadianceLut::HI_K
                 ),
             });
+        }
+        if whole {
+            known[v as usize] = l as f32;
         }
         out.push(l as f32);
     }
@@ -336,4 +347,29 @@ pub fn render_dome(camera: &Camera, dome: &Dome, frame: &mut Frame, only_nan: bo
             || dome.radiance_along(base, step, row, only_nan),
         );
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn calibration_gives_each_pixel_its_own_value_and_names_the_first_bad_pixel() {
+        let lut = RadianceLut::new(Band::LWIR_8_12, Measure::Energy, 0.02);
+        let cal = SkyCalibration::Temperature { value_range: [0.0, 1000.0], temp_range_k: [205.0, 265.0] };
+        // repeated whole values (worked out once), values between them, and one below 0
+        let pixels = vec![0.0, 700.0, 700.0, 0.5, 999.75, 700.0, 65_535.0 / 100.0, -0.0, 12.0, 0.5];
+        let image = SkyImage::from_f32(5, 2, pixels.clone()).unwrap();
+        let got = calibrate(&image, &cal, &lut, "sky").unwrap();
+        for (&v, &l) in pixels.iter().zip(got.pixels()) {
+            let want = lut.radiance(cal.temperature_k(f64::from(v)).unwrap()) as f32;
+            assert_eq!(l.to_bits(), want.to_bits(), "{v}");
+        }
+        // a value past 700 K, at pixels (2, 0) and (1, 1): the error names the first
+        let hot = SkyImage::from_f32(3, 2, vec![10.0, 20.0, 60_000.0, 10.0, 60_000.0, 5.0]).unwrap();
+        match calibrate(&hot, &cal, &lut, "sky") {
+            Err(SkyError::Image { message, .. }) => assert!(message.starts_with("pixel (2, 0) = 60000"), "{message}"),
+            other => panic!("{other:?}"),
+        }
+    }
 }
