@@ -52,7 +52,7 @@ use super::simd::{exp, widest};
 /// The shipped table.
 const SHIPPED: &[u8] = include_bytes!("../../assets/atmosphere/lowtran7.irat");
 /// The table format this program reads.
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 /// Earth's radius of the paths' geometry, km (LOWTRAN's).
 pub const EARTH_RADIUS_KM: f64 = 6371.23;
 /// Scale height of the altitude coordinate `−exp(−h/H)` of the interpolation, km.
@@ -248,10 +248,11 @@ pub struct AtmosphereTable {
     profiles: Vec<Profile>,
     /// Levels of the columns above the grid's altitudes, km, the top itself first.
     above_km: Vec<f64>,
-    /// The compressed payload, decoded into [`Self::data`] when a path first needs it (the header alone answers
-    /// a scenario's checks: the grids, the visibilities, the bands and the profiles).
-    packed: Packed,
-    data: OnceLock<Result<Payload, AtmosphereError>>,
+    /// The compressed payload, one block per model atmosphere, each decoded into [`Self::data`] when a path
+    /// through that model first needs it (the header alone answers a scenario's checks: the grids, the
+    /// visibilities, the bands and the profiles).
+    packed: Vec<Packed>,
+    data: Vec<OnceLock<Result<Payload, AtmosphereError>>>,
     /// Per bin, made when the bin is first asked for (a run's band holds a third of the bins or fewer): the mean
     /// blackbody radiance over the bin at each whole kelvin of [`PLANCK_TABLE_K`], with its logarithm (NaN where
     /// the radiance is not positive).
@@ -261,7 +262,7 @@ pub struct AtmosphereTable {
     profile_cache: std::sync::Mutex<Vec<(ProfileKey, std::sync::Arc<AerosolProfile>)>>,
 }
 
-/// A table's zlib payload as the file holds it.
+/// A model atmosphere's block of a table's payload, as the file holds it.
 #[derive(Debug, Clone, Copy)]
 struct Packed {
     bytes: &'static [u8],
@@ -271,19 +272,19 @@ struct Packed {
     crc: u32,
 }
 
-/// The table's arrays.
+/// The table's arrays for one model atmosphere.
 #[derive(Debug)]
 struct Payload {
-    /// Molecular optical depth, quantized, [model][pair][range node][bin].
+    /// Molecular optical depth, quantized, [pair][range node][bin].
     od: Vec<u16>,
     /// 1 where LOWTRAN could not trace the node's path (it holds a neighbour's values).
     flags: Vec<u8>,
     /// Length LOWTRAN traced on its first try, km.
     traced_km: Vec<f32>,
-    /// Aerosol extinction per km, [model][aerosol setting][altitude][bin].
+    /// Aerosol extinction per km, [aerosol setting][altitude][bin].
     ext: Vec<f32>,
     /// Optical depth per bin of the vertical path from each grid altitude to each of `above_km` (0 where the level
-    /// is not above it), `[model][altitude][level][bin]`.
+    /// is not above it), `[altitude][level][bin]`.
     above_od: Vec<f32>,
 }
 
@@ -396,33 +397,30 @@ impl AtmosphereTable {
     /// # Errors
     /// [`AtmosphereError::Table`] saying what is wrong.
     pub fn parse(bytes: &[u8]) -> Result<Self, AtmosphereError> {
-        // the payload decoded now, from the borrowed bytes
-        let mut table = Self::read_with(bytes, |_| &[])?;
-        let packed = Self::packed_part(bytes)?;
-        let data = decode(packed, &table);
-        table.data = OnceLock::from(Ok(data?));
+        // every block decoded now, from the borrowed bytes
+        let mut blocks = Vec::new();
+        let mut table = Self::read_with(bytes, |packed| {
+            blocks.push(packed);
+            &[]
+        })?;
+        let data =
+            blocks.iter().enumerate().map(|(m, packed)| decode(packed, &table, m)).collect::<Result<Vec<_>, _>>()?;
+        table.data = data.into_iter().map(|d| OnceLock::from(Ok(d))).collect();
         Ok(table)
     }
 
-    /// [`AtmosphereTable::parse`] of a table that lives as long as the program, its payload decoded when a path
-    /// first needs it ([`Self::data`]): a scenario's checks read the header alone, and the decoding (the most of
-    /// the table's loading) runs beside the rest of a run's set-up.
+    /// [`AtmosphereTable::parse`] of a table that lives as long as the program, each model's block decoded when a
+    /// path through that model first needs it ([`Self::data`]): a scenario's checks read the header alone, a run
+    /// inflates one block of six, and it does so beside the rest of its set-up.
     fn read(bytes: &'static [u8]) -> Result<Self, AtmosphereError> {
         Self::read_with(bytes, |packed| packed)
     }
 
-    /// The compressed payload's bytes: what follows the header.
-    fn packed_part(bytes: &[u8]) -> Result<&[u8], AtmosphereError> {
-        let mut r = Reader { bytes, at: 12 };
-        let hlen = r.u32("header length")? as usize;
-        r.take(hlen, "header")?;
-        let plen = r.u64("payload length")?;
-        r.take(12, "payload length")?;
-        r.take(usize::try_from(plen).map_err(|_| bad("payload too long"))?, "payload")
-    }
-
-    /// The header read and checked, the payload's bytes kept as `keep` gives them.
-    fn read_with<'a>(bytes: &'a [u8], keep: impl FnOnce(&'a [u8]) -> &'static [u8]) -> Result<Self, AtmosphereError> {
+    /// The header read and checked, each block's bytes kept as `keep` gives them.
+    fn read_with<'a>(
+        bytes: &'a [u8],
+        mut keep: impl FnMut(&'a [u8]) -> &'static [u8],
+    ) -> Result<Self, AtmosphereError> {
         let mut r = Reader { bytes, at: 0 };
         if r.take(8, "magic")? != b"IRSIMATM" {
             return Err(bad("not an irsim atmosphere table (no IRSIMATM magic)"));
@@ -433,17 +431,32 @@ impl AtmosphereTable {
         }
         let hlen = r.u32("header length")? as usize;
         let head: Header = serde_json::from_slice(r.take(hlen, "header")?).map_err(|e| bad(format!("header: {e}")))?;
-        let plen = r.u64("payload length")?;
-        let crc = r.u32("checksum")?;
-        let raw_len = r.u64("payload length")?;
-        let packed = r.take(usize::try_from(plen).map_err(|_| bad("payload too long"))?, "payload")?;
+        let count = r.u32("block count")? as usize;
+        if count != ModelAtmosphere::ALL.len() {
+            return Err(bad(format!(
+                "{count} blocks, one per model atmosphere ({}) expected",
+                ModelAtmosphere::ALL.len()
+            )));
+        }
+        let mut sizes = Vec::with_capacity(count);
+        for _ in 0..count {
+            let plen = r.u64("block length")?;
+            let crc = r.u32("block checksum")?;
+            let raw_len = r.u64("block length")?;
+            sizes.push((plen, crc, raw_len));
+        }
+        let mut packed = Vec::with_capacity(count);
+        for (plen, crc, raw_len) in sizes {
+            let bytes = r.take(usize::try_from(plen).map_err(|_| bad("payload too long"))?, "payload")?;
+            packed.push(Packed { bytes: keep(bytes), raw_len, crc });
+        }
         if r.at != bytes.len() {
             return Err(bad(format!("{} bytes after the payload", bytes.len() - r.at)));
         }
-        Self::from_header(head, Packed { bytes: keep(packed), raw_len, crc })
+        Self::from_header(head, packed)
     }
 
-    fn from_header(head: Header, packed: Packed) -> Result<Self, AtmosphereError> {
+    fn from_header(head: Header, packed: Vec<Packed>) -> Result<Self, AtmosphereError> {
         increasing("altitudes_km", &head.altitudes_km, 2)?;
         increasing("ranges_km", &head.ranges_km, 2)?;
         increasing("bin_edges_um", &head.bin_edges_um, 2)?;
@@ -499,36 +512,38 @@ impl AtmosphereTable {
             settings,
             profiles,
             above_km,
+            data: packed.iter().map(|_| OnceLock::new()).collect(),
             packed,
-            data: OnceLock::new(),
             planck: (0..nbins).map(|_| OnceLock::new()).collect(),
             profile_cache: std::sync::Mutex::new(Vec::new()),
         };
-        if usize::try_from(packed.raw_len).ok() != Some(table.payload_len()) {
-            return Err(bad(format!("payload is {} bytes, the grid needs {}", packed.raw_len, table.payload_len())));
+        for (m, p) in table.packed.iter().enumerate() {
+            if usize::try_from(p.raw_len).ok() != Some(table.block_len()) {
+                return Err(bad(format!("block {m} is {} bytes, the grid needs {}", p.raw_len, table.block_len())));
+            }
         }
         Ok(table)
     }
 
-    /// The decoded payload's length the grid needs, bytes.
-    fn payload_len(&self) -> usize {
-        let (nodes, nod, next, nabove) = self.payload_parts();
+    /// A model's decoded block's length the grid needs, bytes.
+    fn block_len(&self) -> usize {
+        let (nodes, nod, next, nabove) = self.block_parts();
         2 * nod + nodes + 4 * nodes + 4 * next + 4 * nabove
     }
 
-    /// Nodes of the molecular grid, their values (nodes × bins), aerosol values and values above the top.
-    fn payload_parts(&self) -> (usize, usize, usize, usize) {
+    /// A model's nodes of the molecular grid, their values (nodes × bins), aerosol values and values above the top.
+    fn block_parts(&self) -> (usize, usize, usize, usize) {
         let (nalt, nbins) = (self.alt_km.len(), self.nbins());
-        let nodes = 6 * self.npairs() * self.nodes_per_pair();
-        (nodes, nodes * nbins, 6 * self.settings.len() * nalt * nbins, 6 * nalt * self.above_km.len() * nbins)
+        let nodes = self.npairs() * self.nodes_per_pair();
+        (nodes, nodes * nbins, self.settings.len() * nalt * nbins, nalt * self.above_km.len() * nbins)
     }
 
-    /// The table's arrays, decoded from the payload the first time they are asked for.
+    /// Model `m`'s arrays, decoded from its block the first time they are asked for.
     ///
     /// # Errors
-    /// [`AtmosphereError::Table`] for a payload that does not decode, or does not match its checksum or grid.
-    fn data(&self) -> Result<&Payload, AtmosphereError> {
-        self.data.get_or_init(|| decode(self.packed.bytes, self)).as_ref().map_err(Clone::clone)
+    /// [`AtmosphereError::Table`] for a block that does not decode, or does not match its checksum or grid.
+    fn data(&self, m: usize) -> Result<&Payload, AtmosphereError> {
+        self.data[m].get_or_init(|| decode(self.packed[m].bytes, self, m)).as_ref().map_err(Clone::clone)
     }
 
     fn nbins(&self) -> usize {
@@ -580,15 +595,7 @@ impl AtmosphereTable {
     /// Molecular optical depth per bin of the path between altitudes `lo ≤ hi` (km) over `range_km`, into `out`
     /// (the bins from `b0` on, as many as it holds); the flags and first traced lengths of the nodes used are
     /// collected in `info`.
-    fn molecular_into(
-        &self,
-        d: &Payload,
-        m: usize,
-        (lo, hi, range_km): Span,
-        b0: usize,
-        out: &mut [f64],
-        info: &mut CornerInfo,
-    ) {
+    fn molecular_into(&self, d: &Payload, (lo, hi, range_km): Span, b0: usize, out: &mut [f64], info: &mut CornerInfo) {
         let ia = bracket(&self.alt_km, lo);
         let ib = bracket(&self.alt_km, hi);
         let c = altitude_coord;
@@ -604,7 +611,7 @@ impl AtmosphereTable {
         ];
         let short = corners.iter().any(|&(x, y, w)| w > 0.0 && (self.alt_km[x] - self.alt_km[y]).abs() > range_km);
         if short && hi - lo <= SHORT_PATH_MAX_RISE_KM {
-            self.horizontal_mean_into(d, m, (lo, hi, range_km), b0, out, info);
+            self.horizontal_mean_into(d, (lo, hi, range_km), b0, out, info);
             return;
         }
         let mut buf = Vec::new();
@@ -615,7 +622,7 @@ impl AtmosphereTable {
             let (p, q) = (x.min(y), x.max(y));
             let dhc = self.alt_km[q] - self.alt_km[p];
             if range_km >= dhc {
-                self.pair_into(d, m, p, q, (range_km, w), b0, out, info);
+                self.pair_into(d, p, q, (range_km, w), b0, out, info);
                 continue;
             }
             // a corner whose shortest path (vertical, dhc) is longer than the path asked: its vertical path
@@ -629,11 +636,11 @@ impl AtmosphereTable {
             let (ar, rest) = rest.split_at_mut(nb);
             let (ad, rest) = rest.split_at_mut(nb);
             let (br, bd) = rest.split_at_mut(nb);
-            self.pair_into(d, m, p, q, (dhc, 1.0), b0, v, info);
-            self.pair_into(d, m, p, p, (range_km, 1.0), b0, ar, info);
-            self.pair_into(d, m, p, p, (dhc, 1.0), b0, ad, info);
-            self.pair_into(d, m, q, q, (range_km, 1.0), b0, br, info);
-            self.pair_into(d, m, q, q, (dhc, 1.0), b0, bd, info);
+            self.pair_into(d, p, q, (dhc, 1.0), b0, v, info);
+            self.pair_into(d, p, p, (range_km, 1.0), b0, ar, info);
+            self.pair_into(d, p, p, (dhc, 1.0), b0, ad, info);
+            self.pair_into(d, q, q, (range_km, 1.0), b0, br, info);
+            self.pair_into(d, q, q, (dhc, 1.0), b0, bd, info);
             let ratio = |x: f64, y: f64| if y > 0.0 { x / y } else { range_km / dhc };
             for b in 0..nb {
                 out[b] += w * v[b] * 0.5 * (ratio(ar[b], ad[b]) + ratio(br[b], bd[b]));
@@ -648,7 +655,6 @@ impl AtmosphereTable {
     fn horizontal_mean_into(
         &self,
         d: &Payload,
-        m: usize,
         (lo, hi, range_km): Span,
         b0: usize,
         out: &mut [f64],
@@ -666,7 +672,7 @@ impl AtmosphereTable {
         }
         for (node, &w) in weights.iter().enumerate() {
             if w > 0.0 {
-                self.pair_into(d, m, node, node, (range_km, w), b0, out, info);
+                self.pair_into(d, node, node, (range_km, w), b0, out, info);
             }
         }
     }
@@ -677,7 +683,6 @@ impl AtmosphereTable {
     fn pair_into(
         &self,
         d: &Payload,
-        m: usize,
         p: usize,
         q: usize,
         (range_km, weight): (f64, f64),
@@ -704,7 +709,7 @@ impl AtmosphereTable {
         // linear in √range: short paths' optical depth grows like √range (saturated lines), long ones' nearly
         // linearly, and √ follows both between the nodes better than linear does (measured)
         let f = if r1 > r0 { ((r.sqrt() - r0.sqrt()) / (r1.sqrt() - r0.sqrt())).clamp(0.0, 1.0) } else { 0.0 };
-        let base = (m * self.npairs() + self.pair_index(p, q)) * self.nodes_per_pair();
+        let base = self.pair_index(p, q) * self.nodes_per_pair();
         if dh == 0.0 && n0 == 0 && n > 1 && r < r1 {
             // a horizontal path shorter than the first range: each bin's own curve of growth between the first two
             // ranges, carried down as a power law (its exponent between ½, saturated lines, and 1, weak ones)
@@ -754,7 +759,7 @@ impl AtmosphereTable {
         if let Some((_, p)) = cache().iter().find(|(k, _)| *k == key) {
             return std::sync::Arc::clone(p);
         }
-        let profile = std::sync::Arc::new(self.aerosol_profile_uncached(d, m, vis));
+        let profile = std::sync::Arc::new(self.aerosol_profile_uncached(d, vis));
         let mut kept = cache();
         if kept.len() >= PROFILE_CACHE {
             kept.remove(0);
@@ -764,12 +769,12 @@ impl AtmosphereTable {
     }
 
     /// [`Self::aerosol_profile`], computed.
-    fn aerosol_profile_uncached(&self, d: &Payload, m: usize, vis: &[(usize, f64)]) -> AerosolProfile {
+    fn aerosol_profile_uncached(&self, d: &Payload, vis: &[(usize, f64)]) -> AerosolProfile {
         let nb = self.nbins();
         let nalt = self.alt_km.len();
         let mut rows = vec![0.0; nalt * nb];
         for &(s, w) in vis {
-            let base = (m * self.settings.len() + s) * nalt * nb;
+            let base = s * nalt * nb;
             for (o, &e) in rows.iter_mut().zip(&d.ext[base..base + nalt * nb]) {
                 *o += w * f64::from(e);
             }
@@ -934,7 +939,7 @@ impl AtmosphereTable {
         if range_km == 0.0 {
             return Ok(finish(vec![1.0; nb], vec![0.0; nb], CornerInfo::default()));
         }
-        let d = self.data()?;
+        let d = self.data(m)?;
         let chord = Chord::new(h1, h2, range_km);
         // cumulative aerosol optical depth along the line of sight, at AEROSOL_STEPS + 1 points
         let mut aer = vec![vec![0.0; nb]; AEROSOL_STEPS + 1];
@@ -979,7 +984,7 @@ impl AtmosphereTable {
         };
         let mut info = CornerInfo::default();
         let mut od = vec![0.0; nb];
-        self.molecular_into(d, m, (lo, hi, range_km), b0, &mut od, &mut info);
+        self.molecular_into(d, (lo, hi, range_km), b0, &mut od, &mut info);
         let mut transmittance = vec![0.0; nb];
         tau_at(1.0, &od, &vec![1.0; nb], &mut transmittance);
         let cell_info = info;
@@ -999,7 +1004,7 @@ impl AtmosphereTable {
                 let h = chord.altitude_km(t).clamp(0.0, self.max_altitude_km());
                 let s = (t * range_km).max((h - h1).abs());
                 let (l, u) = if h1 <= h { (h1, h) } else { (h, h1) };
-                self.molecular_into(d, m, (l, u, s), b0, &mut od, &mut scratch);
+                self.molecular_into(d, (l, u, s), b0, &mut od, &mut scratch);
                 tau_at(t, &od, &tau_prev, &mut tau_cur);
             }
             let temp = profile.temperature_at(chord.altitude_km(t - 0.5 / PATH_RADIANCE_SEGMENTS as f64));
@@ -1131,7 +1136,7 @@ impl AtmosphereTable {
         }
         let PathSpectrum { transmittance, path_radiance_w_m2_sr_um, .. } = &mut out;
         self.add_above_top(
-            self.data()?,
+            self.data(model_index(weather.model))?,
             weather.model,
             (h, (t_end + r0 * s) / rt),
             b0,
@@ -1160,12 +1165,11 @@ impl AtmosphereTable {
         let m = model_index(model);
         let nb = self.nbins();
         let nl = self.above_km.len();
-        let nalt = self.alt_km.len();
         let i = bracket(&self.alt_km, observer_alt_km);
         let f = ((altitude_coord(observer_alt_km) - self.alt_coord[i]) / (self.alt_coord[i + 1] - self.alt_coord[i]))
             .clamp(0.0, 1.0);
         let od = |level: usize, b: usize| -> f64 {
-            let at = |row: usize| f64::from(d.above_od[((m * nalt + row) * nl + level) * nb + b]);
+            let at = |row: usize| f64::from(d.above_od[(row * nl + level) * nb + b]);
             at(i) + f * (at(i + 1) - at(i))
         };
         let profile = &self.profiles[m];
@@ -1253,9 +1257,9 @@ impl AtmosphereTable {
     }
 }
 
-/// Inflates `packed`, the payload of `table`'s header, and checks its length, CRC-32 and values.
-fn decode(packed: &[u8], table: &AtmosphereTable) -> Result<Payload, AtmosphereError> {
-    let Packed { raw_len, crc, .. } = table.packed;
+/// Inflates `packed`, model `m`'s block of `table`, and checks its length, CRC-32 and values.
+fn decode(packed: &[u8], table: &AtmosphereTable, m: usize) -> Result<Payload, AtmosphereError> {
+    let Packed { raw_len, crc, .. } = table.packed[m];
     let mut payload = Vec::with_capacity(usize::try_from(raw_len.min(1 << 30)).unwrap_or(0));
     flate2::read::ZlibDecoder::new(packed)
         .take(raw_len.saturating_add(1))
@@ -1267,9 +1271,9 @@ fn decode(packed: &[u8], table: &AtmosphereTable) -> Result<Payload, AtmosphereE
     if crc32fast::hash(&payload) != crc {
         return Err(bad("payload checksum (CRC-32) does not match"));
     }
-    let (nodes, nod, next, _) = table.payload_parts();
-    if payload.len() != table.payload_len() {
-        return Err(bad(format!("payload is {} bytes, the grid needs {}", payload.len(), table.payload_len())));
+    let (nodes, nod, next, _) = table.block_parts();
+    if payload.len() != table.block_len() {
+        return Err(bad(format!("block {m} is {} bytes, the grid needs {}", payload.len(), table.block_len())));
     }
     let (hi, rest) = payload.split_at(nod);
     let (lo, rest) = rest.split_at(nod);
@@ -1659,24 +1663,31 @@ mod tests {
     fn a_table_read_lazily_decodes_its_payload_when_a_path_needs_it() {
         let w = MLS_RURAL_23;
         let lazy = AtmosphereTable::read(SHIPPED).unwrap();
-        assert!(lazy.data.get().is_none(), "the header alone was read");
+        assert!(lazy.data.iter().all(|d| d.get().is_none()), "the header alone was read");
         lazy.check_path(1.0, 3.0, 10.0).unwrap();
         assert_eq!(lazy.visibilities_km(Aerosol::Rural), table().visibilities_km(Aerosol::Rural));
-        assert!(lazy.data.get().is_none(), "checks need the header alone");
+        assert!(lazy.data.iter().all(|d| d.get().is_none()), "checks need the header alone");
         let (a, b) = (lazy.path(&w, 1.0, 3.0, 10.0).unwrap(), table().path(&w, 1.0, 3.0, 10.0).unwrap());
         assert_eq!(a.transmittance, b.transmittance);
         assert_eq!(a.path_radiance_w_m2_sr_um, b.path_radiance_w_m2_sr_um);
         let (a, _) = lazy.ray(&w, 2.0, 0.1).unwrap();
         let (b, _) = table().ray(&w, 2.0, 0.1).unwrap();
         assert_eq!(a.path_radiance_w_m2_sr_um, b.path_radiance_w_m2_sr_um);
-        // a damaged payload: the header reads, every path that needs the payload is an error (not a panic)
+        // the last model's block damaged: the header reads, every path through that model that needs its block
+        // is an error (not a panic), and the other models' paths are as before
         let mut bytes = SHIPPED.to_vec();
         let n = bytes.len();
         bytes[n - 100] ^= 0x40;
         let damaged = AtmosphereTable::read(Vec::leak(bytes)).unwrap();
-        assert!(damaged.path(&w, 1.0, 1.0, 0.0).is_ok(), "a path of no length needs no payload");
-        assert!(matches!(damaged.path(&w, 1.0, 3.0, 10.0), Err(AtmosphereError::Table(_))));
-        assert!(matches!(damaged.ray(&w, 2.0, 0.1), Err(AtmosphereError::Table(_))));
+        let last = Weather { model: ModelAtmosphere::ALL[ModelAtmosphere::ALL.len() - 1], ..w };
+        assert_ne!(last.model, w.model);
+        assert!(damaged.path(&last, 1.0, 1.0, 0.0).is_ok(), "a path of no length needs no payload");
+        assert!(matches!(damaged.path(&last, 1.0, 3.0, 10.0), Err(AtmosphereError::Table(_))));
+        assert!(matches!(damaged.ray(&last, 2.0, 0.1), Err(AtmosphereError::Table(_))));
+        let (a, b) = (damaged.path(&w, 1.0, 3.0, 10.0).unwrap(), table().path(&w, 1.0, 3.0, 10.0).unwrap());
+        assert_eq!(a.transmittance, b.transmittance);
+        let decoded = damaged.data.iter().filter(|d| d.get().is_some()).count();
+        assert_eq!(decoded, 2, "the blocks of the two models asked for, not the others");
     }
 
     #[test]

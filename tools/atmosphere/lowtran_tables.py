@@ -36,8 +36,10 @@ with both ends at 0 km is LOWTRAN's horizontal path (ITYPE 1); a vertical path i
 whose path LOWTRAN cannot trace (it passes below the ground) is flagged and holds its neighbour's values.
 
 Output format (little-endian): b"IRSIMATM", u32 format version, u32 header length, the header (UTF-8 JSON: the
-grids, the model atmospheres' temperature profiles, units, scales and the source's checksums), u64 compressed
-length, u32 CRC-32 of the uncompressed payload, u64 uncompressed length, then the zlib-compressed payload:
+grids, the model atmospheres' temperature profiles, units, scales and the source's checksums), u32 block count
+(one block per model atmosphere, in header.models' order), per block a u64 compressed length, a u32 CRC-32 and a
+u64 length of its uncompressed payload, then the blocks' zlib streams one after another. irsim inflates only the
+block of the model a run uses. The payload, each block holding its own model's part of every item:
   1. molecular optical depth, u16 (x header.optical_depth_scale), per model, altitude pair (low <= high, low
      slowest), range node (node 0 the vertical path, then header.ranges_km) and spectral bin (fastest); stored as
      the high bytes of the whole block followed by its low bytes;
@@ -84,7 +86,7 @@ SOURCE_URL = (
 )
 SOURCE_SHA256 = "51cfc2d882423e32933ef6be765d7aad97c3432300247d04164a0f76613579f5"
 FORTRAN_SHA256 = "25e83d94e24bb8acc3242dfd3b97e0bd8ca8ffceff9ec6dce1f5a37c9c5459ac"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 # LOWTRAN card 1 MODEL numbers.
 MODELS = {
@@ -455,15 +457,56 @@ def generate(out_dir: Path, jobs: int) -> None:
     offgrid(exe, out_dir / OFFGRID, jobs)
 
 
+def section_sizes(head: dict) -> list[int]:
+    """Bytes of each item of the payload (see the module's docstring), all models together, in order."""
+    nalt, nbins = len(head["altitudes_km"]), len(head["bin_edges_um"]) - 1
+    nodes = len(head["models"]) * nalt * (nalt + 1) // 2 * (1 + len(head["ranges_km"]))
+    return [nodes * nbins, nodes * nbins, nodes, 4 * nodes,
+            4 * len(head["models"]) * len(head["aerosols"]) * nalt * nbins,
+            4 * len(head["models"]) * nalt * len(head["above_top_km"]) * nbins]
+
+
+def model_blocks(head: dict, payload: bytes) -> list[bytes]:
+    """The whole payload split into one block per model: each item is model-major, so a model's part of an item
+    is one of its equal slices."""
+    n = len(head["models"])
+    sizes = section_sizes(head)
+    if sum(sizes) != len(payload) or any(size % n for size in sizes):
+        sys.exit(f"the payload is {len(payload)} bytes, the grids need {sum(sizes)}")
+    blocks = [b""] * n
+    at = 0
+    for size in sizes:
+        part = size // n
+        for m in range(n):
+            blocks[m] += payload[at + m * part:at + (m + 1) * part]
+        at += size
+    return blocks
+
+
+def joined_payload(head: dict, blocks: list[bytes]) -> bytes:
+    """The inverse of model_blocks: the whole payload, item after item."""
+    n = len(head["models"])
+    out = []
+    offsets = [0] * n
+    for size in section_sizes(head):
+        part = size // n
+        for m in range(n):
+            out.append(blocks[m][offsets[m]:offsets[m] + part])
+            offsets[m] += part
+    return b"".join(out)
+
+
 def write_table(path: Path, head: dict, payload: bytes) -> None:
     text = json.dumps(head, sort_keys=True, separators=(",", ":")).encode()
-    packed = zlib.compress(payload, 9)
+    blocks = model_blocks(head, payload)
+    packed = [zlib.compress(b, 9) for b in blocks]
     blob = (
         b"IRSIMATM"
         + struct.pack("<II", FORMAT_VERSION, len(text))
         + text
-        + struct.pack("<QIQ", len(packed), zlib.crc32(payload), len(payload))
-        + packed
+        + struct.pack("<I", len(blocks))
+        + b"".join(struct.pack("<QIQ", len(p), zlib.crc32(b), len(b)) for p, b in zip(packed, blocks))
+        + b"".join(packed)
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
@@ -577,16 +620,33 @@ def offgrid(exe: Path, path: Path, jobs: int) -> None:
 
 
 def read_table(path: Path) -> tuple[dict, bytes]:
+    """The header and the whole payload (item after item) of a table in this format or the one before (2: the
+    payload one zlib stream)."""
     blob = path.read_bytes()
     if blob[:8] != b"IRSIMATM":
         sys.exit(f"{path}: not an irsim atmosphere table")
     version, hlen = struct.unpack_from("<II", blob, 8)
     head = json.loads(blob[16:16 + hlen])
-    plen, crc, rawlen = struct.unpack_from("<QIQ", blob, 16 + hlen)
-    payload = zlib.decompress(blob[36 + hlen:36 + hlen + plen])
-    if len(payload) != rawlen or zlib.crc32(payload) != crc:
-        sys.exit(f"{path}: checksum or length does not match")
-    return head, payload
+    at = 16 + hlen
+    if version == 2:
+        entries = [struct.unpack_from("<QIQ", blob, at)]
+        at += 20
+    elif version == FORMAT_VERSION:
+        (count,) = struct.unpack_from("<I", blob, at)
+        entries = [struct.unpack_from("<QIQ", blob, at + 4 + 20 * k) for k in range(count)]
+        at += 4 + 20 * count
+    else:
+        sys.exit(f"{path}: format version {version}, this script reads 2 and {FORMAT_VERSION}")
+    parts = []
+    for plen, crc, rawlen in entries:
+        part = zlib.decompress(blob[at:at + plen])
+        at += plen
+        if len(part) != rawlen or zlib.crc32(part) != crc:
+            sys.exit(f"{path}: checksum or length does not match")
+        parts.append(part)
+    if at != len(blob):
+        sys.exit(f"{path}: {len(blob) - at} bytes after the payload")
+    return head, parts[0] if version == 2 else joined_payload(head, parts)
 
 
 def check(jobs: int) -> int:
@@ -630,6 +690,9 @@ def main() -> int:
     p.add_argument("--out", type=Path, default=ASSETS, help="directory for the table and the off-grid runs")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     p.add_argument("--point", action="store_true", help="one direct run, printed as JSON")
+    p.add_argument("--repack", type=Path, metavar="TABLE",
+                   help="rewrite a table made by an earlier version of this script in the current format, into "
+                        "--out (the same header and values; no LOWTRAN runs)")
     p.add_argument("--model", choices=list(MODELS), default="midlatitude_summer")
     p.add_argument("--aerosol", choices=["none"] + list(AEROSOLS), default="rural")
     p.add_argument("--visibility-km", type=float, default=23.0)
@@ -643,6 +706,10 @@ def main() -> int:
         return 0
     if a.check:
         return check(a.jobs)
+    if a.repack:
+        head, payload = read_table(a.repack)
+        write_table(a.out / TABLE, head, payload)
+        return 0
     generate(a.out, a.jobs)
     return 0
 
