@@ -196,10 +196,21 @@ impl Psf {
         // sampled at pixel centres by up to 0.01 px (the cut's edge falls unevenly between pixels)
         let outer = radius as f64 + 0.5;
         let inner = (outer - 1.5).max(0.0);
+        // in fine samples², with a margin past `hypot`'s rounding: inside the first the taper is 1, outside the
+        // second 0, whatever `hypot` gives (the squares are exact integers), so only the ring between needs it
+        let per = FINE_PER_PX as f64;
+        let (surely_in, surely_out) = ((inner * per).powi(2) * (1.0 - 1e-9), (outer * per).powi(2) * (1.0 + 1e-9));
         for dy in -half..=half {
             for dx in -half..=half {
                 let (x, y) = (dx.rem_euclid(n as isize) as usize, dy.rem_euclid(n as isize) as usize);
-                let r = (dx as f64).hypot(dy as f64) / FINE_PER_PX as f64;
+                let r2 = (dx * dx + dy * dy) as f64;
+                let r = if r2 < surely_in {
+                    0.0
+                } else if r2 > surely_out {
+                    f64::INFINITY
+                } else {
+                    (dx as f64).hypot(dy as f64) / FINE_PER_PX as f64
+                };
                 let taper = if r <= inner {
                     1.0
                 } else if r >= outer {
@@ -588,10 +599,20 @@ impl Otf {
     /// value a grid of `per_px ≤ 2·(half − 1) / PERIOD_PX` samples per pixel needs (the OTF is even in each
     /// frequency, and the grids' frequencies are all multiples of `1/PERIOD_PX`).
     fn radial_quadrant(&self, half: usize) -> Vec<f64> {
+        // past every wavelength's cut-off the diffraction term is 0, and so is the value: such frequencies
+        // (most of the quadrant) need no `hypot` or `exp`. `f² > (cut-off·(1 + 10⁻⁹))²` puts `hypot` (within an
+        // ulp of the exact `f`) past the cut-off for certain, so each value is the bits `radial` gives.
+        let beyond = self.diffraction.iter().map(|&(_, scale)| 1.0 / scale).fold(0.0, f64::max) * (1.0 + 1e-9);
+        let zero_past = (!self.diffraction.is_empty() && beyond.is_finite()).then_some(beyond * beyond);
         let mut out = vec![0.0; half * half];
         out.par_chunks_mut(half).enumerate().for_each(|(my, row)| {
+            let fy = my as f64 / PERIOD_PX as f64;
             for (mx, v) in row.iter_mut().enumerate() {
-                *v = self.radial(mx as f64 / PERIOD_PX as f64, my as f64 / PERIOD_PX as f64);
+                let fx = mx as f64 / PERIOD_PX as f64;
+                *v = match zero_past {
+                    Some(f2) if fx * fx + fy * fy > f2 => 0.0,
+                    _ => self.radial(fx, fy),
+                };
             }
         });
         out
