@@ -78,6 +78,8 @@ fn table_error(e: AtmosphereError) -> CliError {
             name.replace('_', "-"),
             crate::physics::Num(value)
         )),
+        // the built-in table itself (a damaged build), not the user's input
+        AtmosphereError::Table(_) => CliError::Failed(e.to_string()),
         other => CliError::Invalid(other.to_string()),
     }
 }

@@ -174,7 +174,8 @@ pub fn calibrate(
     // first pixel (NaN: not yet), the same value a pixel of its own would get
     let mut known = vec![f32::NAN; 1 << 16];
     for (i, &v) in image.pixels().iter().enumerate() {
-        let whole = (0.0..=65_535.0).contains(&v) && f32::from(v as u16) == v;
+        // (by its bits: −0 is not 0, which a radiance offset of −0 would tell apart)
+        let whole = (0.0..=65_535.0).contains(&v) && f32::from(v as u16).to_bits() == v.to_bits();
         if whole && !known[v as usize].is_nan() {
             out.push(known[v as usize]);
             continue;

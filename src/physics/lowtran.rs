@@ -262,7 +262,8 @@ pub struct AtmosphereTable {
     profile_cache: std::sync::Mutex<Vec<(ProfileKey, std::sync::Arc<AerosolProfile>)>>,
 }
 
-/// A model atmosphere's block of a table's payload, as the file holds it.
+/// A model atmosphere's block of a table's payload, as the file holds it (no bytes in a table read by
+/// [`AtmosphereTable::parse`], whose blocks are decoded as it reads them).
 #[derive(Debug, Clone, Copy)]
 struct Packed {
     bytes: &'static [u8],
@@ -383,10 +384,12 @@ fn increasing(name: &str, v: &[f64], min_len: usize) -> Result<(), AtmosphereErr
 }
 
 impl AtmosphereTable {
-    /// The table built into the program, loaded and checked once.
+    /// The table built into the program: its header read and checked once, each model's block when a path
+    /// through that model first needs it ([`AtmosphereTable::path`] and the others then give a damaged block's
+    /// [`AtmosphereError::Table`]).
     ///
     /// # Errors
-    /// [`AtmosphereError::Table`] if the built-in table is damaged (a build problem).
+    /// [`AtmosphereError::Table`] if the built-in table's header is damaged (a build problem).
     pub fn shipped() -> Result<&'static AtmosphereTable, AtmosphereError> {
         static TABLE: OnceLock<Result<AtmosphereTable, AtmosphereError>> = OnceLock::new();
         TABLE.get_or_init(|| AtmosphereTable::read(SHIPPED)).as_ref().map_err(Clone::clone)
@@ -440,9 +443,9 @@ impl AtmosphereTable {
         }
         let mut sizes = Vec::with_capacity(count);
         for _ in 0..count {
-            let plen = r.u64("block length")?;
-            let crc = r.u32("block checksum")?;
-            let raw_len = r.u64("block length")?;
+            let plen = r.u64("block's compressed length")?;
+            let crc = r.u32("block's checksum")?;
+            let raw_len = r.u64("block's length")?;
             sizes.push((plen, crc, raw_len));
         }
         let mut packed = Vec::with_capacity(count);
@@ -874,7 +877,9 @@ impl AtmosphereTable {
     /// Spectral transmittance and path radiance of the path from the observer to the target.
     ///
     /// # Errors
-    /// [`AtmosphereError::OutsideGrid`] or [`AtmosphereError::BelowGround`] for a path the table does not cover.
+    /// [`AtmosphereError::OutsideGrid`] or [`AtmosphereError::BelowGround`] for a path the table does not cover;
+    /// [`AtmosphereError::Table`] if the weather's model block of the table is damaged (every path through that
+    /// model, one of no length too).
     pub fn path(
         &self,
         weather: &Weather,
@@ -936,10 +941,12 @@ impl AtmosphereTable {
                 lowtran_first_traced_km: info.traced,
             },
         };
+        // the model's block, decoded (or its damage found) by the first path through the model, even one of no
+        // length: the observer's tables start with one and are left clear where a later path fails
+        let d = self.data(m)?;
         if range_km == 0.0 {
             return Ok(finish(vec![1.0; nb], vec![0.0; nb], CornerInfo::default()));
         }
-        let d = self.data(m)?;
         let chord = Chord::new(h1, h2, range_km);
         // cumulative aerosol optical depth along the line of sight, at AEROSOL_STEPS + 1 points
         let mut aer = vec![vec![0.0; nb]; AEROSOL_STEPS + 1];
@@ -1060,7 +1067,8 @@ impl AtmosphereTable {
     /// (then `true`, and the path ends there).
     ///
     /// # Errors
-    /// [`AtmosphereError::OutsideGrid`] for an observer outside the table's altitudes.
+    /// [`AtmosphereError::OutsideGrid`] for an observer outside the table's altitudes; [`AtmosphereError::Table`]
+    /// as for [`AtmosphereTable::path`].
     pub fn ray(
         &self,
         weather: &Weather,
@@ -1259,6 +1267,7 @@ impl AtmosphereTable {
 
 /// Inflates `packed`, model `m`'s block of `table`, and checks its length, CRC-32 and values.
 fn decode(packed: &[u8], table: &AtmosphereTable, m: usize) -> Result<Payload, AtmosphereError> {
+    let bad = |msg: String| AtmosphereError::Table(format!("{}'s block: {msg}", ModelAtmosphere::ALL[m].name()));
     let Packed { raw_len, crc, .. } = table.packed[m];
     let mut payload = Vec::with_capacity(usize::try_from(raw_len.min(1 << 30)).unwrap_or(0));
     flate2::read::ZlibDecoder::new(packed)
@@ -1269,11 +1278,11 @@ fn decode(packed: &[u8], table: &AtmosphereTable, m: usize) -> Result<Payload, A
         return Err(bad(format!("payload is {} bytes, the header says {raw_len}", payload.len())));
     }
     if crc32fast::hash(&payload) != crc {
-        return Err(bad("payload checksum (CRC-32) does not match"));
+        return Err(bad("payload checksum (CRC-32) does not match".into()));
     }
     let (nodes, nod, next, _) = table.block_parts();
     if payload.len() != table.block_len() {
-        return Err(bad(format!("block {m} is {} bytes, the grid needs {}", payload.len(), table.block_len())));
+        return Err(bad(format!("{} bytes, the grid needs {}", payload.len(), table.block_len())));
     }
     let (hi, rest) = payload.split_at(nod);
     let (lo, rest) = rest.split_at(nod);
@@ -1285,11 +1294,11 @@ fn decode(packed: &[u8], table: &AtmosphereTable, m: usize) -> Result<Payload, A
     let (ext, above) = rest.split_at(4 * next);
     let ext = f32s(ext);
     if ext.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
-        return Err(bad("aerosol extinction must be finite and not negative"));
+        return Err(bad("aerosol extinction must be finite and not negative".into()));
     }
     let above_od = f32s(above);
     if above_od.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
-        return Err(bad("optical depths above the top must be finite and not negative"));
+        return Err(bad("optical depths above the top must be finite and not negative".into()));
     }
     Ok(Payload { od, flags: flags.to_vec(), traced_km: f32s(traced), ext, above_od })
 }
@@ -1662,16 +1671,18 @@ mod tests {
     #[test]
     fn a_table_read_lazily_decodes_its_payload_when_a_path_needs_it() {
         let w = MLS_RURAL_23;
+        let eager = AtmosphereTable::parse(SHIPPED).unwrap();
+        assert!(eager.data.iter().all(|d| d.get().is_some()), "parse decodes every block");
         let lazy = AtmosphereTable::read(SHIPPED).unwrap();
         assert!(lazy.data.iter().all(|d| d.get().is_none()), "the header alone was read");
         lazy.check_path(1.0, 3.0, 10.0).unwrap();
-        assert_eq!(lazy.visibilities_km(Aerosol::Rural), table().visibilities_km(Aerosol::Rural));
+        assert_eq!(lazy.visibilities_km(Aerosol::Rural), eager.visibilities_km(Aerosol::Rural));
         assert!(lazy.data.iter().all(|d| d.get().is_none()), "checks need the header alone");
-        let (a, b) = (lazy.path(&w, 1.0, 3.0, 10.0).unwrap(), table().path(&w, 1.0, 3.0, 10.0).unwrap());
+        let (a, b) = (lazy.path(&w, 1.0, 3.0, 10.0).unwrap(), eager.path(&w, 1.0, 3.0, 10.0).unwrap());
         assert_eq!(a.transmittance, b.transmittance);
         assert_eq!(a.path_radiance_w_m2_sr_um, b.path_radiance_w_m2_sr_um);
         let (a, _) = lazy.ray(&w, 2.0, 0.1).unwrap();
-        let (b, _) = table().ray(&w, 2.0, 0.1).unwrap();
+        let (b, _) = eager.ray(&w, 2.0, 0.1).unwrap();
         assert_eq!(a.path_radiance_w_m2_sr_um, b.path_radiance_w_m2_sr_um);
         // the last model's block damaged: the header reads, every path through that model that needs its block
         // is an error (not a panic), and the other models' paths are as before
@@ -1681,10 +1692,15 @@ mod tests {
         let damaged = AtmosphereTable::read(Vec::leak(bytes)).unwrap();
         let last = Weather { model: ModelAtmosphere::ALL[ModelAtmosphere::ALL.len() - 1], ..w };
         assert_ne!(last.model, w.model);
-        assert!(damaged.path(&last, 1.0, 1.0, 0.0).is_ok(), "a path of no length needs no payload");
-        assert!(matches!(damaged.path(&last, 1.0, 3.0, 10.0), Err(AtmosphereError::Table(_))));
+        // even a path of no length (the observer's tables start with one, and fill what fails later as clear air)
+        assert!(matches!(damaged.path(&last, 1.0, 1.0, 0.0), Err(AtmosphereError::Table(_))));
+        let named = |r: Result<PathSpectrum, AtmosphereError>| match r {
+            Err(AtmosphereError::Table(m)) => m.starts_with(&format!("{}'s block: ", last.model.name())),
+            _ => false,
+        };
+        assert!(named(damaged.path(&last, 1.0, 3.0, 10.0)), "the error names the model's block");
         assert!(matches!(damaged.ray(&last, 2.0, 0.1), Err(AtmosphereError::Table(_))));
-        let (a, b) = (damaged.path(&w, 1.0, 3.0, 10.0).unwrap(), table().path(&w, 1.0, 3.0, 10.0).unwrap());
+        let (a, b) = (damaged.path(&w, 1.0, 3.0, 10.0).unwrap(), eager.path(&w, 1.0, 3.0, 10.0).unwrap());
         assert_eq!(a.transmittance, b.transmittance);
         let decoded = damaged.data.iter().filter(|d| d.get().is_some()).count();
         assert_eq!(decoded, 2, "the blocks of the two models asked for, not the others");

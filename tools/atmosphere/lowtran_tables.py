@@ -471,8 +471,10 @@ def model_blocks(head: dict, payload: bytes) -> list[bytes]:
     is one of its equal slices."""
     n = len(head["models"])
     sizes = section_sizes(head)
-    if sum(sizes) != len(payload) or any(size % n for size in sizes):
+    if sum(sizes) != len(payload):
         sys.exit(f"the payload is {len(payload)} bytes, the grids need {sum(sizes)}")
+    if any(size % n for size in sizes):
+        sys.exit(f"an item of the payload does not split into {n} equal model parts")
     blocks = [b""] * n
     at = 0
     for size in sizes:
@@ -633,6 +635,8 @@ def read_table(path: Path) -> tuple[dict, bytes]:
         at += 20
     elif version == FORMAT_VERSION:
         (count,) = struct.unpack_from("<I", blob, at)
+        if count != len(head["models"]):
+            sys.exit(f"{path}: {count} blocks, one per model atmosphere ({len(head['models'])}) expected")
         entries = [struct.unpack_from("<QIQ", blob, at + 4 + 20 * k) for k in range(count)]
         at += 4 + 20 * count
     else:
@@ -646,7 +650,12 @@ def read_table(path: Path) -> tuple[dict, bytes]:
         parts.append(part)
     if at != len(blob):
         sys.exit(f"{path}: {len(blob) - at} bytes after the payload")
-    return head, parts[0] if version == 2 else joined_payload(head, parts)
+    if version == 2:
+        return head, parts[0]
+    want = sum(section_sizes(head)) // len(head["models"])
+    if any(len(part) != want for part in parts):
+        sys.exit(f"{path}: a block is not the {want} bytes the grids need")
+    return head, joined_payload(head, parts)
 
 
 def check(jobs: int) -> int:
