@@ -174,10 +174,13 @@ pub fn calibrate(
     // first pixel (NaN: not yet), the same value a pixel of its own would get
     let mut known = vec![f32::NAN; 1 << 16];
     for (i, &v) in image.pixels().iter().enumerate() {
-        // (by its bits: −0 is not 0, which a radiance offset of −0 would tell apart)
-        let whole = (0.0..=65_535.0).contains(&v) && f32::from(v as u16).to_bits() == v.to_bits();
-        if whole && !known[v as usize].is_nan() {
-            out.push(known[v as usize]);
+        // the value's slot if it is whole (by its bits: −0 is not 0, which a radiance offset of −0 would tell apart)
+        let slot =
+            ((0.0..=65_535.0).contains(&v) && f32::from(v as u16).to_bits() == v.to_bits()).then_some(v as usize);
+        if let Some(k) = slot
+            && !known[k].is_nan()
+        {
+            out.push(known[k]);
             continue;
         }
         let l = match calibration.temperature_k(f64::from(v)) {
@@ -214,8 +217,8 @@ pub fn calibrate(
                 ),
             });
         }
-        if whole {
-            known[v as usize] = l as f32;
+        if let Some(k) = slot {
+            known[k] = l as f32;
         }
         out.push(l as f32);
     }

@@ -1267,22 +1267,23 @@ impl AtmosphereTable {
 
 /// Inflates `packed`, model `m`'s block of `table`, and checks its length, CRC-32 and values.
 fn decode(packed: &[u8], table: &AtmosphereTable, m: usize) -> Result<Payload, AtmosphereError> {
-    let bad = |msg: String| AtmosphereError::Table(format!("{}'s block: {msg}", ModelAtmosphere::ALL[m].name()));
+    let block_error =
+        |msg: String| AtmosphereError::Table(format!("{}'s block: {msg}", ModelAtmosphere::ALL[m].name()));
     let Packed { raw_len, crc, .. } = table.packed[m];
     let mut payload = Vec::with_capacity(usize::try_from(raw_len.min(1 << 30)).unwrap_or(0));
     flate2::read::ZlibDecoder::new(packed)
         .take(raw_len.saturating_add(1))
         .read_to_end(&mut payload)
-        .map_err(|e| bad(format!("payload: {e}")))?;
+        .map_err(|e| block_error(format!("payload: {e}")))?;
     if payload.len() as u64 != raw_len {
-        return Err(bad(format!("payload is {} bytes, the header says {raw_len}", payload.len())));
+        return Err(block_error(format!("payload is {} bytes, the header says {raw_len}", payload.len())));
     }
     if crc32fast::hash(&payload) != crc {
-        return Err(bad("payload checksum (CRC-32) does not match".into()));
+        return Err(block_error("payload checksum (CRC-32) does not match".into()));
     }
     let (nodes, nod, next, _) = table.block_parts();
     if payload.len() != table.block_len() {
-        return Err(bad(format!("{} bytes, the grid needs {}", payload.len(), table.block_len())));
+        return Err(block_error(format!("{} bytes, the grid needs {}", payload.len(), table.block_len())));
     }
     let (hi, rest) = payload.split_at(nod);
     let (lo, rest) = rest.split_at(nod);
@@ -1294,11 +1295,11 @@ fn decode(packed: &[u8], table: &AtmosphereTable, m: usize) -> Result<Payload, A
     let (ext, above) = rest.split_at(4 * next);
     let ext = f32s(ext);
     if ext.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
-        return Err(bad("aerosol extinction must be finite and not negative".into()));
+        return Err(block_error("aerosol extinction must be finite and not negative".into()));
     }
     let above_od = f32s(above);
     if above_od.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
-        return Err(bad("optical depths above the top must be finite and not negative".into()));
+        return Err(block_error("optical depths above the top must be finite and not negative".into()));
     }
     Ok(Payload { od, flags: flags.to_vec(), traced_km: f32s(traced), ext, above_od })
 }
