@@ -31,9 +31,15 @@
 //! LOWTRAN does between its levels (exponentially, linearly where one regime hands over to the next), and
 //! linearly in 1/visibility between the tabulated visibilities.
 //!
-//! The path radiance is the path's own thermal emission, `Σ B̄(T(h)) (τ(s_k) − τ(s_{k+1}))` over
-//! [`PATH_RADIANCE_SEGMENTS`] segments of the line of sight, with the model atmosphere's temperature profile and
-//! the transmittance from the observer, as LOWTRAN sums it over its layers.
+//! The path radiance is the path's own thermal emission, `∫ B̄(T(s)) dτ(s)` along the line of sight with the model
+//! atmosphere's temperature profile and the transmittance from the observer, as LOWTRAN sums it over its layers:
+//! over [`PathSteps::radiance`] segments, closer together near the observer (the ends at `(k/N)²` of the path,
+//! where τ falls fastest), each with the source linear in its optical depth between the Planck means at its
+//! ends (exact for an isothermal path). The error falls as `N⁻²`: against 512 segments, 64 are within 0.13 % of
+//! the band path radiance and 16 within 0.43 % on the test's paths and sky rays
+//! (`path_integrals_converge_with_their_steps`); 32 equal segments with the temperature at each middle, a rule of
+//! first order, had left 41 DN rms in supersonic_climb's clear-sky dome. The aerosol's optical depth is
+//! integrated by [`PathSteps::aerosol`] trapezoids along the line of sight.
 //!
 //! A path outside the grid (an altitude above 20 km or below 0, a range above 100 km or shorter than the
 //! altitude difference, a line of sight through the ground, a visibility outside the tabulated ones) is an error,
@@ -57,10 +63,25 @@ pub const FORMAT_VERSION: u32 = 3;
 pub const EARTH_RADIUS_KM: f64 = 6371.23;
 /// Scale height of the altitude coordinate `−exp(−h/H)` of the interpolation, km.
 pub const ALTITUDE_SCALE_KM: f64 = 3.0;
-/// Segments of the line of sight in the path-radiance sum.
-pub const PATH_RADIANCE_SEGMENTS: usize = 32;
-/// Steps of the aerosol optical depth's integral along the line of sight (trapezoids).
-pub const AEROSOL_STEPS: usize = 128;
+/// How finely a path's two integrals along the line of sight are taken (`[quality] atmosphere_steps`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct PathSteps {
+    /// Trapezoids of the aerosol optical depth's integral.
+    pub aerosol: usize,
+    /// Segments of the path radiance's integral.
+    pub radiance: usize,
+}
+
+impl PathSteps {
+    /// The `standard` preset's.
+    pub const STANDARD: Self = Self { aerosol: 128, radiance: 64 };
+    /// The `reference` preset's, and the most either may be.
+    pub const REFERENCE: Self = Self { aerosol: 512, radiance: 512 };
+    /// The `draft` preset's.
+    pub const DRAFT: Self = Self { aerosol: 32, radiance: 16 };
+    /// The fewest either may be.
+    pub const MIN: usize = 2;
+}
 /// Temperatures (K, whole kelvins) of the path radiance's Planck table; the model atmospheres to 20 km lie inside.
 const PLANCK_TABLE_K: (f64, f64) = (150.0, 350.0);
 /// A path shorter than one of its corner pairs' vertical paths that rises at most this much, km, is the mean of
@@ -287,6 +308,9 @@ struct Payload {
     /// Optical depth per bin of the vertical path from each grid altitude to each of `above_km` (0 where the level
     /// is not above it), `[altitude][level][bin]`.
     above_od: Vec<f32>,
+    /// Per altitude and bin, the exponent of the power law that carries a horizontal path shorter than the first
+    /// range ([`AtmosphereTable::pair_into`]), `[altitude][bin]` (empty for a table of one range).
+    short_exponent: Vec<f64>,
 }
 
 /// A weather's aerosol extinction per km at the grid's altitudes (`[altitude][bin]`) and its logarithm.
@@ -721,13 +745,18 @@ impl AtmosphereTable {
             if info.range.is_none() {
                 info.range = Some([0.0, r1]);
             }
-            let (x1, x2) = (self.ranges_km[0], self.ranges_km[1]);
-            let (row1, row2) = (row(a), row(b));
-            for ((o, &v1), &v2) in out.iter_mut().zip(row1).zip(row2) {
-                let (d1, d2) = (f64::from(v1) * self.od_scale, f64::from(v2) * self.od_scale);
-                let gamma = if d1 > 0.0 && d2 > 0.0 { ((d2 / d1).ln() / (x2 / x1).ln()).clamp(0.5, 1.0) } else { 1.0 };
-                *o += weight * d1 * (r / x1).powf(gamma);
-            }
+            // (r/x₁)^γ as e^(γ·ln(r/x₁)), the logarithm shared by the bins, which vectorizes
+            let ln_ratio = (r / self.ranges_km[0]).ln();
+            let exponents = &d.short_exponent[p * nb + b0..][..out.len()];
+            let scale = self.od_scale;
+            widest(
+                #[inline(always)]
+                || {
+                    for ((o, &v1), &gamma) in out.iter_mut().zip(row(a)).zip(exponents) {
+                        *o += weight * (f64::from(v1) * scale) * exp(gamma * ln_ratio);
+                    }
+                },
+            );
             return;
         }
         for (node, w) in [(n0, 1.0 - f), (n1, f)] {
@@ -887,7 +916,7 @@ impl AtmosphereTable {
         target_alt_km: f64,
         range_km: f64,
     ) -> Result<PathSpectrum, AtmosphereError> {
-        self.path_in(weather, observer_alt_km, target_alt_km, range_km, 0..self.nbins())
+        self.path_in(weather, observer_alt_km, target_alt_km, range_km, 0..self.nbins(), PathSteps::STANDARD)
     }
 
     /// The bins that overlap `band` (by a positive width), a range of the table's bins: what a spectrum needs for
@@ -900,15 +929,16 @@ impl AtmosphereTable {
         start..(start..self.nbins()).rev().find(overlaps).map_or(start, |b| b + 1)
     }
 
-    /// [`AtmosphereTable::path`] over `bins` alone: a spectrum whose bins are those of `bins` (its edges and
-    /// samples theirs), each the same bits as in the whole spectrum. A band's transmittance and path radiance
-    /// need only the bins that overlap it ([`AtmosphereTable::bins_of`]); the others are most of a path's work.
+    /// [`AtmosphereTable::path`] over `bins` alone, its integrals taken in `steps`: a spectrum whose bins are
+    /// those of `bins` (its edges and samples theirs), each the same bits as in the whole spectrum. A band's
+    /// transmittance and path radiance need only the bins that overlap it ([`AtmosphereTable::bins_of`]); the
+    /// others are most of a path's work.
     ///
     /// # Errors
     /// As [`AtmosphereTable::path`].
     ///
     /// # Panics
-    /// If `bins` is not inside the table's bins.
+    /// If `bins` is not inside the table's bins, or a step count is below [`PathSteps::MIN`].
     pub fn path_in(
         &self,
         weather: &Weather,
@@ -916,8 +946,11 @@ impl AtmosphereTable {
         target_alt_km: f64,
         range_km: f64,
         bins: Range<usize>,
+        steps: PathSteps,
     ) -> Result<PathSpectrum, AtmosphereError> {
         assert!(bins.start <= bins.end && bins.end <= self.nbins(), "bins {bins:?} of {}", self.nbins());
+        assert!(steps.aerosol >= PathSteps::MIN && steps.radiance >= PathSteps::MIN, "{steps:?}");
+        let PathSteps { aerosol: aerosol_steps, radiance: segments } = steps;
         self.check_path(observer_alt_km, target_alt_km, range_km)?;
         let (vis, vis_bracket) = self.visibility_weights(weather)?;
         let m = model_index(weather.model);
@@ -948,17 +981,17 @@ impl AtmosphereTable {
             return Ok(finish(vec![1.0; nb], vec![0.0; nb], CornerInfo::default()));
         }
         let chord = Chord::new(h1, h2, range_km);
-        // cumulative aerosol optical depth along the line of sight, at AEROSOL_STEPS + 1 points
-        let mut aer = vec![vec![0.0; nb]; AEROSOL_STEPS + 1];
+        // cumulative aerosol optical depth along the line of sight, at aerosol_steps + 1 points
+        let mut aer = vec![vec![0.0; nb]; aerosol_steps + 1];
         if !vis.is_empty() {
             // the visibilities are weighted at LOWTRAN's levels, then interpolated in altitude, as LOWTRAN does
             let profile = self.aerosol_profile(d, m, &vis);
             let mut prev = vec![0.0; nb];
             let mut cur = vec![0.0; nb];
             self.extinction_at(&profile, chord.altitude_km(0.0), b0, &mut prev);
-            let ds = range_km / AEROSOL_STEPS as f64;
-            for k in 1..=AEROSOL_STEPS {
-                self.extinction_at(&profile, chord.altitude_km(k as f64 / AEROSOL_STEPS as f64), b0, &mut cur);
+            let ds = range_km / aerosol_steps as f64;
+            for k in 1..=aerosol_steps {
+                self.extinction_at(&profile, chord.altitude_km(k as f64 / aerosol_steps as f64), b0, &mut cur);
                 let (done, rest) = aer.split_at_mut(k);
                 for ((o, &a), (&p, &c)) in rest[0].iter_mut().zip(&done[k - 1]).zip(prev.iter().zip(&cur)) {
                     *o = a + 0.5 * ds * (p + c);
@@ -966,63 +999,85 @@ impl AtmosphereTable {
                 std::mem::swap(&mut prev, &mut cur);
             }
         }
-        // τ = e^−(molecular + aerosol depth) at fraction t of the path, per bin, at most `ceiling`'s
-        let tau_at = |t: f64, od: &[f64], ceiling: &[f64], out: &mut [f64]| {
-            let x = t * AEROSOL_STEPS as f64;
-            let k = (x.floor() as usize).min(AEROSOL_STEPS - 1);
+        // the optical depth (molecular + aerosol) from the observer to fraction t of the path, per bin
+        let depth_at = |t: f64, od: &[f64], out: &mut [f64]| {
+            let x = t * aerosol_steps as f64;
+            let k = (x.floor() as usize).min(aerosol_steps - 1);
             let f = x - k as f64;
             let (a0, a1) = (&aer[k], &aer[k + 1]);
-            widest(
-                #[inline(always)]
-                || {
-                    for (((o, &d), (&x0, &x1)), &c) in out.iter_mut().zip(od).zip(a0.iter().zip(a1)).zip(ceiling) {
-                        let v = exp(-(d + (x0 + f * (x1 - x0))));
-                        // clamped by comparisons (a NaN passes through), which vectorize
-                        *o = if v < 0.0 {
-                            0.0
-                        } else if v > c {
-                            c
-                        } else {
-                            v
-                        };
-                    }
-                },
-            );
+            for ((o, &d), (&x0, &x1)) in out.iter_mut().zip(od).zip(a0.iter().zip(a1)) {
+                *o = d + (x0 + f * (x1 - x0));
+            }
         };
         let mut info = CornerInfo::default();
         let mut od = vec![0.0; nb];
         self.molecular_into(d, (lo, hi, range_km), b0, &mut od, &mut info);
+        let mut depth_end = vec![0.0; nb];
+        depth_at(1.0, &od, &mut depth_end);
         let mut transmittance = vec![0.0; nb];
-        tau_at(1.0, &od, &vec![1.0; nb], &mut transmittance);
+        widest(
+            #[inline(always)]
+            || {
+                for (o, &x) in transmittance.iter_mut().zip(&depth_end) {
+                    // clamped by comparisons (a NaN passes through), which vectorize
+                    *o = exp(-x).clamp(0.0, 1.0);
+                }
+            },
+        );
         let cell_info = info;
 
-        // path radiance: the emission of each segment, seen through the path before it
+        // path radiance: the emission of each segment, seen through the path before it, with the source (the
+        // bins' Planck means) linear in the optical depth between the segment's ends: exact for an isothermal
+        // path, the trapezoid rule where the segment is thin, the near end's emission where it is opaque
         let profile = &self.profiles[m];
         let mut radiance = vec![0.0; nb];
+        // the optical depth reached so far (the largest along the path: τ from the observer never rises), τ there
+        let mut depth_prev = vec![0.0; nb];
         let mut tau_prev = vec![1.0; nb];
-        let mut tau_cur = vec![0.0; nb];
-        let mut planck = vec![0.0; nb];
+        let mut depth_cur = vec![0.0; nb];
+        let mut planck_prev = vec![0.0; nb];
+        let mut planck_cur = vec![0.0; nb];
+        self.bin_mean_planck_into(b0, profile.temperature_at(chord.altitude_km(0.0)), &mut planck_prev);
         let mut scratch = CornerInfo::default();
-        for k in 1..=PATH_RADIANCE_SEGMENTS {
-            let t = k as f64 / PATH_RADIANCE_SEGMENTS as f64;
-            if k == PATH_RADIANCE_SEGMENTS {
-                tau_cur.copy_from_slice(&transmittance);
+        for k in 1..=segments {
+            let t = (k as f64 / segments as f64).powi(2);
+            if k == segments {
+                depth_cur.copy_from_slice(&depth_end);
             } else {
                 let h = chord.altitude_km(t).clamp(0.0, self.max_altitude_km());
                 let s = (t * range_km).max((h - h1).abs());
                 let (l, u) = if h1 <= h { (h1, h) } else { (h, h1) };
                 self.molecular_into(d, (l, u, s), b0, &mut od, &mut scratch);
-                tau_at(t, &od, &tau_prev, &mut tau_cur);
+                depth_at(t, &od, &mut depth_cur);
             }
-            let temp = profile.temperature_at(chord.altitude_km(t - 0.5 / PATH_RADIANCE_SEGMENTS as f64));
-            self.bin_mean_planck_into(b0, temp, &mut planck);
-            for b in 0..nb {
-                let d = tau_prev[b] - tau_cur[b];
-                if d > 0.0 {
-                    radiance[b] += d * planck[b];
-                }
-            }
-            std::mem::swap(&mut tau_prev, &mut tau_cur);
+            self.bin_mean_planck_into(b0, profile.temperature_at(chord.altitude_km(t)), &mut planck_cur);
+            widest(
+                #[inline(always)]
+                || {
+                    for ((((r, xp), tp), &xc), (&bp, &bc)) in radiance
+                        .iter_mut()
+                        .zip(depth_prev.iter_mut())
+                        .zip(tau_prev.iter_mut())
+                        .zip(&depth_cur)
+                        .zip(planck_prev.iter().zip(&planck_cur))
+                    {
+                        // selects, not branches, so that the loop vectorizes; a NaN depth adds nothing
+                        let x = if xc > *xp { xc } else { *xp };
+                        let delta = x - *xp;
+                        let tau = exp(-x);
+                        let drop = *tp - tau;
+                        // the weight of the far end's source: ∫ (u/Δ) τ_prev e^−u du over the segment's depth Δ,
+                        // = drop/Δ − τ, by its series where Δ is small (the difference would cancel)
+                        let series = *tp * delta * (0.5 - delta * (1.0 / 3.0 - delta * (0.125 - delta / 30.0)));
+                        let far = if delta < 1e-2 { series } else { drop / delta - tau };
+                        let add = bp * drop + (bc - bp) * far;
+                        *r += if delta > 0.0 { add } else { 0.0 };
+                        *xp = x;
+                        *tp = tau;
+                    }
+                },
+            );
+            std::mem::swap(&mut planck_prev, &mut planck_cur);
         }
         Ok(finish(transmittance, radiance, cell_info))
     }
@@ -1038,10 +1093,11 @@ impl AtmosphereTable {
     /// [`AtmosphereError::OutsideGrid`] for an observer outside the table's altitudes, or a ray below the
     /// horizon's dip (it meets the ground).
     pub fn sky(&self, weather: &Weather, observer_alt_km: f64, sin_e: f64) -> Result<PathSpectrum, AtmosphereError> {
-        self.sky_in(weather, observer_alt_km, sin_e, 0..self.nbins())
+        self.sky_in(weather, observer_alt_km, sin_e, 0..self.nbins(), PathSteps::STANDARD)
     }
 
-    /// [`AtmosphereTable::sky`] over `bins` alone (see [`AtmosphereTable::path_in`]).
+    /// [`AtmosphereTable::sky`] over `bins` alone, its paths' integrals taken in `steps` (see
+    /// [`AtmosphereTable::path_in`]).
     ///
     /// # Errors
     /// As [`AtmosphereTable::sky`].
@@ -1051,8 +1107,9 @@ impl AtmosphereTable {
         observer_alt_km: f64,
         sin_e: f64,
         bins: Range<usize>,
+        steps: PathSteps,
     ) -> Result<PathSpectrum, AtmosphereError> {
-        match self.ray_in(weather, observer_alt_km, sin_e, bins)? {
+        match self.ray_in(weather, observer_alt_km, sin_e, bins, steps)? {
             (p, false) => Ok(p),
             (_, true) => Err(AtmosphereError::OutsideGrid {
                 name: "sin_elevation",
@@ -1075,10 +1132,11 @@ impl AtmosphereTable {
         observer_alt_km: f64,
         sin_e: f64,
     ) -> Result<(PathSpectrum, bool), AtmosphereError> {
-        self.ray_in(weather, observer_alt_km, sin_e, 0..self.nbins())
+        self.ray_in(weather, observer_alt_km, sin_e, 0..self.nbins(), PathSteps::STANDARD)
     }
 
-    /// [`AtmosphereTable::ray`] over `bins` alone (see [`AtmosphereTable::path_in`]).
+    /// [`AtmosphereTable::ray`] over `bins` alone, its paths' integrals taken in `steps` (see
+    /// [`AtmosphereTable::path_in`]).
     ///
     /// # Errors
     /// As [`AtmosphereTable::ray`].
@@ -1088,6 +1146,7 @@ impl AtmosphereTable {
         observer_alt_km: f64,
         sin_e: f64,
         bins: Range<usize>,
+        steps: PathSteps,
     ) -> Result<(PathSpectrum, bool), AtmosphereError> {
         let s = sin_e.clamp(-1.0, 1.0);
         let top = self.max_altitude_km();
@@ -1117,7 +1176,7 @@ impl AtmosphereTable {
         }
         let ground = legs.len() == 1 && s < 0.0;
         let b0 = bins.start;
-        let mut out = self.path_in(weather, h, h, 0.0, bins.clone())?;
+        let mut out = self.path_in(weather, h, h, 0.0, bins.clone(), steps)?;
         for (a, b) in legs {
             let pieces = ((b - a) / far).ceil().max(1.0) as usize;
             let len = (b - a) / pieces as f64;
@@ -1127,7 +1186,7 @@ impl AtmosphereTable {
                 }
                 let (ta, tb) = (a + k as f64 * len, a + (k + 1) as f64 * len);
                 let (za, zb) = (alt(ta), alt(tb));
-                let piece = self.path_in(weather, za, zb, len.max((zb - za).abs()), bins.clone())?;
+                let piece = self.path_in(weather, za, zb, len.max((zb - za).abs()), bins.clone(), steps)?;
                 for ((t, l), (&pt, &pl)) in out
                     .transmittance
                     .iter_mut()
@@ -1301,7 +1360,26 @@ fn decode(packed: &[u8], table: &AtmosphereTable, m: usize) -> Result<Payload, A
     if above_od.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
         return Err(block_error("optical depths above the top must be finite and not negative".into()));
     }
-    Ok(Payload { od, flags: flags.to_vec(), traced_km: f32s(traced), ext, above_od })
+    let od: Vec<u16> = od;
+    // each horizontal pair's curve of growth between the first two ranges, per bin, as a power law's exponent:
+    // between ½ (saturated lines) and 1 (weak ones)
+    let nb = table.nbins();
+    let short_exponent = match table.ranges_km[..] {
+        [x1, x2, ..] => (0..table.alt_km.len())
+            .flat_map(|p| {
+                let base = table.pair_index(p, p) * table.nodes_per_pair();
+                let value = |node: usize, b: usize| f64::from(od[node * nb + b]) * table.od_scale;
+                (0..nb)
+                    .map(|b| {
+                        let (d1, d2) = (value(base + 1, b), value(base + 2, b));
+                        if d1 > 0.0 && d2 > 0.0 { ((d2 / d1).ln() / (x2 / x1).ln()).clamp(0.5, 1.0) } else { 1.0 }
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
+    Ok(Payload { od, flags: flags.to_vec(), traced_km: f32s(traced), ext, above_od, short_exponent })
 }
 
 fn exact_bin_mean_planck(lo_um: f64, hi_um: f64, temp_k: f64) -> f64 {
@@ -1562,6 +1640,94 @@ mod tests {
         assert!(worst < 1e-3 && worst_short < 7e-3, "{worst} {worst_short}");
     }
 
+    /// The path radiance's segments: errors against [`PathSteps::REFERENCE`] fall as the square of the segments
+    /// (the quadratic spacing and the source linear in depth; 32 equal segments with the temperature at each
+    /// middle erred by 41 DN rms in supersonic_climb's sky, a rule of first order), and the presets' steps stay
+    /// within their bounds. The transmittance does not depend on the radiance's segments.
+    #[test]
+    fn path_integrals_converge_with_their_steps() {
+        let t = table();
+        let w = MLS_RURAL_23;
+        let lines: [(&str, f64, f64, f64); 4] = [
+            ("0 → 0 km, 10 km", 0.0, 0.0, 10.0),
+            ("0 → 8 km, 30 km", 0.0, 8.0, 30.0),
+            ("1 → 15 km, 60 km", 1.0, 15.0, 60.0),
+            ("8 → 8 km, 4 km", 8.0, 8.0, 4.0),
+        ];
+        let rays: [(&str, f64, f64); 3] =
+            [("sky from 0 km at 20°", 0.0, 20.0), ("from 3 km at 60°", 3.0, 60.0), ("from 10 km at 3°", 10.0, 3.0)];
+        let spectrum = |i: usize, steps: PathSteps| -> PathSpectrum {
+            let all = 0..t.nbins();
+            if i < lines.len() {
+                let (_, h1, h2, r) = lines[i];
+                t.path_in(&w, h1, h2, r, all, steps).unwrap()
+            } else {
+                let (_, h, e) = rays[i - lines.len()];
+                t.sky_in(&w, h, e.to_radians().sin(), all, steps).unwrap()
+            }
+        };
+        let name = |i: usize| if i < lines.len() { lines[i].0 } else { rays[i - lines.len()].0 };
+        let bands = [Band::MWIR_3_5, Band::LWIR_8_12];
+        let radiance_error = |p: &PathSpectrum, exact: &PathSpectrum| {
+            bands
+                .iter()
+                .map(|&b| {
+                    (p.band_mean_path_radiance_w_m2_sr_um(b) / exact.band_mean_path_radiance_w_m2_sr_um(b) - 1.0).abs()
+                })
+                .fold(0.0, f64::max)
+        };
+        let tau_error = |p: &PathSpectrum, exact: &PathSpectrum| {
+            bands.iter().map(|&b| (p.band_average(b) - exact.band_average(b)).abs()).fold(0.0, f64::max)
+        };
+        let segments = [8, 16, 32, 64, 128];
+        let aerosol = [8, 32, 128];
+        // [case][segments], [case][aerosol]
+        let mut by_segments = Vec::new();
+        let (mut by_aerosol, mut tau_moved) = (Vec::new(), 0.0f64);
+        for i in 0..lines.len() + rays.len() {
+            let exact = spectrum(i, PathSteps::REFERENCE);
+            let e: Vec<f64> = segments
+                .iter()
+                .map(|&radiance| {
+                    let p = spectrum(i, PathSteps { aerosol: PathSteps::REFERENCE.aerosol, radiance });
+                    tau_moved = tau_moved.max(
+                        p.transmittance
+                            .iter()
+                            .zip(&exact.transmittance)
+                            .map(|(a, b)| (a - b).abs())
+                            .fold(0.0, f64::max),
+                    );
+                    radiance_error(&p, &exact)
+                })
+                .collect();
+            let a: Vec<f64> = aerosol
+                .iter()
+                .map(|&aerosol| {
+                    tau_error(&spectrum(i, PathSteps { aerosol, radiance: PathSteps::REFERENCE.radiance }), &exact)
+                })
+                .collect();
+            let sci = |v: &[f64]| v.iter().map(|x| format!("{x:.1e}")).collect::<Vec<_>>().join(", ");
+            eprintln!(
+                "{}: path radiance, relative error with {segments:?} segments: {}; band τ with {aerosol:?} aerosol \
+                 steps: {}",
+                name(i),
+                sci(&e),
+                sci(&a)
+            );
+            by_segments.push(e);
+            by_aerosol.push(a);
+        }
+        let worst = |rows: &[Vec<f64>], k: usize| rows.iter().map(|r| r[k]).fold(0.0, f64::max);
+        assert_eq!(tau_moved, 0.0, "the transmittance depends on the radiance's segments");
+        // the presets: 64 segments and 128 trapezoids (standard), 16 and 32 (draft)
+        assert!(worst(&by_segments, 3) < 2e-3 && worst(&by_segments, 1) < 6e-3, "{by_segments:?}");
+        assert!(worst(&by_aerosol, 2) < 1e-4 && worst(&by_aerosol, 1) < 1e-3, "{by_aerosol:?}");
+        // second order on the slant lines of sight: 4× the segments, at least 8× less error (16× in the limit)
+        for e in &by_segments[1..3] {
+            assert!(e[3] < e[1] / 8.0, "{e:?}");
+        }
+    }
+
     #[test]
     fn stretching_between_interpolations_is_close() {
         // what [quality] atmosphere_tolerance costs: the path re-interpolated at the new geometry against the old
@@ -1802,7 +1968,7 @@ mod tests {
         }
         eprintln!("largest |Δτ| {worst:.4} at {worst_at}; largest relative path-radiance error {rad_worst:.3}");
         assert!(worst <= 0.01, "{worst_at}");
-        // measured: 0.067 (0.228 while a steep path's second scaled corner added into the first one's buffers)
+        // measured: 0.070 (0.228 while a steep path's second scaled corner added into the first one's buffers)
         assert!(rad_worst <= 0.08, "path radiance off by {rad_worst:.3} of LOWTRAN's");
     }
     /// The clear sky against direct LOWTRAN runs from the observer up to 100 km (the generator's `sky` runs):
@@ -1838,17 +2004,25 @@ mod tests {
                 }
             }
         }
+        let mut failed = Vec::new();
         for (k, (dt, dtau, at)) in &worst {
             eprintln!("{k}: brightness temperature {dt:+.2} K ({at}), τ {dtau:+.4}");
-            // measured: at most 0.81 K from 0–3 km at 15° and above, 3.9 K below, 5.9 K from anywhere
+            // measured: at most 1.29 K from 0–3 km at 15° and above, 3.9 K below, 5.9 K from anywhere. Our path
+            // radiance is the converged integral along the path; LOWTRAN's sums isothermal layers (1 km thick near
+            // the ground) and so puts the emission of lines opaque within the first layer at its mean temperature,
+            // colder than the air at the observer: with 32 equal segments and the temperature at each middle, a
+            // rule with the same bias, the first row was 0.61 K
             let low = k.ends_with(" 0 km") || k.ends_with(" 1 km") || k.ends_with(" 3 km");
             let bound = match (low, k.contains("≥ 15°")) {
-                (true, true) => 1.2,
+                (true, true) => 1.5,
                 (true, false) => 4.5,
                 _ => 6.5,
             };
-            assert!(dt.abs() <= bound, "{k}: {dt} K at {at}");
+            if dt.abs() > bound {
+                failed.push(format!("{k}: {dt} K at {at} (bound {bound} K)"));
+            }
         }
+        assert!(failed.is_empty(), "{failed:#?}");
     }
 
     #[test]
@@ -1885,12 +2059,15 @@ mod tests {
                 (&hazy, 0.5, 0.5, 0.05),
                 (&MLS_RURAL_23, 2.0, 15.0, 90.0),
             ] {
-                same(&t.path(w, h1, h2, r).unwrap(), &t.path_in(w, h1, h2, r, bins.clone()).unwrap());
+                same(
+                    &t.path(w, h1, h2, r).unwrap(),
+                    &t.path_in(w, h1, h2, r, bins.clone(), PathSteps::STANDARD).unwrap(),
+                );
             }
             // rays up through the top, and down to the ground
             for (h, sin_e) in [(1.0, 0.3), (0.1, 0.02), (5.0, -0.2)] {
                 let (a, ground_a) = t.ray(&hazy, h, sin_e).unwrap();
-                let (b, ground_b) = t.ray_in(&hazy, h, sin_e, bins.clone()).unwrap();
+                let (b, ground_b) = t.ray_in(&hazy, h, sin_e, bins.clone(), PathSteps::STANDARD).unwrap();
                 assert_eq!(ground_a, ground_b);
                 same(&a, &b);
             }

@@ -18,7 +18,9 @@
 
 use glam::DVec3;
 
-use super::lowtran::{AtmosphereError, AtmosphereTable, EARTH_RADIUS_KM, PathSpectrum, Weather, horizon_sin_e};
+use super::lowtran::{
+    AtmosphereError, AtmosphereTable, EARTH_RADIUS_KM, PathSpectrum, PathSteps, Weather, horizon_sin_e,
+};
 use super::planck::{Band, Measure, band_radiance};
 use super::transmittance::PathTransmittance;
 
@@ -64,12 +66,15 @@ pub struct LowtranAtmosphere {
     sun_weights: Vec<f64>,
     /// The table's bins that overlap the band: the only ones its spectra hold ([`AtmosphereTable::path_in`]).
     bins: std::ops::Range<usize>,
+    /// How finely every path's integrals are taken.
+    steps: PathSteps,
     nbins: usize,
 }
 
 impl LowtranAtmosphere {
     /// Tabulates the observer's paths for `weather` in `band`, radiances in `measure`, from `eye_alt_m`; the sun
-    /// is a blackbody at `sun_temp_k`.
+    /// is a blackbody at `sun_temp_k`. Every path's integrals, the table's and those asked for later, are taken
+    /// in `steps`.
     ///
     /// # Errors
     /// [`AtmosphereError`] if the table cannot be loaded, the band is not inside the table's 1–14 µm, the
@@ -80,6 +85,7 @@ impl LowtranAtmosphere {
         measure: Measure,
         eye_alt_m: f64,
         sun_temp_k: f64,
+        steps: PathSteps,
     ) -> Result<Self, AtmosphereError> {
         use rayon::prelude::*;
         let table = AtmosphereTable::shipped()?;
@@ -98,7 +104,7 @@ impl LowtranAtmosphere {
         }
         // the band's bins alone: the others would be most of every path's work, for weights of 0
         let bins = table.bins_of(band);
-        let probe = table.path_in(&weather, eye, eye, 0.0, bins.clone())?;
+        let probe = table.path_in(&weather, eye, eye, 0.0, bins.clone(), steps)?;
         let nbins = probe.transmittance.len();
         let alt_km: Vec<f64> = table.altitudes_km().to_vec();
         // what these paths pass is air, ground or cloud near the air's temperature: τ weighted by its spectrum, so
@@ -112,7 +118,7 @@ impl LowtranAtmosphere {
                 let mut path = vec![f64::NAN; RANGE_NODES];
                 for j in 0..RANGE_NODES {
                     let r = range_at(dh, far, j);
-                    if let Ok(p) = table.path_in(&weather, eye, h, r, bins.clone()) {
+                    if let Ok(p) = table.path_in(&weather, eye, h, r, bins.clone(), steps) {
                         ln_tau[j] = p.weighted(&air_weights).max(1e-300).ln();
                         path[j] = p.band_path_radiance_in(measure, band);
                     }
@@ -128,7 +134,7 @@ impl LowtranAtmosphere {
             .map(|k| {
                 let h = (k as f64 * VERTICAL_STEP_KM).min(top);
                 table
-                    .path_in(&weather, h, top, top - h, bins.clone())
+                    .path_in(&weather, h, top, top - h, bins.clone(), steps)
                     .map(|p| p.transmittance)
                     .unwrap_or_else(|_| vec![1.0; nbins])
             })
@@ -155,6 +161,7 @@ impl LowtranAtmosphere {
             air_weights,
             bins,
             nbins,
+            steps,
         })
     }
 
@@ -165,7 +172,7 @@ impl LowtranAtmosphere {
     /// [`AtmosphereError`] for a path outside the table's grid (never extrapolated).
     pub fn sight(&self, eye_m: DVec3, target_m: DVec3) -> Result<PathSpectrum, AtmosphereError> {
         let (h1, h2, r) = (eye_m.z / 1000.0, target_m.z / 1000.0, eye_m.distance(target_m) / 1000.0);
-        self.table.path_in(&self.weather, h1, h2, r, self.bins.clone())
+        self.table.path_in(&self.weather, h1, h2, r, self.bins.clone(), self.steps)
     }
 
     /// Checks that the line of sight between two points lies inside the table's grid.
@@ -197,7 +204,7 @@ impl LowtranAtmosphere {
     pub fn zenith_transmittance(&self) -> f64 {
         let top = self.table.max_altitude_km();
         self.table
-            .path_in(&self.weather, 0.0, top, top, self.bins.clone())
+            .path_in(&self.weather, 0.0, top, top, self.bins.clone(), self.steps)
             .map_or(1.0, |p| p.weighted(&self.air_weights))
     }
 
@@ -212,7 +219,7 @@ impl LowtranAtmosphere {
     /// # Errors
     /// As [`AtmosphereTable::sky`].
     pub fn sky_spectrum(&self, sin_e: f64) -> Result<PathSpectrum, AtmosphereError> {
-        self.table.sky_in(&self.weather, self.eye_alt_km, sin_e, self.bins.clone())
+        self.table.sky_in(&self.weather, self.eye_alt_km, sin_e, self.bins.clone(), self.steps)
     }
 
     /// The clear sky's band radiance in the detector's measure toward elevation `asin(sin_e)` (see
@@ -246,7 +253,7 @@ impl LowtranAtmosphere {
             .par_iter()
             .map(|&e| {
                 let sin_e = e.sin().min(self.horizon_sin_e() - 1e-12);
-                let (p, _) = self.table.ray_in(&self.weather, self.eye_alt_km, sin_e, self.bins.clone())?;
+                let (p, _) = self.table.ray_in(&self.weather, self.eye_alt_km, sin_e, self.bins.clone(), self.steps)?;
                 Ok((p.weighted(&self.air_weights), p.band_path_radiance_in(self.measure, self.band)))
             })
             .collect::<Result<Vec<(f64, f64)>, AtmosphereError>>()?;
@@ -426,7 +433,7 @@ impl PathTransmittance for LowtranAtmosphere {
                 let top = self.alt_km[self.alt_km.len() - 1];
                 let (ha, hb) = ((a_m.z / 1000.0).clamp(0.0, top), (b_m.z / 1000.0).clamp(0.0, top));
                 let r = r_km.clamp((ha - hb).abs(), self.table.max_range_km());
-                match self.table.path_in(&self.weather, ha, hb, r, self.bins.clone()) {
+                match self.table.path_in(&self.weather, ha, hb, r, self.bins.clone(), self.steps) {
                     Ok(p) => p.weighted(&self.air_weights).powf(r_km / r),
                     // untraceable away from the observer: as if from the observer's altitude
                     Err(_) => self.observer_path(hb, r_km).0.exp(),
@@ -475,7 +482,7 @@ mod tests {
     #[test]
     fn observer_table_follows_the_table() {
         let band = lwir();
-        let atm = LowtranAtmosphere::new(W, band, Measure::Energy, 1500.0, 5778.0).unwrap();
+        let atm = LowtranAtmosphere::new(W, band, Measure::Energy, 1500.0, 5778.0, PathSteps::STANDARD).unwrap();
         let table = AtmosphereTable::shipped().unwrap();
         let eye = DVec3::new(0.0, 0.0, 1500.0);
         let mut worst_tau = 0.0f64;
@@ -499,7 +506,7 @@ mod tests {
     #[test]
     fn sun_path_is_the_vertical_path_at_the_zenith_and_falls_toward_the_horizon() {
         let band = lwir();
-        let atm = LowtranAtmosphere::new(W, band, Measure::Energy, 0.0, 5778.0).unwrap();
+        let atm = LowtranAtmosphere::new(W, band, Measure::Energy, 0.0, 5778.0, PathSteps::STANDARD).unwrap();
         let table = AtmosphereTable::shipped().unwrap();
         let zenith = atm.to_space(DVec3::new(0.0, 0.0, 1000.0), DVec3::Z);
         let p = table.path(&W, 1.0, 20.0, 19.0).unwrap();
@@ -512,7 +519,7 @@ mod tests {
 
     #[test]
     fn beyond_the_table_is_continued_not_refused() {
-        let atm = LowtranAtmosphere::new(W, lwir(), Measure::Energy, 8000.0, 5778.0).unwrap();
+        let atm = LowtranAtmosphere::new(W, lwir(), Measure::Energy, 8000.0, 5778.0, PathSteps::STANDARD).unwrap();
         let eye = DVec3::new(0.0, 0.0, 8000.0);
         let near = atm.along_segment(eye, DVec3::new(99_000.0, 0.0, 8000.0));
         let far = atm.along_segment(eye, DVec3::new(300_000.0, 0.0, 8000.0));
@@ -528,7 +535,7 @@ mod tests {
         let w = Weather { model: ModelAtmosphere::UsStandard1976, aerosol: Aerosol::Rural, visibility_km: 23.0 };
         for (lo, hi) in [(7.5, 13.5), (3.0, 5.0)] {
             let band = Band::try_new(lo, hi).unwrap();
-            let atm = LowtranAtmosphere::new(w, band, Measure::Energy, 2000.0, 5778.0).unwrap();
+            let atm = LowtranAtmosphere::new(w, band, Measure::Energy, 2000.0, 5778.0, PathSteps::STANDARD).unwrap();
             let clear = atm.clear_sky().unwrap();
             for lowtran_sky in [false, true] {
                 let dome = Dome::new(&DomeInputs {
@@ -572,7 +579,8 @@ mod tests {
         let w = Weather { model: ModelAtmosphere::UsStandard1976, aerosol: Aerosol::Rural, visibility_km: 23.0 };
         let (mut lowtran_worst, mut parametric_worst) = (0.0f64, 0.0f64);
         for h in [0.0, 3.0, 10.0] {
-            let atm = LowtranAtmosphere::new(w, band, Measure::Energy, h * 1000.0, 5778.0).unwrap();
+            let atm =
+                LowtranAtmosphere::new(w, band, Measure::Energy, h * 1000.0, 5778.0, PathSteps::STANDARD).unwrap();
             let clear = atm.clear_sky().unwrap();
             let dome = Dome::new(&DomeInputs {
                 spec: DomeSpec::default(),
@@ -612,7 +620,7 @@ mod tests {
     #[test]
     fn a_band_outside_the_table_is_refused() {
         let band = Band::try_new(0.4, 0.7).unwrap();
-        assert!(LowtranAtmosphere::new(W, band, Measure::Energy, 0.0, 5778.0).is_err());
-        assert!(LowtranAtmosphere::new(W, lwir(), Measure::Energy, 25_000.0, 5778.0).is_err());
+        assert!(LowtranAtmosphere::new(W, band, Measure::Energy, 0.0, 5778.0, PathSteps::STANDARD).is_err());
+        assert!(LowtranAtmosphere::new(W, lwir(), Measure::Energy, 25_000.0, 5778.0, PathSteps::STANDARD).is_err());
     }
 }

@@ -32,6 +32,7 @@ use crate::imaging::psf::{ConvolutionMethod, REGION_ENERGY_CUTOFF};
 use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::target_psf::{self, TargetMethod};
+use crate::physics::lowtran::PathSteps;
 use crate::physics::planck::PlanckMethod;
 use crate::physics::random::NormalSampler;
 use crate::physics::reflection::ReflectionGeometry;
@@ -151,6 +152,10 @@ pub struct Quality {
     /// the last interpolation; in between, that spectrum is stretched to the new range bin by bin, Beer–Lambert
     /// (0: at every change).
     pub atmosphere_tolerance: f64,
+    /// With a LOWTRAN atmosphere, how finely each path's integrals along the line of sight are taken:
+    /// `[aerosol trapezoids, path-radiance segments]` ([`PathSteps`]). Most of the set-up of a scene with a
+    /// LOWTRAN atmosphere is these paths (the observer's tables and the clear sky), in proportion to the two.
+    pub atmosphere_steps: [usize; 2],
 }
 
 impl Quality {
@@ -184,6 +189,7 @@ impl Quality {
             planck: PlanckMethod::Series,
             radiometry_tolerance: 0.0,
             atmosphere_tolerance: STANDARD_ATMOSPHERE_TOLERANCE,
+            atmosphere_steps: steps(PathSteps::STANDARD),
         };
         // the other two say where they differ from it (the fusion solver and guidance and the reflection geometry
         // are the same in all three)
@@ -205,6 +211,7 @@ impl Quality {
                 normal_sampler: NormalSampler::Ziggurat,
                 reflection_grid: [192, 384],
                 atmosphere_tolerance: 0.0,
+                atmosphere_steps: steps(PathSteps::REFERENCE),
                 ..standard
             },
             QualityPreset::Draft => Self {
@@ -229,6 +236,7 @@ impl Quality {
                 planck: PlanckMethod::GaussLegendre { points: DRAFT_PLANCK_POINTS },
                 radiometry_tolerance: DRAFT_RADIOMETRY_TOLERANCE,
                 atmosphere_tolerance: DRAFT_ATMOSPHERE_TOLERANCE,
+                atmosphere_steps: steps(PathSteps::DRAFT),
                 ..standard
             },
         }
@@ -242,6 +250,17 @@ impl Quality {
         let (mine, theirs) = (json(self), json(&base));
         SWITCHES.iter().map(|&name| (name, toml_value(&mine[name]), mine[name] != theirs[name])).collect()
     }
+
+    /// [`Quality::atmosphere_steps`] as the atmosphere takes them.
+    pub fn path_steps(&self) -> PathSteps {
+        let [aerosol, radiance] = self.atmosphere_steps;
+        PathSteps { aerosol, radiance }
+    }
+}
+
+/// A [`PathSteps`] as `[aerosol, radiance]`.
+const fn steps(s: PathSteps) -> [usize; 2] {
+    [s.aerosol, s.radiance]
 }
 
 /// A JSON value as TOML writes it inline: `"auto"`, `0.02`, `[24, 48]`, `{ mode = "bilinear" }`.
@@ -267,7 +286,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 27] = [
+pub const SWITCHES: [&str; 28] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -295,6 +314,7 @@ pub const SWITCHES: [&str; 27] = [
     "planck",
     "radiometry_tolerance",
     "atmosphere_tolerance",
+    "atmosphere_steps",
 ];
 
 /// Smallest `psf_energy_cutoff` (the kernel's radius is also capped at 12 px).
@@ -423,6 +443,9 @@ pub struct QualitySpec {
     /// See [`Quality::atmosphere_tolerance`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub atmosphere_tolerance: Option<f64>,
+    /// See [`Quality::atmosphere_steps`].
+    #[serde(skip_serializing_if = "Option::is_none", with = "crate::physics::exact::opt_counts2")]
+    pub atmosphere_steps: Option<[usize; 2]>,
 }
 
 impl QualitySpec {
@@ -476,7 +499,8 @@ impl QualitySpec {
             reflection_skip_below_dn,
             planck,
             radiometry_tolerance,
-            atmosphere_tolerance
+            atmosphere_tolerance,
+            atmosphere_steps
         );
         let range = |name: &str, v: f64, lo: f64, hi: f64, unit: &str| {
             if v.is_finite() && (lo..=hi).contains(&v) {
@@ -553,6 +577,16 @@ impl QualitySpec {
                 format!("[{n_z}, {n_phi}] must be [2 … 2000 steps in cos θ, 4 … 4000 in azimuth]"),
             ));
         }
+        let [aerosol, radiance] = q.atmosphere_steps;
+        let (lo, hi) = (PathSteps::MIN, PathSteps::REFERENCE.aerosol.max(PathSteps::REFERENCE.radiance));
+        if !((lo..=hi).contains(&aerosol) && (lo..=hi).contains(&radiance)) {
+            return Err(fe(
+                "quality.atmosphere_steps",
+                format!(
+                    "[{aerosol}, {radiance}] must be [{lo} … {hi} aerosol trapezoids, {lo} … {hi} path-radiance segments]"
+                ),
+            ));
+        }
         Ok(q)
     }
 }
@@ -598,6 +632,8 @@ mod tests {
             ("psf_energy_cutoff = 0.5", "quality.psf_energy_cutoff"),
             ("sky_sampling = { mode = \"supersample\", n = 40 }", "quality.sky_sampling.n"),
             ("reflection_grid = [1, 48]", "quality.reflection_grid"),
+            ("atmosphere_steps = [1, 32]", "quality.atmosphere_steps"),
+            ("atmosphere_steps = [128, 100000]", "quality.atmosphere_steps"),
             ("radiance_table_step_k = 1e-9", "quality.radiance_table_step_k"),
             ("planck = { method = \"simpson\", intervals = 3 }", "quality.planck.intervals"),
             ("planck = { method = \"gauss_legendre\", points = 0 }", "quality.planck.points"),

@@ -21,7 +21,7 @@ use crate::imaging::sky_gen::{CloudLayer, SkyGenSpec, generate};
 use crate::imaging::sky_plane::{MissFill, SkyImage, SkyPlacement, SkyPlane};
 use crate::imaging::vibration::Vibration;
 use crate::physics::atmosphere::AirTemperature;
-use crate::physics::lowtran::{AtmosphereError, Weather};
+use crate::physics::lowtran::{AtmosphereError, PathSteps, Weather};
 use crate::physics::lowtran_paths::{ClearSky, LowtranAtmosphere};
 use crate::physics::nonideal::{FocalPlane, NonIdeal};
 use crate::physics::planck::{Band, Measure};
@@ -236,7 +236,8 @@ fn atmosphere_and_clear_sky(
         return Ok((SceneAtmosphere::Override(spec.atmosphere.override_transmittance()), Ok(None)));
     };
     let model = &scenario.sensor.model;
-    let key = (weather, model.band, model.measure(), eye.z.to_bits(), spec.sun.temp_k.to_bits());
+    let steps = scenario.quality.path_steps();
+    let key = (weather, model.band, model.measure(), eye.z.to_bits(), spec.sun.temp_k.to_bits(), steps);
     let lowtran = shared_lowtran(key).map_err(|e| setup("atmosphere.model")(e.to_string()))?;
     let clear_sky = match spec.sky.dome.clear_sky {
         Some(ClearSkyModel::Parametric) => Ok(None),
@@ -510,16 +511,17 @@ fn shared_psf(spec: &PsfSpec, optics: &PsfOptics) -> Result<Arc<Psf>, crate::phy
 }
 
 /// What an observer's LOWTRAN tables are a function of: the weather, the band and measure, the observer's
-/// starting altitude and the sun's temperature (the floats by their bits).
-type AtmosphereKey = (Weather, Band, Measure, u64, u64);
+/// starting altitude and the sun's temperature (the floats by their bits), and the paths' steps.
+type AtmosphereKey = (Weather, Band, Measure, u64, u64, PathSteps);
 
 /// The observer's LOWTRAN tables for `key`'s inputs, made once per process for each (the last 4 kept: they
 /// take most of a scenario's set-up).
 fn shared_lowtran(key: AtmosphereKey) -> Result<Arc<LowtranAtmosphere>, AtmosphereError> {
     static KEPT: Kept<AtmosphereKey, Arc<LowtranAtmosphere>> = Kept::new(4);
-    let (weather, band, measure, eye_z, sun_k) = key;
+    let (weather, band, measure, eye_z, sun_k, steps) = key;
     KEPT.get_or(key, || {
-        LowtranAtmosphere::new(weather, band, measure, f64::from_bits(eye_z), f64::from_bits(sun_k)).map(Arc::new)
+        LowtranAtmosphere::new(weather, band, measure, f64::from_bits(eye_z), f64::from_bits(sun_k), steps)
+            .map(Arc::new)
     })
 }
 
