@@ -265,7 +265,8 @@ pub struct Sensor {
     pub max_level: f32,
     /// DN per unit radiance on axis.
     pub dn_per_radiance: f64,
-    /// The optics PSF, if on.
+    /// The optics PSF at the sensor's pixels, if on: the targets' (and the background's where it is made at
+    /// every pixel); not made where the background is made on a coarse grid in a scene without targets.
     pub psf: Option<Arc<Psf>>,
     /// Blur the frame (false when the blur would change no pixel by more than the set DN).
     pub blur_frame: bool,
@@ -295,6 +296,11 @@ impl Sensor {
     /// Temporal noise in DN of a pixel whose background radiance is `radiance`.
     pub fn noise_dn(&self, radiance: f64) -> f64 {
         self.readout.noise_dn_at_radiance(radiance)
+    }
+
+    /// The PSF the background is blurred with: the coarse grid's where it is made on one.
+    pub fn background_psf(&self) -> Option<&Arc<Psf>> {
+        if self.background_step > 1 { self.coarse_psf.as_ref() } else { self.psf.as_ref() }
     }
 }
 

@@ -47,13 +47,21 @@ pub fn render_sky(
         .for_each(|(dst, src)| dst.copy_from_slice(src));
 }
 
+/// `camera` with pixels `step` times larger each way: what sees the background's coarse grid.
+pub(super) fn coarse_camera(camera: &Camera, step: usize) -> Camera {
+    let mut camera = *camera;
+    camera.intrinsics.width /= step as u32;
+    camera.intrinsics.height /= step as u32;
+    camera.intrinsics.pixel_pitch_m *= step as f64;
+    camera
+}
+
 /// Renders the background `camera` sees into `sf.background` (on a sensor with a coarse grid: into the coarse
 /// frame, upsampled into both `sf.background` and `sf.frame`, and returns true: the frame holds it already).
 pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf: &mut SensorFrame) -> bool {
     let step = sensor.background_step;
     // on the coarse grid: the optics seen from pixels `step` times larger
-    let psf = if step > 1 { &sensor.coarse_psf } else { &sensor.psf };
-    let blur = match (psf, sensor.resolved.psf, sensor.blur_frame) {
+    let blur = match (sensor.background_psf(), sensor.resolved.psf, sensor.blur_frame) {
         (Some(psf), Some(cfg), true) => Some(BackgroundBlur {
             psf,
             method: cfg.method,
@@ -74,10 +82,7 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
     };
     match sf.coarse.as_mut() {
         Some(coarse) => {
-            let mut camera = *camera;
-            camera.intrinsics.width /= step as u32;
-            camera.intrinsics.height /= step as u32;
-            camera.intrinsics.pixel_pitch_m *= step as f64;
+            let camera = coarse_camera(camera, step);
             let view = view(&camera);
             sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
             // the frame gets each row as it is made

@@ -7,7 +7,7 @@ use bevy::ecs::prelude::*;
 use glam::DVec3;
 
 use super::camera::resolve_aim;
-use super::render::render_background;
+use super::render::{coarse_camera, render_background};
 use super::{
     Aim, Aircraft, Body, CameraPose, FlightPath, Footprint, Kinematics, Observer, SceneParams, Sensor, SensorFrame,
     Shake, Signature, SimClock, SimSettings, Skin, Sky,
@@ -113,7 +113,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         },
         || {
             rayon::join(
-                || sensor_psfs(&sensor_spec),
+                || sensor_psfs(&sensor_spec, !spec.targets.is_empty()),
                 || {
                     let model = &sensor_spec.model;
                     let lut = RadianceLut::new(model.band, model.measure(), scenario.quality.radiance_table_step_k);
@@ -138,10 +138,13 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     let sky = build_sky(scenario, &scene, p0, SkyParts { layer, layer_plan, clear_sky, lut, image, seed })?;
     let mut sensor = build_sensor(&sensor_spec, &sky, seed, psfs?)?;
     if let (Some(plane), Some(psf), Some(cfg), true) =
-        (sky.plane_geometry(), &sensor.psf, sensor_spec.psf, sensor.blur_frame)
+        (sky.plane_geometry(), sensor.background_psf(), sensor_spec.psf, sensor.blur_frame)
         && cfg.sky_blur == SkyBlur::Auto
     {
-        let plan = plan_sky_blur(plane, psf, cfg.prefilter_tolerance, (w, h), planned_views(scenario));
+        // planned for what is rendered: on a coarse grid, its cameras with its PSF
+        let step = sensor.background_step;
+        let views = planned_views(scenario).map(|c| coarse_camera(&c, step));
+        let plan = plan_sky_blur(plane, psf, cfg.prefilter_tolerance, (w / step, h / step), views);
         sensor.sky_blur = plan.choice;
         sensor.sky_blur_plan = Some(plan);
     }
@@ -549,16 +552,17 @@ fn shared_layer(spec: &SkyGenSpec, width: usize, height: usize) -> Arc<CloudLaye
     }
 }
 
-/// A sensor's PSFs: at its pixels, and at the coarse background's (`background_step` pixels a side, where
-/// that is more than 1).
+/// A sensor's PSFs: at its pixels (for the background and targets, or where the background is made on a coarse
+/// grid, for targets alone: none in a scene without targets), and at the coarse background's (`background_step`
+/// pixels a side, where that is more than 1).
 struct SensorPsfs {
     psf: Option<Arc<Psf>>,
     coarse_psf: Option<Arc<Psf>>,
     background_step: usize,
 }
 
-/// The PSFs of a sensor ([`SensorPsfs`]).
-fn sensor_psfs(resolved: &ResolvedSensor) -> Result<SensorPsfs, SetupError> {
+/// The PSFs of a sensor ([`SensorPsfs`]) in a scene with or without `targets`.
+fn sensor_psfs(resolved: &ResolvedSensor, targets: bool) -> Result<SensorPsfs, SetupError> {
     let model = &resolved.model;
     let (w, h) = (resolved.intrinsics.width as usize, resolved.intrinsics.height as usize);
     let step = resolved.background_step_px.max(1);
@@ -579,7 +583,7 @@ fn sensor_psfs(resolved: &ResolvedSensor) -> Result<SensorPsfs, SetupError> {
             .map(Some)
             .map_err(|e| SetupError { field: format!("sensor.psf.{}", e.name), message: e.to_string() })
     };
-    let psf = psf_at(1)?;
+    let psf = if background_step == 1 || targets { psf_at(1)? } else { None };
     let coarse_psf = if background_step > 1 { psf_at(background_step)? } else { None };
     Ok(SensorPsfs { psf, coarse_psf, background_step })
 }
@@ -591,12 +595,15 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64, psfs: SensorPsf
     let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
     let dn_per_radiance = k / model.adc.gain;
     let SensorPsfs { psf, coarse_psf, background_step } = psfs;
-    let blur_dome = match (&psf, resolved.psf) {
-        (Some(psf), Some(cfg)) => dome_needs_blur(psf, &cfg, sky, resolved, dn_per_radiance),
+    // the background's PSF and pixels: the coarse grid's where it is made on one
+    let background_psf = if background_step > 1 { &coarse_psf } else { &psf };
+    let ifov = resolved.intrinsics.pixel_pitch_m * background_step as f64 / resolved.intrinsics.focal_length_m;
+    let blur_dome = match (background_psf, resolved.psf) {
+        (Some(psf), Some(cfg)) => dome_needs_blur(psf, &cfg, sky, ifov, dn_per_radiance),
         _ => false,
     };
     // an image layer may be seen in any frame
-    let blur_frame = psf.is_some() && (blur_dome || sky.has_plane());
+    let blur_frame = background_psf.is_some() && (blur_dome || sky.has_plane());
     let report = model.report(300.0);
     let nonideal = if resolved.nonideal.is_ideal() {
         None
@@ -626,12 +633,11 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64, psfs: SensorPsf
 
 /// Whether blurring a view of the dome alone can change a pixel by more than `skip_below_dn`: the blur of a
 /// smooth field changes it by `½·M₂·|L''|` (M₂ the kernel's second moment in px², L'' the largest curvature per
-/// px²), which is compared with the threshold.
-fn dome_needs_blur(psf: &Psf, cfg: &PsfSettings, sky: &Sky, sensor: &ResolvedSensor, dn_per_radiance: f64) -> bool {
+/// px², for pixels of `ifov` rad), which is compared with the threshold.
+fn dome_needs_blur(psf: &Psf, cfg: &PsfSettings, sky: &Sky, ifov: f64, dn_per_radiance: f64) -> bool {
     if cfg.skip_below_dn <= 0.0 {
         return true;
     }
-    let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
     let curvature_per_px2 = sky.dome.max_curvature_per_rad2() * ifov * ifov;
     let change_dn = 0.5 * psf.point_kernel().second_moment_px2() * curvature_per_px2 * dn_per_radiance;
     change_dn > cfg.skip_below_dn
