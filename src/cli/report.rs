@@ -119,6 +119,9 @@ impl Plan {
     }
 }
 
+/// A timed window shorter than this, s, is timed three times ([`measure`]).
+const SHORT_WINDOW_S: f64 = 0.1;
+
 /// A case run twice: noise off for its frames, noise on for its time.
 struct Measured {
     ms_per_frame: f64,
@@ -176,17 +179,26 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
     }
     let mut stage_ms = Vec::new();
     if plan.time_frames > 0 {
-        let mut app = setup(RunOptions { timings: true, ..RunOptions::default() })?;
-        for _ in 0..2 {
-            step(&mut app);
+        // a window under SHORT_WINDOW_S is timed twice more, each from a fresh start, and the median kept: one
+        // pause of the shared machine is a large part of a few milliseconds
+        let mut windows: Vec<(f64, Vec<(&'static str, f64)>)> = Vec::new();
+        let window_s = |ms: f64| ms * plan.time_frames as f64 / 1e3;
+        while windows.is_empty() || (windows.len() < 3 && window_s(windows[0].0) < SHORT_WINDOW_S) {
+            let mut app = setup(RunOptions { timings: true, ..RunOptions::default() })?;
+            for _ in 0..2 {
+                step(&mut app);
+            }
+            app.world_mut().insert_resource(StageTimings::default());
+            let t = Instant::now();
+            for _ in 0..plan.time_frames {
+                step(&mut app);
+            }
+            let ms = t.elapsed().as_secs_f64() * 1e3 / plan.time_frames.max(1) as f64;
+            windows
+                .push((ms, app.world().get_resource::<StageTimings>().map(StageTimings::mean_ms).unwrap_or_default()));
         }
-        app.world_mut().insert_resource(StageTimings::default());
-        let t = Instant::now();
-        for _ in 0..plan.time_frames {
-            step(&mut app);
-        }
-        ms_per_frame = t.elapsed().as_secs_f64() * 1e3 / plan.time_frames.max(1) as f64;
-        stage_ms = app.world().get_resource::<StageTimings>().map(StageTimings::mean_ms).unwrap_or_default();
+        windows.sort_by(|a, b| a.0.total_cmp(&b.0));
+        (ms_per_frame, stage_ms) = windows.swap_remove(windows.len() / 2);
     }
     Ok(Measured { ms_per_frame, stage_ms, frames, labels, width })
 }
@@ -637,8 +649,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         "Made by `irsim bench report --out {}{mode}` (irsim {}) on {} ({}), {} frames compared and {} timed per \
          case. Errors are against the `reference` preset on the same input with the noise off: the frame's rms and \
          largest difference in DN before quantization, and the largest difference of a target's intensity centroid in px (\"–\": no \
-         target in the frames). Times are per frame, headless, noise on, after two warm-up frames; the machine may \
-         be shared, so compare times within one report.\n",
+         target in the frames). Times are per frame, headless, noise on, after two warm-up frames (the median of three runs where \
+         one is under 0.1 s); the machine may be shared, so compare times within one report.\n",
         a.out.display(),
         env!("CARGO_PKG_VERSION"),
         machine(),

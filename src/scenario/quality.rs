@@ -5,9 +5,9 @@
 //!
 //! `standard` is what a scenario without `[quality]` gets. `reference` puts every switch at its exact setting,
 //! or where a switch has none (a truncated kernel, a quadrature), at the finest the program offers; `draft` gives
-//! up accuracy for speed: in the committed report its frames are 1.9–4.6× faster than `standard`'s on the
-//! shipped scenarios (under 2× only on paper_vibration, 1.88×, a sky image whose standard frame is 0.17 ms) and
-//! differ from `reference` by 0.32–18.7 DN rms (the most on paper_cloudy_sky, where the
+//! up accuracy for speed: in the committed report its frames are 2.2–4.3× faster than `standard`'s on the
+//! shipped scenarios (under 2× only on paper_vibration, 1.65×, a sky image whose standard frame is 0.15 ms) and
+//! differ from `reference` by 0.48–18.7 DN rms (the most on paper_cloudy_sky, where the
 //! blurred sky is read nearest, made on a 2 px grid, from a cloud layer of 2 px texels: cloud edges move and
 //! soften; alone, on sense_and_avoid, the 2 px grid costs 10.0 DN rms and its targets' centroids 0.14 px, the
 //! 2 px texels 9.3 DN rms and 0.05 px). The texels also shorten the set-up (a layer's generation and bake),
@@ -16,7 +16,7 @@
 //!
 //! `standard` is chosen so that, noise off, its frames stay within about 0.3 DN rms and its targets' intensity
 //! centroids within 0.015 px of `reference` on every shipped scenario (8 frames each: `irsim record S --frames 8
-//! --no-noise --format npy --quality P`; in the committed report at most 0.310 DN rms, on swarm, and 0.0068 px). The switches that mattered:
+//! --no-noise --format npy --quality P`; in the committed report at most 0.315 DN rms, on swarm, and 0.0067 px). The switches that mattered:
 //! the sun's reflection (the paper's facet overstates a glint by up to 3300 DN against the ellipsoid average),
 //! the sky blur route (the per-frame blur errs at sub-pixel cloud edges) and the PSF's cut (3 % of the energy
 //! left out gave 1.2 DN rms on paper_cloudy_sky, 1 % gives 0.29).
