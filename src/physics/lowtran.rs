@@ -52,7 +52,7 @@ use std::sync::OnceLock;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use super::planck::{Band, Measure, band_radiance, band_radiance_in};
+use super::planck::{Band, Measure, PlanckMethod, band_radiance, band_radiance_in};
 use super::simd::{exp, widest};
 
 /// The shipped table.
@@ -1485,8 +1485,16 @@ impl PathSpectrum {
     /// [`PathSpectrum::spectrum_weighted`] with the blackbody's spectrum in `measure` (photon radiance for a
     /// photon detector: the τ that multiplies a gray target's photon band radiance).
     pub fn spectrum_weighted_in(&self, measure: Measure, band: Band, temp_k: f64) -> f64 {
+        self.spectrum_weighted_with(measure, band, temp_k, PlanckMethod::Series)
+    }
+
+    /// [`PathSpectrum::spectrum_weighted_in`] with each bin's weight (the blackbody's band radiance over the bin's
+    /// part of the band) integrated by `method` (`[quality] planck`): a scene's targets take their τ this way at
+    /// every computation of their radiometry, and the exact series over every bin was a tenth of a `draft`
+    /// frame of swarm. [`PlanckMethod::Series`] gives [`PathSpectrum::spectrum_weighted_in`]'s bits.
+    pub fn spectrum_weighted_with(&self, measure: Measure, band: Band, temp_k: f64, method: PlanckMethod) -> f64 {
         let (mut num, mut den) = (0.0, 0.0);
-        for (b, w) in self.blackbody_in_bins(measure, band, temp_k) {
+        for (b, w) in self.blackbody_in_bins(measure, band, temp_k, method) {
             num += w * self.transmittance[b];
             den += w;
         }
@@ -1495,10 +1503,16 @@ impl PathSpectrum {
 
     /// `(bin, a blackbody's band radiance at temp_k in measure over the bin's part of the band)` for each bin
     /// overlapping the band.
-    fn blackbody_in_bins(&self, measure: Measure, band: Band, temp_k: f64) -> impl Iterator<Item = (usize, f64)> + '_ {
+    fn blackbody_in_bins(
+        &self,
+        measure: Measure,
+        band: Band,
+        temp_k: f64,
+        method: PlanckMethod,
+    ) -> impl Iterator<Item = (usize, f64)> + '_ {
         self.overlaps(band).map(move |(b, _, _)| {
             let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
-            (b, Band::try_new(l, h).map_or(0.0, |part| band_radiance_in(measure, part, temp_k, 1.0)))
+            (b, Band::try_new(l, h).map_or(0.0, |part| method.band_radiance(measure, part, temp_k, 1.0)))
         })
     }
 
@@ -1506,7 +1520,7 @@ impl PathSpectrum {
     /// weights of [`PathSpectrum::spectrum_weighted_in`], for [`PathSpectrum::weighted`].
     pub fn blackbody_weights(&self, measure: Measure, band: Band, temp_k: f64) -> Vec<f64> {
         let mut w = vec![0.0; self.transmittance.len()];
-        for (b, v) in self.blackbody_in_bins(measure, band, temp_k) {
+        for (b, v) in self.blackbody_in_bins(measure, band, temp_k, PlanckMethod::Series) {
             w[b] = v;
         }
         w

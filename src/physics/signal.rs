@@ -292,7 +292,7 @@ pub fn apparent_radiance(
     let l_self = ctx.planck.band_radiance(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
     let (tau, reflected_tau) = match ctx.sight {
         Some(Sight { spectrum: p, sun_weights }) => (
-            p.spectrum_weighted_in(ctx.measure, ctx.band, temps.skin_temp_k).clamp(0.0, 1.0),
+            p.spectrum_weighted_with(ctx.measure, ctx.band, temps.skin_temp_k, ctx.planck).clamp(0.0, 1.0),
             p.weighted(sun_weights).clamp(0.0, 1.0),
         ),
         None => {
