@@ -96,27 +96,51 @@ pub fn snr(peak_dn: f64, sigma_dn: f64) -> f64 {
 }
 
 /// Standard deviation of `background` (its units) in a window around `roi` (the region grown by 10 px on each
-/// side, at least 31 px wide), the region itself left out; `buf` is scratch.
-pub fn clutter_sigma(background: &Frame, roi: PixelRect, buf: &mut Vec<f32>) -> f64 {
+/// side, at least 31 px wide), the region itself left out.
+///
+/// Two passes (the mean, then the squared deviations from it) over the window's rows as runs of pixels, each
+/// summed in eight f64 lanes: a scene's targets each take one at every frame, and the pixel-by-pixel version
+/// with one sum was most of swarm's output stage.
+pub fn clutter_sigma(background: &Frame, roi: PixelRect) -> f64 {
     let (w, h) = (background.width(), background.height());
     let grow_x = 10 + 15usize.saturating_sub(roi.width() / 2);
     let grow_y = 10 + 15usize.saturating_sub(roi.height() / 2);
     let (x0, y0) = (roi.x0.saturating_sub(grow_x), roi.y0.saturating_sub(grow_y));
     let (x1, y1) = ((roi.x1 + grow_x).min(w), (roi.y1 + grow_y).min(h));
-    buf.clear();
-    for y in y0..y1 {
-        for x in x0..x1 {
-            if !(roi.x0..roi.x1).contains(&x) || !(roi.y0..roi.y1).contains(&y) {
-                buf.push(background.get(x, y));
-            }
-        }
-    }
-    if buf.len() < 2 {
+    if x0 >= x1 || y0 >= y1 {
         return 0.0;
     }
-    let n = buf.len() as f64;
-    let mean = buf.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
-    let var = buf.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    // each row of the window as its runs outside the region (the region's columns, clipped to the window, cut
+    // a row that crosses it in two)
+    let (cut0, cut1) = (roi.x0.clamp(x0, x1), roi.x1.clamp(x0, x1).max(roi.x0.clamp(x0, x1)));
+    let pixels = background.pixels();
+    let runs = || {
+        (y0..y1).flat_map(move |y| {
+            let row = &pixels[y * w..(y + 1) * w];
+            if (roi.y0..roi.y1).contains(&y) { [&row[x0..cut0], &row[cut1..x1]] } else { [&row[x0..x1], &row[x1..x1]] }
+        })
+    };
+    let sum = |f: &dyn Fn(f32) -> f64| -> f64 {
+        let mut lanes = [0.0f64; 8];
+        for run in runs() {
+            let mut chunks = run.chunks_exact(8);
+            for c in &mut chunks {
+                for (l, &v) in lanes.iter_mut().zip(c) {
+                    *l += f(v);
+                }
+            }
+            for (l, &v) in lanes.iter_mut().zip(chunks.remainder()) {
+                *l += f(v);
+            }
+        }
+        lanes.iter().sum()
+    };
+    let n = runs().map(<[f32]>::len).sum::<usize>();
+    if n < 2 {
+        return 0.0;
+    }
+    let mean = sum(&|v| f64::from(v)) / n as f64;
+    let var = sum(&|v| (f64::from(v) - mean).powi(2)) / (n as f64 - 1.0);
     var.sqrt()
 }
 
@@ -162,6 +186,40 @@ pub fn paint_mask(mask: &mut Vec<u8>, width: usize, height: usize, fraction: f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn clutter_is_the_window_s_deviation_without_the_region() {
+        // a frame of distinct values; regions inside, at the edges and corners, and one past the frame
+        let (w, h) = (97, 61);
+        let frame = Frame::from_pixels(w, h, (0..w * h).map(|i| (i as f32 * 0.37).sin() * 5.0 + 100.0).collect());
+        for roi in [
+            PixelRect { x0: 40, y0: 20, x1: 52, y1: 31 },
+            PixelRect { x0: 0, y0: 0, x1: 3, y1: 4 },
+            PixelRect { x0: 90, y0: 55, x1: 97, y1: 61 },
+            PixelRect { x0: 10, y0: 30, x1: 11, y1: 31 },
+            PixelRect { x0: 0, y0: 0, x1: 97, y1: 61 },
+        ] {
+            // pixel by pixel, one sum each pass
+            let (gx, gy) =
+                (10 + 15usize.saturating_sub(roi.width() / 2), 10 + 15usize.saturating_sub(roi.height() / 2));
+            let mut v = Vec::new();
+            for y in roi.y0.saturating_sub(gy)..(roi.y1 + gy).min(h) {
+                for x in roi.x0.saturating_sub(gx)..(roi.x1 + gx).min(w) {
+                    if !((roi.x0..roi.x1).contains(&x) && (roi.y0..roi.y1).contains(&y)) {
+                        v.push(f64::from(frame.get(x, y)));
+                    }
+                }
+            }
+            let want = if v.len() < 2 {
+                0.0
+            } else {
+                let mean = v.iter().sum::<f64>() / v.len() as f64;
+                (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (v.len() as f64 - 1.0)).sqrt()
+            };
+            let got = clutter_sigma(&frame, roi);
+            assert!((got - want).abs() <= 1e-12 * want.max(1.0), "{roi:?}: {got} against {want}");
+        }
+    }
 
     #[test]
     fn mot_lines_list_the_targets_in_the_frame() {

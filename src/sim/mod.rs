@@ -49,7 +49,7 @@ pub use output::{
 pub use projection::{ProjectionPlugin, project_targets};
 pub use radiometry::{RadiometryPlugin, update_signatures};
 pub use render::{RenderToTexturePlugin, render_sky};
-pub use resources::{FrameOutput, FramePool, Fusion, LabelScratch, SceneParams, SimClock, SimSettings, TargetPatches};
+pub use resources::{FrameOutput, FramePool, Fusion, SceneParams, SimClock, SimSettings, TargetPatches};
 pub use spawn::{RunOptions, SetupError, despawn_scenario, spawn_scenario};
 pub use targets::{TargetsPlugin, draw_targets};
 pub use timing::{StageTimings, TimingPlugin};
@@ -104,10 +104,7 @@ impl Plugin for PipelinePlugin {
             )
                 .chain(),
         );
-        app.init_resource::<TargetPatches>()
-            .init_resource::<Fusion>()
-            .init_resource::<FrameOutput>()
-            .init_resource::<LabelScratch>();
+        app.init_resource::<TargetPatches>().init_resource::<Fusion>().init_resource::<FrameOutput>();
     }
 }
 

@@ -8,8 +8,8 @@ use bevy::prelude::FixedUpdate;
 use wgpu_types::{Extent3d, TextureDimension, TextureFormat};
 
 use super::{
-    Aircraft, Footprint, FrameOutput, FramePool, Kinematics, LabelScratch, OutputSystems, Sensor, SensorFrame,
-    Signature, SimClock, SimSettings, TargetPatches,
+    Aircraft, Footprint, FrameOutput, FramePool, Kinematics, OutputSystems, Sensor, SensorFrame, Signature, SimClock,
+    SimSettings, TargetPatches,
 };
 use crate::imaging::frame::Frame;
 use crate::imaging::target_blob::ImageEllipse;
@@ -84,7 +84,6 @@ pub fn collect_labels(
     settings: Res<SimSettings>,
     mut output: ResMut<FrameOutput>,
     patches: Res<TargetPatches>,
-    mut scratch: ResMut<LabelScratch>,
     sensor: Query<(&Sensor, &SensorFrame)>,
     targets: Query<(&Aircraft, &Footprint, &Signature, &Kinematics)>,
 ) {
@@ -133,7 +132,7 @@ pub fn collect_labels(
             let peak_dn = fp.peak_radiance * sensor.dn_per_radiance;
             label.peak_dn = peak_dn;
             label.snr = snr(peak_dn, sensor.noise_dn(fp.background_radiance));
-            let clutter = clutter_sigma(&sf.background, roi, &mut scratch.0) * sensor.dn_per_radiance;
+            let clutter = clutter_sigma(&sf.background, roi) * sensor.dn_per_radiance;
             label.scr = peak_dn.abs() / clutter.max(1e-3);
             label.local_contrast =
                 if fp.background_radiance > 0.0 { fp.peak_radiance / fp.background_radiance } else { 0.0 };

@@ -121,8 +121,3 @@ impl FramePool {
         }
     }
 }
-
-/// Reusable target-rendering state: the tracking loop's pointing noise stream is keyed per frame, so it needs
-/// no state; this holds the SCR window buffer.
-#[derive(Resource, Debug, Default)]
-pub struct LabelScratch(pub Vec<f32>);
