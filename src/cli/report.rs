@@ -649,8 +649,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         "Made by `irsim bench report --out {}{mode}` (irsim {}) on {} ({}), {} frames compared and {} timed per \
          case. Errors are against the `reference` preset on the same input with the noise off: the frame's rms and \
          largest difference in DN before quantization, and the largest difference of a target's intensity centroid in px (\"–\": no \
-         target in the frames). Times are per frame, headless, noise on, after two warm-up frames (the median of three runs where \
-         one is under 0.1 s); the machine may be shared, so compare times within one report.\n",
+         target in the frames). Times are per frame, headless, noise on, after two warm-up frames (where the first run's timed \
+         frames take under 0.1 s, the median of three runs); the machine may be shared, so compare times within one report.\n",
         a.out.display(),
         env!("CARGO_PKG_VERSION"),
         machine(),

@@ -903,7 +903,8 @@ impl AtmosphereTable {
         Ok(())
     }
 
-    /// Spectral transmittance and path radiance of the path from the observer to the target.
+    /// Spectral transmittance and path radiance of the path from the observer to the target, its integrals taken
+    /// in the `standard` preset's [`PathSteps::STANDARD`] (a scene's own steps: [`AtmosphereTable::path_in`]).
     ///
     /// # Errors
     /// [`AtmosphereError::OutsideGrid`] or [`AtmosphereError::BelowGround`] for a path the table does not cover;
@@ -1087,7 +1088,8 @@ impl AtmosphereTable {
     /// (down to its tangent point and up again, below the horizontal) is cut where it leaves the table's top
     /// (20 km) and into pieces of at most the table's longest range, each an interpolated path of the table,
     /// chained bin by bin (`L += τ_before·L_piece`, `τ ×= τ_piece`); above the top, LOWTRAN's layers up to 100 km
-    /// seen through the observer's column.
+    /// seen through the observer's column. Its paths' integrals are taken in [`PathSteps::STANDARD`] (other
+    /// steps: [`AtmosphereTable::sky_in`]).
     ///
     /// # Errors
     /// [`AtmosphereError::OutsideGrid`] for an observer outside the table's altitudes, or a ray below the
@@ -1121,7 +1123,8 @@ impl AtmosphereTable {
 
     /// The spectrum of the straight ray from an observer at `observer_alt_km` toward elevation `asin(sin_e)`, as
     /// [`AtmosphereTable::sky`] chains it, up through the whole atmosphere, or down to the ground where it meets it
-    /// (then `true`, and the path ends there).
+    /// (then `true`, and the path ends there); its paths' integrals in [`PathSteps::STANDARD`] (other steps:
+    /// [`AtmosphereTable::ray_in`]).
     ///
     /// # Errors
     /// [`AtmosphereError::OutsideGrid`] for an observer outside the table's altitudes; [`AtmosphereError::Table`]

@@ -583,6 +583,8 @@ fn sensor_psfs(resolved: &ResolvedSensor, targets: bool) -> Result<SensorPsfs, S
             .map(Some)
             .map_err(|e| SetupError { field: format!("sensor.psf.{}", e.name), message: e.to_string() })
     };
+    // (a scene without targets still has its PSF's settings checked: the coarse one is built from the same spec
+    // and f-number, all that Psf::new refuses)
     let psf = if background_step == 1 || targets { psf_at(1)? } else { None };
     let coarse_psf = if background_step > 1 { psf_at(background_step)? } else { None };
     Ok(SensorPsfs { psf, coarse_psf, background_step })
