@@ -13,36 +13,19 @@ pub struct Frame {
 }
 
 impl Frame {
-    /// Fills this frame from `coarse`, sampled every `step` pixels of it (coarse pixel `k` covers this frame's
-    /// pixels `k·step … k·step + step − 1`): bilinear between coarse pixel centres, the edge values held beyond
-    /// the outermost centres; along x first (each coarse row once per block of rows), then between two such
-    /// rows, in one parallel pass. Where `copy` is given, each row is copied into it as it is made.
+    /// Fills this frame from `coarse`, sampled every `step` pixels of it ([`Upsampler`]), in one parallel pass
+    /// over blocks of rows. Where `copy` is given, each row is copied into it as it is made.
     ///
     /// # Panics
     /// If this frame is not `step` times `coarse` each way, or `copy` is not this frame's size.
     pub fn upsample_bilinear(&mut self, coarse: &Frame, step: usize, copy: Option<&mut Frame>) {
         use rayon::prelude::*;
         assert!(step >= 1 && self.width == coarse.width * step && self.height == coarse.height * step);
-        let (w, cw, ch) = (self.width, coarse.width, coarse.height);
+        let w = self.width;
         if w == 0 || self.height == 0 {
             return;
         }
-        // where a pixel centre falls between coarse centres: the lower one's index, the upper one's, the weight
-        let place = |i: usize, n: usize| -> (usize, usize, f32) {
-            let c = (i as f64 + 0.5) / step as f64 - 0.5;
-            if c <= 0.0 {
-                (0, 0, 0.0)
-            } else if c >= (n - 1) as f64 {
-                (n - 1, n - 1, 0.0)
-            } else {
-                let k = c as usize;
-                (k, k + 1, (c - k as f64) as f32)
-            }
-        };
-        // the general step's weights per column (the step of 2 needs none)
-        let halves = step == 2 && cw >= 2;
-        let columns: Vec<(usize, usize, f32)> =
-            if halves { Vec::new() } else { (0..w).map(|i| place(i, cw)).collect() };
+        let up = Upsampler::new(coarse, step);
         let rows_per_task = crate::physics::simd::rows_per_task(w, 1);
         let block = w * rows_per_task;
         let copies: Vec<Option<&mut [f32]>> = match copy {
@@ -52,36 +35,11 @@ impl Frame {
             }
             None => (0..self.pixels.len().div_ceil(block)).map(|_| None).collect(),
         };
-        let columns = &columns[..];
-        let row_x = |y: usize, out: &mut [f32]| along_x(&coarse.pixels[y * cw..(y + 1) * cw], out, halves, columns);
-        self.pixels.par_chunks_mut(block).zip(copies).enumerate().for_each(|(b, (out, mut copy))| {
-            UPSAMPLE_ROWS.with_borrow_mut(|scratch| {
-                scratch.resize(2 * w, 0.0);
-                let (mut upper, mut lower) = scratch.split_at_mut(w);
-                // which coarse rows `upper` and `lower` hold, interpolated along x; going down the block, the
-                // lower row becomes the next upper one
-                let (mut upper_y, mut lower_y) = (usize::MAX, usize::MAX);
-                for (r, line) in out.chunks_mut(w).enumerate() {
-                    let (y0, y1, fy) = place(b * rows_per_task + r, ch);
-                    if upper_y != y0 {
-                        if lower_y == y0 {
-                            std::mem::swap(&mut upper, &mut lower);
-                            std::mem::swap(&mut upper_y, &mut lower_y);
-                        } else {
-                            row_x(y0, upper);
-                            upper_y = y0;
-                        }
-                    }
-                    if y1 != y0 && lower_y != y1 {
-                        row_x(y1, lower);
-                        lower_y = y1;
-                    }
-                    blend_rows(line, upper, if y1 == y0 { upper } else { lower }, fy);
-                    if let Some(c) = copy.as_deref_mut() {
-                        c[r * w..(r + 1) * w].copy_from_slice(line);
-                    }
-                }
-            });
+        self.pixels.par_chunks_mut(block).zip(copies).enumerate().for_each(|(b, (out, copy))| {
+            up.rows(b * rows_per_task, out);
+            if let Some(c) = copy {
+                c.copy_from_slice(out);
+            }
         });
     }
 
@@ -273,9 +231,90 @@ pub enum PngCompression {
     Best,
 }
 
+/// Bilinear interpolation of a frame `step` times larger each way than `coarse` (coarse pixel `k` covers the
+/// frame's pixels `k·step … k·step + step − 1`): between coarse pixel centres, the edge values held beyond the
+/// outermost centres; along x first (each coarse row once per block of rows), then between two such rows.
+/// [`Frame::upsample_bilinear`] makes a whole frame with it; the readout of a frame made on a coarse grid
+/// ([`crate::physics::noise::Readout::apply_filled`]) makes each block of rows just before it reads it.
+#[derive(Debug, Clone)]
+pub struct Upsampler<'a> {
+    coarse: &'a Frame,
+    step: usize,
+    /// The frame's width.
+    width: usize,
+    /// A step of 2 (and a coarse frame at least 2 wide): the fixed ¾–¼ weights, no table.
+    halves: bool,
+    /// Otherwise each column's `(x0, x1, fx)`.
+    columns: Vec<(usize, usize, f32)>,
+}
+
+impl<'a> Upsampler<'a> {
+    /// The interpolation of `coarse` to a frame `step` times larger each way.
+    ///
+    /// # Panics
+    /// If `step` is 0.
+    pub fn new(coarse: &'a Frame, step: usize) -> Self {
+        assert!(step >= 1, "a step of 0");
+        let (cw, width) = (coarse.width, coarse.width * step);
+        let halves = step == 2 && cw >= 2;
+        let columns = if halves { Vec::new() } else { (0..width).map(|i| Self::place(step, i, cw)).collect() };
+        Self { coarse, step, width, halves, columns }
+    }
+
+    /// Where pixel centre `i` falls between coarse centres (of `n`): the lower one's index, the upper one's, the
+    /// weight.
+    fn place(step: usize, i: usize, n: usize) -> (usize, usize, f32) {
+        let c = (i as f64 + 0.5) / step as f64 - 0.5;
+        if c <= 0.0 {
+            (0, 0, 0.0)
+        } else if c >= (n - 1) as f64 {
+            (n - 1, n - 1, 0.0)
+        } else {
+            let k = c as usize;
+            (k, k + 1, (c - k as f64) as f32)
+        }
+    }
+
+    /// The frame's rows from `first_row` on into `out` (whole rows: its length a multiple of the width, rows
+    /// past the frame's last left as they are).
+    pub fn rows(&self, first_row: usize, out: &mut [f32]) {
+        let (w, cw, ch) = (self.width, self.coarse.width, self.coarse.height);
+        if w == 0 || ch == 0 {
+            return;
+        }
+        let row_x = |y: usize, out: &mut [f32]| {
+            along_x(&self.coarse.pixels[y * cw..(y + 1) * cw], out, self.halves, &self.columns);
+        };
+        UPSAMPLE_ROWS.with_borrow_mut(|scratch| {
+            scratch.resize(2 * w, 0.0);
+            let (mut upper, mut lower) = scratch.split_at_mut(w);
+            // which coarse rows `upper` and `lower` hold, interpolated along x; going down the block, the lower
+            // row becomes the next upper one
+            let (mut upper_y, mut lower_y) = (usize::MAX, usize::MAX);
+            for (r, line) in out.chunks_exact_mut(w).enumerate().take((ch * self.step).saturating_sub(first_row)) {
+                let (y0, y1, fy) = Self::place(self.step, first_row + r, ch);
+                if upper_y != y0 {
+                    if lower_y == y0 {
+                        std::mem::swap(&mut upper, &mut lower);
+                        std::mem::swap(&mut upper_y, &mut lower_y);
+                    } else {
+                        row_x(y0, upper);
+                        upper_y = y0;
+                    }
+                }
+                if y1 != y0 && lower_y != y1 {
+                    row_x(y1, lower);
+                    lower_y = y1;
+                }
+                blend_rows(line, upper, if y1 == y0 { upper } else { lower }, fy);
+            }
+        });
+    }
+}
+
 thread_local! {
-    /// Each thread's two coarse rows interpolated along x, for [`Frame::upsample_bilinear`] (kept from frame to
-    /// frame: no allocation per frame).
+    /// Each thread's two coarse rows interpolated along x, for [`Upsampler::rows`] (kept from frame to frame: no
+    /// allocation per frame).
     static UPSAMPLE_ROWS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 

@@ -78,6 +78,10 @@ pub struct Readout {
     pub normal_sampler: NormalSampler,
 }
 
+/// What writes a block of whole rows of the frame's radiance before they are read out: `fill(first_row, block)`
+/// ([`Readout::apply_filled`]).
+pub type RowFill<'a> = dyn Fn(usize, &mut [f32]) + Sync + 'a;
+
 /// Optional per-pixel maps of the readout, row-major, the frame's size.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ReadoutMaps<'a> {
@@ -123,6 +127,25 @@ impl Readout {
         frame: u64,
         max_level: Option<f32>,
     ) {
+        self.apply_filled(pixels, width, maps, noise, seed, frame, max_level, None);
+    }
+
+    /// [`Readout::apply`], where `fill` (if given) first writes each block of rows' radiance: `fill(first_row,
+    /// block)` for whole rows, just before they are read out (a frame made on a coarse grid is interpolated
+    /// block by block there, while the block is in the first-level cache, instead of in a pass of its own).
+    /// The result is that of filling every row first and then [`Readout::apply`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn apply_filled(
+        &self,
+        pixels: &mut [f32],
+        width: usize,
+        maps: ReadoutMaps<'_>,
+        noise: bool,
+        seed: u64,
+        frame: u64,
+        max_level: Option<f32>,
+        fill: Option<&RowFill<'_>>,
+    ) {
         use rayon::prelude::*;
         if width == 0 {
             return;
@@ -130,20 +153,27 @@ impl Readout {
         let key = stream_rng(seed, stage::SENSOR_NOISE, frame, 0).next_u64();
         // rows in batches: one row is too little work to be worth a task
         let rows_per_task = super::simd::rows_per_task(width, 1);
-        pixels.par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(row, line)| {
-            let span = row * width..(row + 1) * width;
-            let gain = maps.gain.map(|g| &g[span.clone()]);
-            let offset = maps.offset_dn.map(|o| &o[span]);
-            widest(
-                #[inline(always)]
-                || {
-                    with_normal_fill!(
-                        self.normal_sampler,
-                        Self::apply_row,
-                        (self, line, gain, offset, maps.column_dn, noise, key, row as u64, max_level)
-                    )
-                },
-            );
+        pixels.par_chunks_mut(width * rows_per_task).enumerate().for_each(|(b, block)| {
+            let first = b * rows_per_task;
+            if let Some(fill) = fill {
+                fill(first, block);
+            }
+            for (r, line) in block.chunks_mut(width).enumerate() {
+                let row = first + r;
+                let span = row * width..(row + 1) * width;
+                let gain = maps.gain.map(|g| &g[span.clone()]);
+                let offset = maps.offset_dn.map(|o| &o[span]);
+                widest(
+                    #[inline(always)]
+                    || {
+                        with_normal_fill!(
+                            self.normal_sampler,
+                            Self::apply_row,
+                            (self, line, gain, offset, maps.column_dn, noise, key, row as u64, max_level)
+                        )
+                    },
+                );
+            }
         });
     }
 
@@ -530,6 +560,32 @@ mod tests {
             assert_eq!(v, r.mean_dn(l, 1.0, 0.0), "pixel {i}");
         }
         assert_ne!(a, c);
+    }
+
+    #[test]
+    fn a_filled_readout_is_the_readout_of_the_filled_frame() {
+        // rows filled block by block as they are read out, against the whole frame filled first (a width whose
+        // blocks do not divide the frame's rows)
+        let r = readout();
+        let (w, h) = (200, 45);
+        let value = |row: usize, x: usize| ((row * 31 + x * 7) % 900) as f32;
+        let mut first = vec![0f32; w * h];
+        for (row, line) in first.chunks_mut(w).enumerate() {
+            for (x, v) in line.iter_mut().enumerate() {
+                *v = value(row, x);
+            }
+        }
+        r.apply(&mut first, w, ReadoutMaps::default(), true, 3, 9, Some(16383.0));
+        let fill = |start: usize, block: &mut [f32]| {
+            for (k, line) in block.chunks_mut(w).enumerate() {
+                for (x, v) in line.iter_mut().enumerate() {
+                    *v = value(start + k, x);
+                }
+            }
+        };
+        let mut filled = vec![f32::NAN; w * h];
+        r.apply_filled(&mut filled, w, ReadoutMaps::default(), true, 3, 9, Some(16383.0), Some(&fill));
+        assert!(first.iter().zip(&filled).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 
     #[test]

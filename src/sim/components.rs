@@ -320,4 +320,26 @@ pub struct SensorFrame {
     pub(super) columns: Vec<f32>,
     /// The background on the coarse grid, where `background_step` > 1.
     pub(super) coarse: Option<Frame>,
+    /// The background is made on the coarse grid in a scene without targets: nothing reads it at the sensor's
+    /// pixels before the readout, so `background` is not made and the readout interpolates each block of the
+    /// frame from `coarse` as it reads it out ([`SensorFrame::background_at`] for a pixel).
+    pub(super) coarse_only: bool,
+}
+
+impl SensorFrame {
+    /// The noise-free, blurred background at pixel `(x, y)` (radiance; 0 outside the frame).
+    pub fn background_at(&self, x: usize, y: usize) -> f32 {
+        let (w, h) = (self.background.width(), self.background.height());
+        if x >= w || y >= h {
+            return 0.0;
+        }
+        match (&self.coarse, self.coarse_only) {
+            (Some(coarse), true) => {
+                let mut row = vec![0.0; w];
+                crate::imaging::frame::Upsampler::new(coarse, w / coarse.width().max(1)).rows(y, &mut row);
+                row[x]
+            }
+            _ => self.background.get(x, y),
+        }
+    }
 }

@@ -5,7 +5,8 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{NoiseSystems, Sensor, SensorFrame, SimClock, SimSettings};
-use crate::physics::noise::{Readout, ReadoutMaps};
+use crate::imaging::frame::Upsampler;
+use crate::physics::noise::{Readout, ReadoutMaps, RowFill};
 
 /// Reads the detector out.
 pub struct NoisePlugin;
@@ -35,14 +36,26 @@ pub fn read_out(clock: Res<SimClock>, settings: Res<SimSettings>, mut sensor: Qu
         }
     }
     let top = sensor.max_level;
+    // a frame made on a coarse grid with nothing drawn on it: interpolated block by block as it is read out
+    let upsampler = match (&sf.coarse, sf.coarse_only) {
+        (Some(coarse), true) => Some(Upsampler::new(coarse, sensor.background_step)),
+        _ => None,
+    };
+    let fill = |first: usize, block: &mut [f32]| {
+        if let Some(u) = &upsampler {
+            u.rows(first, block);
+        }
+    };
+    let fill: Option<&RowFill<'_>> = upsampler.is_some().then_some(&fill);
+    let frame_pixels = sf.frame.pixels_mut();
     if settings.keep_float {
-        readout.apply(sf.frame.pixels_mut(), width, maps, settings.noise, seed, frame, None);
+        readout.apply_filled(frame_pixels, width, maps, settings.noise, seed, frame, None, fill);
         match &mut sf.float_frame {
             Some(f) => f.pixels_mut().copy_from_slice(sf.frame.pixels()),
             None => sf.float_frame = Some(sf.frame.clone()),
         }
         crate::physics::noise::quantize_row(sf.frame.pixels_mut(), top);
     } else {
-        readout.apply(sf.frame.pixels_mut(), width, maps, settings.noise, seed, frame, Some(top));
+        readout.apply_filled(frame_pixels, width, maps, settings.noise, seed, frame, Some(top), fill);
     }
 }

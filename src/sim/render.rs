@@ -36,6 +36,10 @@ pub fn render_sky(
             return;
         }
     }
+    if sf.coarse_only {
+        // the readout interpolates the frame from the coarse grid, which holds this view still
+        return;
+    }
     // the frame starts as the background: copied in parallel (one thread's memcpy of a 640 × 512 frame took a
     // tenth of a draft frame)
     use rayon::prelude::*;
@@ -57,7 +61,8 @@ pub(super) fn coarse_camera(camera: &Camera, step: usize) -> Camera {
 }
 
 /// Renders the background `camera` sees into `sf.background` (on a sensor with a coarse grid: into the coarse
-/// frame, upsampled into both `sf.background` and `sf.frame`, and returns true: the frame holds it already).
+/// frame, upsampled into both `sf.background` and `sf.frame` unless the readout does it, and returns true: the
+/// frame holds it already, or will).
 pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf: &mut SensorFrame) -> bool {
     let step = sensor.background_step;
     // on the coarse grid: the optics seen from pixels `step` times larger
@@ -85,8 +90,10 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
             let camera = coarse_camera(camera, step);
             let view = view(&camera);
             sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
-            // the frame gets each row as it is made
-            sf.background.upsample_bilinear(coarse, step, Some(&mut sf.frame));
+            // the frame gets each row as it is made, or (nothing reading it before) from the readout
+            if !sf.coarse_only {
+                sf.background.upsample_bilinear(coarse, step, Some(&mut sf.frame));
+            }
             true
         }
         None => {

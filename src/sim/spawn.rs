@@ -159,6 +159,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         renderer: BackgroundRenderer::new(),
         columns: Vec::new(),
         coarse: (step > 1).then(|| Frame::new(w / step, h / step)),
+        coarse_only: step > 1 && spec.targets.is_empty(),
     };
     // the prefiltered textures the first view reads are built now, with the rest of the set-up, rather than in
     // the first frame: the first view's background is rendered here (the first frame renders its own over it,

@@ -484,7 +484,7 @@ fn sensor_panel(
                 && x < sf.background.width()
                 && y < sf.background.height()
             {
-                let l = f64::from(sf.background.get(x, y));
+                let l = f64::from(sf.background_at(x, y));
                 ui.monospace(format!(
                     "sky behind it (noise-free, blurred): {l:.4e} W m⁻² sr⁻¹ ≈ {:.1} DN above offset",
                     l * s.dn_per_radiance
