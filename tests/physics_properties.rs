@@ -126,7 +126,7 @@ fn gaussian_noise_mean_and_variance() {
     // a thermal detector: read noise only
     let model = readout(false, 3.0, 1.0);
     let mut frame = vec![1000.0f32; 256 * 256];
-    model.apply(&mut frame, 256, ReadoutMaps::default(), true, 1, 0, None);
+    model.apply(&mut frame, 256, ReadoutMaps::default(), true, 1, 0, None, None);
     let n = frame.len() as f64;
     let m = frame.iter().map(|&p| p as f64).sum::<f64>() / n;
     let v = frame.iter().map(|&p| (p as f64 - m).powi(2)).sum::<f64>() / (n - 1.0);
@@ -139,7 +139,7 @@ fn shot_noise_variance_follows_the_conversion_gain() {
     // 2000 electrons at 4 electrons per DN: 500 DN, variance 2000/16 = 125 DN²
     let model = readout(true, 0.0, 0.25);
     let mut frame = vec![2000.0f32; 256 * 256];
-    model.apply(&mut frame, 256, ReadoutMaps::default(), true, 2, 0, None);
+    model.apply(&mut frame, 256, ReadoutMaps::default(), true, 2, 0, None, None);
     let n = frame.len() as f64;
     let m = frame.iter().map(|&p| p as f64).sum::<f64>() / n;
     let v = frame.iter().map(|&p| (p as f64 - m).powi(2)).sum::<f64>() / (n - 1.0);

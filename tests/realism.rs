@@ -26,7 +26,7 @@ fn temporal_noise_of_a_uniform_scene_matches_the_netd() {
         let l = band_radiance_in(m.measure(), m.band, 300.0, 1.0) as f32;
         let (w, h) = (512, 512);
         let mut px = vec![l; w * h];
-        r.apply(&mut px, w, ReadoutMaps::default(), true, 3, 0, None);
+        r.apply(&mut px, w, ReadoutMaps::default(), true, 3, 0, None, None);
         let n = px.len() as f64;
         let mean = px.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
         let sd = (px.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n).sqrt();
@@ -57,7 +57,7 @@ fn electrons_of_a_300_k_blackbody_are_conserved() {
     // about 2 million electrons, 30 % of the 7 Me⁻ well
     assert!((1.5e6..3e6).contains(&hand), "{hand}");
     let mut px = vec![l_photon as f32; 64];
-    r.apply(&mut px, 64, ReadoutMaps::default(), false, 1, 0, None);
+    r.apply(&mut px, 64, ReadoutMaps::default(), false, 1, 0, None, None);
     let back = (f64::from(px[0]) - m.adc.offset_dn) * m.adc.gain - m.dark_signal();
     assert!((back / hand - 1.0).abs() < 1e-6, "through the ADC and back: {back} e⁻ vs {hand} e⁻");
 }

@@ -235,7 +235,7 @@ pub enum PngCompression {
 /// frame's pixels `k·step … k·step + step − 1`): between coarse pixel centres, the edge values held beyond the
 /// outermost centres; along x first (each coarse row once per block of rows), then between two such rows.
 /// [`Frame::upsample_bilinear`] makes a whole frame with it; the readout of a frame made on a coarse grid
-/// ([`crate::physics::noise::Readout::apply_filled`]) makes each block of rows just before it reads it.
+/// ([`crate::physics::noise::Readout::apply`]) makes each block of rows just before it reads it.
 #[derive(Debug, Clone)]
 pub struct Upsampler<'a> {
     coarse: &'a Frame,

@@ -79,7 +79,7 @@ pub struct Readout {
 }
 
 /// What writes a block of whole rows of the frame's radiance before they are read out: `fill(first_row, block)`
-/// ([`Readout::apply_filled`]).
+/// ([`Readout::apply`]).
 pub type RowFill<'a> = dyn Fn(usize, &mut [f32]) + Sync + 'a;
 
 /// Optional per-pixel maps of the readout, row-major, the frame's size.
@@ -116,26 +116,12 @@ impl Readout {
     /// Replaces each radiance in `pixels` (row-major, `width` wide) by its DN: with noise if `noise`, rounded and
     /// clamped to `[0, max_level]` if `max_level` is given. Row `r` draws from sub-streams of
     /// `(seed, SENSOR_NOISE, frame)`, so the result does not depend on how rows are scheduled.
+    /// Where `fill` is given, it first writes each block of rows' radiance, `fill(first_row, block)` for whole
+    /// rows, just before they are read out (a frame made on a coarse grid is interpolated block by block there,
+    /// while the block is in the first-level cache, instead of in a pass of its own); the result is that of
+    /// filling every row first.
     #[allow(clippy::too_many_arguments)]
     pub fn apply(
-        &self,
-        pixels: &mut [f32],
-        width: usize,
-        maps: ReadoutMaps<'_>,
-        noise: bool,
-        seed: u64,
-        frame: u64,
-        max_level: Option<f32>,
-    ) {
-        self.apply_filled(pixels, width, maps, noise, seed, frame, max_level, None);
-    }
-
-    /// [`Readout::apply`], where `fill` (if given) first writes each block of rows' radiance: `fill(first_row,
-    /// block)` for whole rows, just before they are read out (a frame made on a coarse grid is interpolated
-    /// block by block there, while the block is in the first-level cache, instead of in a pass of its own).
-    /// The result is that of filling every row first and then [`Readout::apply`].
-    #[allow(clippy::too_many_arguments)]
-    pub fn apply_filled(
         &self,
         pixels: &mut [f32],
         width: usize,
@@ -549,13 +535,13 @@ mod tests {
         let r = readout();
         let base: Vec<f32> = (0..64 * 48).map(|i| (i % 700) as f32).collect();
         let mut a = base.clone();
-        r.apply(&mut a, 64, ReadoutMaps::default(), true, 11, 5, None);
+        r.apply(&mut a, 64, ReadoutMaps::default(), true, 11, 5, None, None);
         let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
         let mut b = base.clone();
-        pool.install(|| r.apply(&mut b, 64, ReadoutMaps::default(), true, 11, 5, None));
+        pool.install(|| r.apply(&mut b, 64, ReadoutMaps::default(), true, 11, 5, None, None));
         assert_eq!(a, b);
         let mut c = base.clone();
-        r.apply(&mut c, 64, ReadoutMaps::default(), false, 11, 5, None);
+        r.apply(&mut c, 64, ReadoutMaps::default(), false, 11, 5, None, None);
         for (i, (&v, &l)) in c.iter().zip(&base).enumerate() {
             assert_eq!(v, r.mean_dn(l, 1.0, 0.0), "pixel {i}");
         }
@@ -575,7 +561,7 @@ mod tests {
                 *v = value(row, x);
             }
         }
-        r.apply(&mut first, w, ReadoutMaps::default(), true, 3, 9, Some(16383.0));
+        r.apply(&mut first, w, ReadoutMaps::default(), true, 3, 9, Some(16383.0), None);
         let fill = |start: usize, block: &mut [f32]| {
             for (k, line) in block.chunks_mut(w).enumerate() {
                 for (x, v) in line.iter_mut().enumerate() {
@@ -584,7 +570,7 @@ mod tests {
             }
         };
         let mut filled = vec![f32::NAN; w * h];
-        r.apply_filled(&mut filled, w, ReadoutMaps::default(), true, 3, 9, Some(16383.0), Some(&fill));
+        r.apply(&mut filled, w, ReadoutMaps::default(), true, 3, 9, Some(16383.0), Some(&fill));
         assert!(first.iter().zip(&filled).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 
@@ -595,7 +581,7 @@ mod tests {
         let offset = vec![3.0f32; 8];
         let mut p = vec![100.0f32, 100.0, 100.0, 100.0, 1e6, 1e6, 0.0, 0.0];
         let maps = ReadoutMaps { gain: Some(&gain), offset_dn: Some(&offset), column_dn: None };
-        r.apply(&mut p, 8, maps, false, 1, 1, Some(16_383.0));
+        r.apply(&mut p, 8, maps, false, 1, 1, Some(16_383.0), None);
         // 2·0.5·100 = 100 e⁻ → 100 + 3 + 25 = 128 DN; saturated: 100 + 3 + 250 = 353 DN
         assert_eq!(&p[..4], &[128.0; 4]);
         assert_eq!(&p[4..6], &[353.0; 2]);

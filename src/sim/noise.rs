@@ -49,13 +49,13 @@ pub fn read_out(clock: Res<SimClock>, settings: Res<SimSettings>, mut sensor: Qu
     let fill: Option<&RowFill<'_>> = upsampler.is_some().then_some(&fill);
     let frame_pixels = sf.frame.pixels_mut();
     if settings.keep_float {
-        readout.apply_filled(frame_pixels, width, maps, settings.noise, seed, frame, None, fill);
+        readout.apply(frame_pixels, width, maps, settings.noise, seed, frame, None, fill);
         match &mut sf.float_frame {
             Some(f) => f.pixels_mut().copy_from_slice(sf.frame.pixels()),
             None => sf.float_frame = Some(sf.frame.clone()),
         }
         crate::physics::noise::quantize_row(sf.frame.pixels_mut(), top);
     } else {
-        readout.apply_filled(frame_pixels, width, maps, settings.noise, seed, frame, Some(top), fill);
+        readout.apply(frame_pixels, width, maps, settings.noise, seed, frame, Some(top), fill);
     }
 }
