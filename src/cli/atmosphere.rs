@@ -21,16 +21,23 @@ struct Row {
     radiance_ratio: Option<f64>,
 }
 
+/// The weather of one of the generator's runs (`None` if a field is missing or unknown).
+fn weather(r: &serde_json::Value) -> Option<Weather> {
+    Some(Weather {
+        model: serde_json::from_value(r["model"].clone()).ok()?,
+        aerosol: serde_json::from_value(r["aerosol"].clone()).ok()?,
+        visibility_km: r["visibility_km"].as_f64()?,
+    })
+}
+
 fn rows(table: &AtmosphereTable) -> Result<(Vec<Row>, Vec<f64>), String> {
     let doc: serde_json::Value = serde_json::from_str(OFFGRID).map_err(|e| e.to_string())?;
     let runs = doc["runs"].as_array().ok_or("no runs")?;
     let mut rows = Vec::new();
     let mut micros = Vec::new();
     for r in runs {
-        let model: ModelAtmosphere = serde_json::from_value(r["model"].clone()).map_err(|e| e.to_string())?;
-        let aerosol: Aerosol = serde_json::from_value(r["aerosol"].clone()).map_err(|e| e.to_string())?;
+        let w = weather(r).ok_or_else(|| format!("a run's model, aerosol or visibility is not readable: {r}"))?;
         let num = |k: &str| r[k].as_f64().ok_or_else(|| format!("{k} missing"));
-        let w = Weather { model, aerosol, visibility_km: num("visibility_km")? };
         let t = Instant::now();
         let p = table
             .path(&w, num("observer_alt_km")?, num("target_alt_km")?, num("range_km")?)
@@ -148,14 +155,7 @@ fn steps_section(md: &mut String, table: &AtmosphereTable) {
     let mut cases: Vec<(Weather, Geometry)> = Vec::new();
     for (key, sky) in [("runs", false), ("sky", true)] {
         for r in doc[key].as_array().map_or(&[][..], |v| &v[..]) {
-            let (Ok(model), Ok(aerosol), Some(vis), Some(h)) = (
-                serde_json::from_value::<ModelAtmosphere>(r["model"].clone()),
-                serde_json::from_value::<Aerosol>(r["aerosol"].clone()),
-                r["visibility_km"].as_f64(),
-                r["observer_alt_km"].as_f64(),
-            ) else {
-                continue;
-            };
+            let (Some(w), Some(h)) = (weather(r), r["observer_alt_km"].as_f64()) else { continue };
             let geometry = if sky {
                 let Some(zenith) = r["zenith_angle_deg"].as_f64() else { continue };
                 Geometry::Sky(h, (90.0 - zenith).to_radians().sin())
@@ -163,7 +163,7 @@ fn steps_section(md: &mut String, table: &AtmosphereTable) {
                 let (Some(h2), Some(range)) = (r["target_alt_km"].as_f64(), r["range_km"].as_f64()) else { continue };
                 Geometry::Line(h, h2, range)
             };
-            cases.push((Weather { model, aerosol, visibility_km: vis }, geometry));
+            cases.push((w, geometry));
         }
     }
     let all = 0..table.edges_um().len() - 1;
@@ -229,18 +229,11 @@ fn sky_section(md: &mut String, table: &AtmosphereTable) {
     let mut groups: std::collections::BTreeMap<Group<'_>, Vec<(f64, f64)>> = Default::default();
     let mut micros = Vec::new();
     for r in runs {
-        let (Ok(model), Ok(aerosol)) = (
-            serde_json::from_value::<ModelAtmosphere>(r["model"].clone()),
-            serde_json::from_value::<Aerosol>(r["aerosol"].clone()),
-        ) else {
-            continue;
-        };
-        let (Some(vis), Some(h), Some(zenith)) =
-            (r["visibility_km"].as_f64(), r["observer_alt_km"].as_f64(), r["zenith_angle_deg"].as_f64())
+        let (Some(w), Some(h), Some(zenith)) =
+            (weather(r), r["observer_alt_km"].as_f64(), r["zenith_angle_deg"].as_f64())
         else {
             continue;
         };
-        let w = Weather { model, aerosol, visibility_km: vis };
         let t = Instant::now();
         let Ok(p) = table.sky(&w, h, (90.0 - zenith).to_radians().sin()) else { continue };
         micros.push(t.elapsed().as_secs_f64() * 1e6);

@@ -41,12 +41,8 @@ pub fn read_out(clock: Res<SimClock>, settings: Res<SimSettings>, mut sensor: Qu
         (Some(coarse), true) => Some(Upsampler::new(coarse, sensor.background_step)),
         _ => None,
     };
-    let fill = |first: usize, block: &mut [f32]| {
-        if let Some(u) = &upsampler {
-            u.rows(first, block);
-        }
-    };
-    let fill: Option<&RowFill<'_>> = upsampler.is_some().then_some(&fill);
+    let fill = upsampler.as_ref().map(|u| move |first: usize, block: &mut [f32]| u.rows(first, block));
+    let fill = fill.as_ref().map(|f| f as &RowFill<'_>);
     let frame_pixels = sf.frame.pixels_mut();
     if settings.keep_float {
         readout.apply(frame_pixels, width, maps, settings.noise, seed, frame, None, fill);
