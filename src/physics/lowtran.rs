@@ -1550,20 +1550,33 @@ impl PathSpectrum {
     /// path at that temperature; between 200 and 300 K the ratio changes by under 0.1 % in the bins beyond 3 µm,
     /// and by up to 0.6 % in the 0.25 µm bins below, where the air's own radiance is tiny; tested).
     pub fn band_path_radiance_in(&self, measure: Measure, band: Band) -> f64 {
-        match measure {
-            Measure::Energy => self.band_path_radiance_w_m2_sr(band),
-            Measure::Photon => self
-                .overlaps(band)
-                .map(|(b, _, width)| {
+        self.band_path_radiance_by(band, &self.measure_ratios(measure, band))
+    }
+
+    /// Each bin's ratio from energy radiance to radiance in `measure` over its part inside `band`
+    /// ([`PathSpectrum::band_path_radiance_in`]'s: 1 for energy, a [`PHOTON_REFERENCE_K`] blackbody's for photons;
+    /// 0 outside the band). The same for every path over these bins: a caller with many paths makes it once.
+    pub fn measure_ratios(&self, measure: Measure, band: Band) -> Vec<f64> {
+        let mut ratios = vec![0.0; self.transmittance.len()];
+        for (b, _, _) in self.overlaps(band) {
+            ratios[b] = match measure {
+                Measure::Energy => 1.0,
+                Measure::Photon => {
                     let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
-                    let ratio = Band::try_new(l, h).map_or(0.0, |part| {
+                    Band::try_new(l, h).map_or(0.0, |part| {
                         let e = band_radiance(part, PHOTON_REFERENCE_K, 1.0);
                         if e > 0.0 { band_radiance_in(Measure::Photon, part, PHOTON_REFERENCE_K, 1.0) / e } else { 0.0 }
-                    });
-                    self.path_radiance_w_m2_sr_um[b] * width * ratio
-                })
-                .sum(),
+                    })
+                }
+            };
         }
+        ratios
+    }
+
+    /// [`PathSpectrum::band_path_radiance_in`] with its bins' `ratios` ([`PathSpectrum::measure_ratios`] of a
+    /// path over the same bins, for the same band): the same value, to the bit.
+    pub fn band_path_radiance_by(&self, band: Band, ratios: &[f64]) -> f64 {
+        self.overlaps(band).map(|(b, _, width)| self.path_radiance_w_m2_sr_um[b] * width * ratios[b]).sum()
     }
 
     /// The spectrum of the same path stretched to `new_length / old_length` of its length, bin by bin as

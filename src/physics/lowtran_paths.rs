@@ -64,6 +64,9 @@ pub struct LowtranAtmosphere {
     air_weights: Vec<f64>,
     /// The same in the detector's measure (the weights of reflected sunlight reaching the detector).
     sun_weights: Vec<f64>,
+    /// Each bin's ratio from energy radiance to the measure's ([`PathSpectrum::measure_ratios`]), for every path's
+    /// band path radiance.
+    measure_ratios: Vec<f64>,
     /// The table's bins that overlap the band: the only ones its spectra hold ([`AtmosphereTable::path_in`]).
     bins: std::ops::Range<usize>,
     /// How finely every path's integrals are taken.
@@ -110,6 +113,7 @@ impl LowtranAtmosphere {
         // what these paths pass is air, ground or cloud near the air's temperature: τ weighted by its spectrum, so
         // that an isothermal path's τ·B(T) plus its path radiance is B(T), as it must be
         let air_weights = probe.blackbody_weights(measure, band, table.profile(weather.model).temperature_at(eye));
+        let measure_ratios = probe.measure_ratios(measure, band);
         let rows: Vec<(Vec<f64>, Vec<f64>)> = alt_km
             .par_iter()
             .map(|&h| {
@@ -120,7 +124,7 @@ impl LowtranAtmosphere {
                     let r = range_at(dh, far, j);
                     if let Ok(p) = table.path_in(&weather, eye, h, r, bins.clone(), steps) {
                         ln_tau[j] = p.weighted(&air_weights).max(1e-300).ln();
-                        path[j] = p.band_path_radiance_in(measure, band);
+                        path[j] = p.band_path_radiance_by(band, &measure_ratios);
                     }
                 }
                 fill_untraceable(&mut ln_tau, &mut path, dh, far);
@@ -159,6 +163,7 @@ impl LowtranAtmosphere {
             sun_weights: probe.blackbody_weights(measure, band, sun_temp_k),
             sun_energy_weights,
             air_weights,
+            measure_ratios,
             bins,
             nbins,
             steps,
@@ -187,6 +192,17 @@ impl LowtranAtmosphere {
     /// sunlight's transmittance ([`PathSpectrum::weighted`]).
     pub fn sun_weights(&self) -> &[f64] {
         &self.sun_weights
+    }
+
+    /// Each bin's ratio from energy radiance to the detector's measure ([`PathSpectrum::measure_ratios`]).
+    pub fn measure_ratios(&self) -> &[f64] {
+        &self.measure_ratios
+    }
+
+    /// The band path radiance in the detector's measure of a path of this atmosphere (one of its spectra, over its
+    /// bins): [`PathSpectrum::band_path_radiance_in`], with the bins' ratios made once.
+    pub fn band_path_radiance(&self, p: &PathSpectrum) -> f64 {
+        p.band_path_radiance_by(self.band, &self.measure_ratios)
     }
 
     /// The band.
@@ -228,7 +244,7 @@ impl LowtranAtmosphere {
     /// # Errors
     /// As [`LowtranAtmosphere::sky_spectrum`].
     pub fn sky_radiance(&self, sin_e: f64) -> Result<f64, AtmosphereError> {
-        Ok(self.sky_spectrum(sin_e)?.band_path_radiance_in(self.measure, self.band))
+        Ok(self.band_path_radiance(&self.sky_spectrum(sin_e)?))
     }
 
     /// The clear sky's band radiance on [`SKY_NODES`] + [`LIMB_NODES`] elevations from the horizon's dip to the
@@ -254,7 +270,7 @@ impl LowtranAtmosphere {
             .map(|&e| {
                 let sin_e = e.sin().min(self.horizon_sin_e() - 1e-12);
                 let (p, _) = self.table.ray_in(&self.weather, self.eye_alt_km, sin_e, self.bins.clone(), self.steps)?;
-                Ok((p.weighted(&self.air_weights), p.band_path_radiance_in(self.measure, self.band)))
+                Ok((p.weighted(&self.air_weights), self.band_path_radiance(&p)))
             })
             .collect::<Result<Vec<(f64, f64)>, AtmosphereError>>()?;
         let (ground_tau, ground_path) = ground.into_iter().unzip();

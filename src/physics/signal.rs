@@ -244,6 +244,9 @@ pub struct Sight<'a> {
     /// The sun's spectrum per bin in the detector's measure ([`PathSpectrum::blackbody_weights`] at the sun's
     /// temperature).
     pub sun_weights: &'a [f64],
+    /// Each bin's ratio from energy radiance to the detector's measure ([`PathSpectrum::measure_ratios`] for the
+    /// band).
+    pub measure_ratios: &'a [f64],
 }
 
 /// A target's radiance at the sensor's aperture, in the detector's measure.
@@ -291,7 +294,7 @@ pub fn apparent_radiance(
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let l_self = ctx.planck.band_radiance(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
     let (tau, reflected_tau) = match ctx.sight {
-        Some(Sight { spectrum: p, sun_weights }) => (
+        Some(Sight { spectrum: p, sun_weights, .. }) => (
             p.spectrum_weighted_with(ctx.measure, ctx.band, temps.skin_temp_k, ctx.planck).clamp(0.0, 1.0),
             p.weighted(sun_weights).clamp(0.0, 1.0),
         ),
@@ -318,7 +321,7 @@ pub fn apparent_radiance(
         sunlit(target, sensor_m, ctx.band, &ctx.sun, ctx.atmosphere, ctx.reflection, ctx.quadrature, skip_below)?;
     let l_re = in_measure(l_re_energy);
     let path_radiance = match ctx.sight {
-        Some(Sight { spectrum: p, .. }) => p.band_path_radiance_in(ctx.measure, ctx.band),
+        Some(Sight { spectrum: p, measure_ratios, .. }) => p.band_path_radiance_by(ctx.band, measure_ratios),
         None => {
             let mid_z = 0.5 * (target.position_m.z + sensor_m.z);
             let t_mid = ctx

@@ -81,7 +81,10 @@ pub fn update_signatures(
             Some(lowtran) => sig
                 .sight
                 .update(lowtran, eye, p, settings.quality.atmosphere_tolerance)
-                .map(|spectrum| Some(Sight { spectrum, sun_weights: lowtran.sun_weights() }))
+                .map(|spectrum| {
+                    let (sun_weights, measure_ratios) = (lowtran.sun_weights(), lowtran.measure_ratios());
+                    Some(Sight { spectrum, sun_weights, measure_ratios })
+                })
                 .map_err(|e| e.to_string()),
             None => Ok(None),
         };
