@@ -34,7 +34,7 @@ const STORED_BLOCK_MAX: usize = 65_535;
 /// nothing beyond what `out` needs.
 #[derive(Debug, Default, Clone)]
 pub struct Png16Encoder {
-    /// One row's quantized samples.
+    /// One row's quantized samples, big-endian (read as bytes, in the order PNG stores them).
     row: Vec<u16>,
     /// The zlib stream's uncompressed data: each row's filter byte and filtered samples.
     filtered: Vec<u8>,
@@ -165,16 +165,16 @@ fn filter_rows(pixels: &[f32], filtered: &mut [u8], row: &mut [u16], max: f32) {
         || {
             for (src, dst) in pixels.chunks_exact(width).zip(filtered.chunks_exact_mut(1 + 2 * width)) {
                 for (q, &v) in row.iter_mut().zip(src) {
-                    *q = quantize(v, max);
+                    *q = quantize(v, max).to_be();
                 }
+                // the samples' bytes in PNG's order; each byte less the byte two to its left (the same byte of
+                // the pixel to the left; 0 left of the first pixel)
+                let bytes: &[u8] = bytemuck::cast_slice(row);
                 dst[0] = FILTER_SUB;
                 let dst = &mut dst[1..];
-                // the pixel left of the first is 0: its bytes go as they are
-                dst[0] = (row[0] >> 8) as u8;
-                dst[1] = row[0] as u8;
-                for ((d, &v), &left) in dst[2..].chunks_exact_mut(2).zip(&row[1..]).zip(&row[..width - 1]) {
-                    d[0] = ((v >> 8) as u8).wrapping_sub((left >> 8) as u8);
-                    d[1] = (v as u8).wrapping_sub(left as u8);
+                dst[..2].copy_from_slice(&bytes[..2]);
+                for ((d, &v), &left) in dst[2..].iter_mut().zip(&bytes[2..]).zip(bytes) {
+                    *d = v.wrapping_sub(left);
                 }
             }
         },
