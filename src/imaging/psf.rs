@@ -624,7 +624,8 @@ impl Otf {
     /// The OTF is even in `fx` and in `fy` (sines are odd, `hypot` and the squares even, bit for bit), so each
     /// frequency's value is that of its magnitudes, computed once; so is each row's transform (rows `ky` and
     /// `n − ky` are the same). With `reach`, only the columns within `reach` samples of offset 0 (either way,
-    /// periodically) are transformed, the others left 0: the fine table reads no further.
+    /// periodically) are transformed, and only their rows within it kept, the others left 0: the fine table
+    /// reads no further.
     ///
     /// Each row and column is transformed by the same plan as [`fft2`]'s, so every value is the same bits as
     /// those of the whole grid's 2D transform.
@@ -651,8 +652,11 @@ impl Otf {
         });
         let mut planner = rustfft::FftPlanner::new();
         let plan = planner.plan_fft(n, rustfft::FftDirection::Inverse);
-        // the distinct rows, each transformed
-        let mut rows = vec![Complex::new(0.0, 0.0); q * n];
+        // past the diffraction cut-off whole rows of the quadrant are 0 (most of them): their transforms are 0
+        // (up to the sign of zero, which no sum of the columns' transforms can show), so only the rows before
+        // the last with a value are transformed
+        let live = quadrant.chunks_exact(q).rposition(|row| row.iter().any(|&v| v != 0.0)).map_or(0, |k| k + 1);
+        let mut rows = vec![Complex::new(0.0, 0.0); live * n];
         rows.par_chunks_mut(n).enumerate().for_each(|(ky, row)| {
             let source = &quadrant[ky * q..][..q];
             for (kx, c) in row.iter_mut().enumerate() {
@@ -660,24 +664,33 @@ impl Otf {
             }
             plan.process(row);
         });
-        // the columns asked for, each gathered from its rows and transformed
+        // the columns asked for, each gathered from its rows and transformed; with `reach`, the rows kept are
+        // the same offsets as the columns
         let columns: Vec<usize> = match reach {
             Some(r) if 2 * r + 1 < n => (0..=r).chain(n - r..n).collect(),
             _ => (0..n).collect(),
         };
         let scale = 1.0 / (PERIOD_PX * PERIOD_PX) as f64;
+        let zero = Complex::new(0.0, 0.0);
         let values: Vec<Vec<f32>> = columns
             .par_iter()
             .map(|&x| {
-                let mut column: Vec<Complex<f64>> = (0..n).map(|ky| rows[fold(ky) * n + x]).collect();
+                let mut column: Vec<Complex<f64>> =
+                    (0..n).map(|ky| if fold(ky) < live { rows[fold(ky) * n + x] } else { zero }).collect();
                 plan.process(&mut column);
-                column.iter().map(|c| (c.re * scale) as f32).collect()
+                columns.iter().map(|&y| (column[y].re * scale) as f32).collect()
             })
             .collect();
         let mut grid = vec![0.0f32; n * n];
-        grid.par_chunks_mut(n).enumerate().for_each(|(y, row)| {
+        // the kept rows in order, as the columns are (the same offsets)
+        let mut kept: Vec<&mut [f32]> = grid
+            .chunks_exact_mut(n)
+            .enumerate()
+            .filter_map(|(y, row)| columns.binary_search(&y).is_ok().then_some(row))
+            .collect();
+        kept.par_iter_mut().enumerate().for_each(|(k, row)| {
             for (&x, column) in columns.iter().zip(&values) {
-                row[x] = column[y];
+                row[x] = column[k];
             }
         });
         grid
@@ -1611,14 +1624,15 @@ mod tests {
             assert_eq!(got.len(), want.len());
             let same = got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits());
             assert!(same, "{per_px} per px, aperture {aperture}, tent {tent}");
-            // the columns within a reach alone: theirs the same bits, the others 0
+            // the offsets within a reach alone: theirs the same bits, the others 0
             let n = PERIOD_PX * per_px;
             let reach = n / 5;
             let part = otf.spatial(per_px, aperture, tent, &radial, half, Some(reach));
+            let within = |k: usize| k <= reach || k >= n - reach;
             for (i, (a, b)) in part.iter().zip(&want).enumerate() {
-                let x = i % n;
-                let want = if x <= reach || x >= n - reach { b.to_bits() } else { 0 };
-                assert_eq!(a.to_bits(), want, "{per_px} per px, column {x}");
+                let (x, y) = (i % n, i / n);
+                let want = if within(x) && within(y) { b.to_bits() } else { 0 };
+                assert_eq!(a.to_bits(), want, "{per_px} per px, column {x}, row {y}");
             }
         }
     }
