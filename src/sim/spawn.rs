@@ -98,8 +98,9 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     let layer_plan = plan_layer(scenario, p0);
     // independent parts side by side (each has stretches on one thread: the generated layer's noise, the
     // table's logarithms, the image's decoding): the atmosphere's tables and the clear sky from them, the
-    // generated cloud layer, the optics' PSFs, and the radiance table with the sky image calibrated by it
-    let ((atmosphere, layer), (psfs, (lut, image))) = rayon::join(
+    // generated cloud layer, the optics' PSFs and the detector's fixed pattern, and the radiance table with the
+    // sky image calibrated by it
+    let ((atmosphere, layer), ((psfs, nonideal), (lut, image))) = rayon::join(
         || {
             rayon::join(
                 || atmosphere_and_clear_sky(scenario, p0),
@@ -113,7 +114,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         },
         || {
             rayon::join(
-                || sensor_psfs(&sensor_spec, !spec.targets.is_empty()),
+                || (sensor_psfs(&sensor_spec, !spec.targets.is_empty()), nonideal(&sensor_spec, seed)),
                 || {
                     let model = &sensor_spec.model;
                     let lut = RadianceLut::new(model.band, model.measure(), scenario.quality.radiance_table_step_k);
@@ -136,7 +137,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     let intrinsics = sensor_spec.intrinsics;
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
     let sky = build_sky(scenario, &scene, p0, SkyParts { layer, layer_plan, clear_sky, lut, image, seed })?;
-    let mut sensor = build_sensor(&sensor_spec, &sky, seed, psfs?)?;
+    let mut sensor = build_sensor(&sensor_spec, &sky, psfs?, nonideal)?;
     if let (Some(plane), Some(psf), Some(cfg), true) =
         (sky.plane_geometry(), sensor.background_psf(), sensor_spec.psf, sensor.blur_frame)
         && cfg.sky_blur == SkyBlur::Auto
@@ -591,8 +592,26 @@ fn sensor_psfs(resolved: &ResolvedSensor, targets: bool) -> Result<SensorPsfs, S
     Ok(SensorPsfs { psf, coarse_psf, background_step })
 }
 
+/// The detector's fixed pattern and drifts ([`NonIdeal`]), where it has any.
+fn nonideal(resolved: &ResolvedSensor, seed: u64) -> Option<Arc<NonIdeal>> {
+    if resolved.nonideal.is_ideal() {
+        return None;
+    }
+    let plane = FocalPlane {
+        width: resolved.intrinsics.width as usize,
+        height: resolved.intrinsics.height as usize,
+        focal_px: resolved.intrinsics.focal_px(),
+    };
+    Some(Arc::new(NonIdeal::new(&resolved.nonideal, plane, resolved.model.report(300.0).noise_dn, seed)))
+}
+
 /// The sensor component: readout, PSF (and whether the frame needs it), non-idealities.
-fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64, psfs: SensorPsfs) -> Result<Sensor, SetupError> {
+fn build_sensor(
+    resolved: &ResolvedSensor,
+    sky: &Sky,
+    psfs: SensorPsfs,
+    nonideal: Option<Arc<NonIdeal>>,
+) -> Result<Sensor, SetupError> {
     let model = &resolved.model;
     let k = model.signal_per_radiance();
     let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
@@ -607,17 +626,6 @@ fn build_sensor(resolved: &ResolvedSensor, sky: &Sky, seed: u64, psfs: SensorPsf
     };
     // an image layer may be seen in any frame
     let blur_frame = background_psf.is_some() && (blur_dome || sky.has_plane());
-    let report = model.report(300.0);
-    let nonideal = if resolved.nonideal.is_ideal() {
-        None
-    } else {
-        let plane = FocalPlane {
-            width: resolved.intrinsics.width as usize,
-            height: resolved.intrinsics.height as usize,
-            focal_px: resolved.intrinsics.focal_px(),
-        };
-        Some(Arc::new(NonIdeal::new(&resolved.nonideal, plane, report.noise_dn, seed)))
-    };
     Ok(Sensor {
         resolved: *resolved,
         readout,
