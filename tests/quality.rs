@@ -163,6 +163,9 @@ fn bench_report_writes_finite_tables_and_plots() {
     }
     assert!(numbers > 40, "{numbers} numbers in\n{md}");
     assert!(md.contains("| small |") && md.contains("`psf_energy_cutoff`"), "{md}");
+    // the presets' speed-up per frame and over the scenario's whole run, both numbers
+    let small = md.lines().find(|l| l.starts_with("| small |")).unwrap();
+    assert!(md.contains("per frame / whole run |") && small.ends_with("× |") && small.contains("× / "), "{small}");
     assert!(md.contains("| `ziggurat` |") && md.contains("| `table` |"), "the normal samplers' rows: {md}");
     assert!(md.contains("## OpenCV's seamlessClone"), "{md}");
     // each stage beside its bound, and recording against headless

@@ -50,7 +50,7 @@ pub use projection::{ProjectionPlugin, project_targets};
 pub use radiometry::{RadiometryPlugin, update_signatures};
 pub use render::{RenderToTexturePlugin, render_sky};
 pub use resources::{FrameOutput, FramePool, Fusion, SceneParams, SimClock, SimSettings, TargetPatches};
-pub use spawn::{RunOptions, SetupError, despawn_scenario, spawn_scenario};
+pub use spawn::{RunOptions, SetupError, despawn_scenario, forget_kept_results, spawn_scenario};
 pub use targets::{TargetsPlugin, draw_targets};
 pub use timing::{StageTimings, TimingPlugin};
 

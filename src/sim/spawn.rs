@@ -481,23 +481,42 @@ fn layer_size(
 /// A kept result is the one a new call gives, so keeping it changes no output.
 struct Kept<K, V> {
     room: usize,
-    entries: std::sync::Mutex<Vec<(K, V)>>,
+    /// The entries, and the [`forget_kept_results`] count they were kept under.
+    entries: std::sync::Mutex<(u64, Vec<(K, V)>)>,
+}
+
+/// How many times [`forget_kept_results`] has been called.
+static FORGOTTEN: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// Lets go of every result kept from earlier set-ups (LOWTRAN tables, clear skies, PSFs, generated layers), so
+/// that the next set-up makes its own, as a new process would (the shipped atmosphere table, decoded once per
+/// process, stays): what a timing of a whole run needs. No output changes.
+pub fn forget_kept_results() {
+    FORGOTTEN.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
 }
 
 impl<K: PartialEq, V: Clone> Kept<K, V> {
     const fn new(room: usize) -> Self {
-        Self { room, entries: std::sync::Mutex::new(Vec::new()) }
+        Self { room, entries: std::sync::Mutex::new((0, Vec::new())) }
     }
 
     /// The kept result for `key`, or `make`'s, kept (the oldest let go beyond the room); errors are not kept.
     fn get_or<E>(&self, key: K, make: impl FnOnce() -> Result<V, E>) -> Result<V, E> {
-        let lock = || self.entries.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some((_, v)) = lock().iter().find(|(k, _)| *k == key) {
+        let lock = || {
+            let mut kept = self.entries.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            let now = FORGOTTEN.load(std::sync::atomic::Ordering::SeqCst);
+            if kept.0 != now {
+                *kept = (now, Vec::new());
+            }
+            kept
+        };
+        if let Some((_, v)) = lock().1.iter().find(|(k, _)| *k == key) {
             return Ok(v.clone());
         }
         // made without the lock: two runs asking at once both make it, and keep the same value
         let v = make()?;
         let mut kept = lock();
+        let kept = &mut kept.1;
         if !kept.iter().any(|(k, _)| *k == key) {
             if kept.len() >= self.room {
                 kept.remove(0);
@@ -678,6 +697,13 @@ mod tests {
         // an error is returned and not kept
         assert_eq!(kept.get_or(7, || Err::<Arc<u32>, _>("no")), Err("no"));
         assert_eq!(*kept.get_or(7, || Ok::<_, ()>(Arc::new(70))).unwrap(), 70);
+        // once forgotten, a result is made again, and kept again (no other test forgets: this one's `ptr_eq`s
+        // would not hold if one did meanwhile)
+        let before = get(1);
+        forget_kept_results();
+        let again = get(1);
+        assert!(!Arc::ptr_eq(&before, &again) && *again == 10, "made again");
+        assert!(Arc::ptr_eq(&again, &get(1)), "and kept again");
     }
 
     #[test]
