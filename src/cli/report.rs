@@ -119,7 +119,7 @@ impl Plan {
     }
 }
 
-/// A timed window shorter than this, s, is timed three times ([`measure`]).
+/// A timed window shorter than this, s, is timed three times ([`median_run`]).
 const SHORT_WINDOW_S: f64 = 0.1;
 
 /// A case run twice: noise off for its frames, noise on for its time.
@@ -141,11 +141,24 @@ struct Errors {
     centroid_px: Option<f64>,
 }
 
+/// Runs `run`, which returns how long its timed window took (s) and its result, once, or three times where the
+/// first window took under [`SHORT_WINDOW_S`] (one pause of the shared machine is a large part of a few
+/// milliseconds); the result of the median window.
+fn median_run<T>(mut run: impl FnMut() -> Result<(f64, T), CliError>) -> Result<T, CliError> {
+    let mut runs = vec![run()?];
+    if runs[0].0 < SHORT_WINDOW_S {
+        for _ in 0..2 {
+            runs.push(run()?);
+        }
+    }
+    runs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Ok(runs.swap_remove(runs.len() / 2).1)
+}
+
 /// A scenario's whole run headless, ms: its set-up with nothing kept from earlier runs and every one of its own
-/// frames, noise on; a run under [`SHORT_WINDOW_S`] is timed twice more and the median kept.
+/// frames, noise on ([`median_run`]).
 fn whole_run_ms(s: &CheckedScenario) -> Result<f64, CliError> {
-    let mut runs: Vec<f64> = Vec::new();
-    while runs.is_empty() || (runs.len() < 3 && runs[0] < SHORT_WINDOW_S * 1e3) {
+    median_run(|| {
         crate::sim::forget_kept_results();
         let started = Instant::now();
         let mut app = headless_app(s, RunOptions::default())
@@ -153,10 +166,9 @@ fn whole_run_ms(s: &CheckedScenario) -> Result<f64, CliError> {
         for _ in 0..s.spec.run.frames {
             step(&mut app);
         }
-        runs.push(started.elapsed().as_secs_f64() * 1e3);
-    }
-    runs.sort_by(f64::total_cmp);
-    Ok(runs[runs.len() / 2])
+        let elapsed_s = started.elapsed().as_secs_f64();
+        Ok((elapsed_s, elapsed_s * 1e3))
+    })
 }
 
 fn failed(e: impl std::fmt::Display) -> CliError {
@@ -197,11 +209,8 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
     }
     let mut stage_ms = Vec::new();
     if plan.time_frames > 0 {
-        // a window under SHORT_WINDOW_S is timed twice more, each from a fresh start, and the median kept: one
-        // pause of the shared machine is a large part of a few milliseconds
-        let mut windows: Vec<(f64, Vec<(&'static str, f64)>)> = Vec::new();
-        let window_s = |ms: f64| ms * plan.time_frames as f64 / 1e3;
-        while windows.is_empty() || (windows.len() < 3 && window_s(windows[0].0) < SHORT_WINDOW_S) {
+        // each window from a fresh start
+        (ms_per_frame, stage_ms) = median_run(|| {
             let mut app = setup(RunOptions { timings: true, ..RunOptions::default() })?;
             for _ in 0..2 {
                 step(&mut app);
@@ -211,12 +220,11 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
             for _ in 0..plan.time_frames {
                 step(&mut app);
             }
-            let ms = t.elapsed().as_secs_f64() * 1e3 / plan.time_frames.max(1) as f64;
-            windows
-                .push((ms, app.world().get_resource::<StageTimings>().map(StageTimings::mean_ms).unwrap_or_default()));
-        }
-        windows.sort_by(|a, b| a.0.total_cmp(&b.0));
-        (ms_per_frame, stage_ms) = windows.swap_remove(windows.len() / 2);
+            let window_s = t.elapsed().as_secs_f64();
+            let ms = window_s * 1e3 / plan.time_frames.max(1) as f64;
+            let stages = app.world().get_resource::<StageTimings>().map(StageTimings::mean_ms).unwrap_or_default();
+            Ok((window_s, (ms, stages)))
+        })?;
     }
     Ok(Measured { ms_per_frame, stage_ms, frames, labels, width })
 }

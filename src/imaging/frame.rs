@@ -1,6 +1,7 @@
 //! The sensor frame: row-major f32 gray values, and its conversions to 8/16-bit images and PNG.
 
 use std::io::Write;
+use std::sync::Arc;
 
 use image::{ImageBuffer, Luma};
 
@@ -244,8 +245,9 @@ pub struct Upsampler<'a> {
     width: usize,
     /// A step of 2 (and a coarse frame at least 2 wide): the fixed ¾–¼ weights, no table.
     halves: bool,
-    /// Otherwise each column's `(x0, x1, fx)`.
-    columns: Vec<(usize, usize, f32)>,
+    /// Otherwise each column's `(x0, x1, fx)` (the last table made on this thread, shared: a frame's readout
+    /// makes an upsampler at every frame, which allocates nothing then).
+    columns: Arc<[(usize, usize, f32)]>,
 }
 
 impl<'a> Upsampler<'a> {
@@ -257,7 +259,15 @@ impl<'a> Upsampler<'a> {
         assert!(step >= 1, "a step of 0");
         let (cw, width) = (coarse.width, coarse.width * step);
         let halves = step == 2 && cw >= 2;
-        let columns = if halves { Vec::new() } else { (0..width).map(|i| Self::place(step, i, cw)).collect() };
+        let columns = UPSAMPLE_COLUMNS.with_borrow_mut(|last| match last {
+            Some((s, w, table)) if (*s, *w) == (step, cw) => Arc::clone(table),
+            _ => {
+                let table: Arc<[_]> =
+                    if halves { Arc::new([]) } else { (0..width).map(|i| Self::place(step, i, cw)).collect() };
+                *last = Some((step, cw, Arc::clone(&table)));
+                table
+            }
+        });
         Self { coarse, step, width, halves, columns }
     }
 
@@ -312,10 +322,15 @@ impl<'a> Upsampler<'a> {
     }
 }
 
+/// An [`Upsampler`]'s column table for a step and a coarse width.
+type ColumnTable = (usize, usize, Arc<[(usize, usize, f32)]>);
+
 thread_local! {
     /// Each thread's two coarse rows interpolated along x, for [`Upsampler::rows`] (kept from frame to frame: no
     /// allocation per frame).
     static UPSAMPLE_ROWS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// The last column table [`Upsampler::new`] made on this thread.
+    static UPSAMPLE_COLUMNS: std::cell::RefCell<Option<ColumnTable>> = const { std::cell::RefCell::new(None) };
 }
 
 /// Coarse row `a` interpolated along x into `out`: at the half-pixel offsets of a step of 2 (`halves`), or

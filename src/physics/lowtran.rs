@@ -1444,6 +1444,12 @@ pub fn lowest_point_km(h1: f64, h2: f64, range_km: f64) -> f64 {
 }
 
 impl PathSpectrum {
+    /// Bin `b`'s part of `band` (`None` where they do not overlap by a positive width).
+    pub(crate) fn bin_part(&self, b: usize, band: Band) -> Option<Band> {
+        let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
+        if h <= l { None } else { Band::try_new(l, h).ok() }
+    }
+
     fn overlaps(&self, band: Band) -> impl Iterator<Item = (usize, f64, f64)> + '_ {
         // (bin, fraction of the bin's wavenumber extent inside the band, µm inside)
         (0..self.transmittance.len()).filter_map(move |b| {
@@ -1514,8 +1520,7 @@ impl PathSpectrum {
         method: PlanckMethod,
     ) -> impl Iterator<Item = (usize, f64)> + '_ {
         self.overlaps(band).map(move |(b, _, _)| {
-            let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
-            (b, Band::try_new(l, h).map_or(0.0, |part| method.band_radiance(measure, part, temp_k, 1.0)))
+            (b, self.bin_part(b, band).map_or(0.0, |part| method.band_radiance(measure, part, temp_k, 1.0)))
         })
     }
 
@@ -1561,13 +1566,10 @@ impl PathSpectrum {
         for (b, _, _) in self.overlaps(band) {
             ratios[b] = match measure {
                 Measure::Energy => 1.0,
-                Measure::Photon => {
-                    let (l, h) = (self.edges_um[b].max(band.lo_um()), self.edges_um[b + 1].min(band.hi_um()));
-                    Band::try_new(l, h).map_or(0.0, |part| {
-                        let e = band_radiance(part, PHOTON_REFERENCE_K, 1.0);
-                        if e > 0.0 { band_radiance_in(Measure::Photon, part, PHOTON_REFERENCE_K, 1.0) / e } else { 0.0 }
-                    })
-                }
+                Measure::Photon => self.bin_part(b, band).map_or(0.0, |part| {
+                    let e = band_radiance(part, PHOTON_REFERENCE_K, 1.0);
+                    if e > 0.0 { band_radiance_in(Measure::Photon, part, PHOTON_REFERENCE_K, 1.0) / e } else { 0.0 }
+                }),
             };
         }
         ratios

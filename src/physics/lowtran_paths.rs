@@ -144,10 +144,7 @@ impl LowtranAtmosphere {
             })
             .collect();
         let sun_energy_weights = (0..nbins)
-            .map(|b| {
-                let (l, h) = (probe.edges_um[b].max(band.lo_um()), probe.edges_um[b + 1].min(band.hi_um()));
-                if h <= l { 0.0 } else { Band::try_new(l, h).map_or(0.0, |part| band_radiance(part, sun_temp_k, 1.0)) }
-            })
+            .map(|b| probe.bin_part(b, band).map_or(0.0, |part| band_radiance(part, sun_temp_k, 1.0)))
             .collect();
         Ok(Self {
             table,

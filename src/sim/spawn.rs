@@ -636,29 +636,29 @@ fn build_sensor(
     let readout = model.readout(resolved.noise.poisson_normal_threshold, resolved.noise.normal_sampler);
     let dn_per_radiance = k / model.adc.gain;
     let SensorPsfs { psf, coarse_psf, background_step } = psfs;
-    // the background's PSF and pixels: the coarse grid's where it is made on one
-    let background_psf = if background_step > 1 { &coarse_psf } else { &psf };
-    let ifov = resolved.intrinsics.pixel_pitch_m * background_step as f64 / resolved.intrinsics.focal_length_m;
-    let blur_dome = match (background_psf, resolved.psf) {
-        (Some(psf), Some(cfg)) => dome_needs_blur(psf, &cfg, sky, ifov, dn_per_radiance),
-        _ => false,
-    };
-    // an image layer may be seen in any frame
-    let blur_frame = background_psf.is_some() && (blur_dome || sky.has_plane());
-    Ok(Sensor {
+    let mut sensor = Sensor {
         resolved: *resolved,
         readout,
         max_level: model.adc.max_level() as f32,
         dn_per_radiance,
         psf,
-        blur_frame,
-        blur_dome,
+        blur_frame: false,
+        blur_dome: false,
         sky_blur: resolved.psf.map_or(SkyBlur::Frame, |p| p.sky_blur),
         sky_blur_plan: None,
         nonideal,
         background_step,
         coarse_psf,
-    })
+    };
+    // the background's PSF and pixels: the coarse grid's where it is made on one
+    let ifov = resolved.intrinsics.pixel_pitch_m * background_step as f64 / resolved.intrinsics.focal_length_m;
+    sensor.blur_dome = match (sensor.background_psf(), resolved.psf) {
+        (Some(psf), Some(cfg)) => dome_needs_blur(psf, &cfg, sky, ifov, dn_per_radiance),
+        _ => false,
+    };
+    // an image layer may be seen in any frame
+    sensor.blur_frame = sensor.background_psf().is_some() && (sensor.blur_dome || sky.has_plane());
+    Ok(sensor)
 }
 
 /// Whether blurring a view of the dome alone can change a pixel by more than `skip_below_dn`: the blur of a
