@@ -65,6 +65,66 @@ pub enum BrdfRegime {
     BackScatterUndefined,
 }
 
+/// [`CookTorrance::evaluate`]'s `f` for one pair of directions and any normal ([`CookTorrance::toward`]).
+#[derive(Debug, Clone, Copy)]
+pub struct TowardPair<'a> {
+    brdf: &'a CookTorrance,
+    /// The unit viewer and light directions (zero for a zero input).
+    v: DVec3,
+    l: DVec3,
+    /// The half vector, `v·h` and the Fresnel term; `None` where `v + l` is shorter than [`HALF_VECTOR_MIN`].
+    half: Option<(DVec3, f64, f64)>,
+    /// `m²` and `ln(π m²)`.
+    m2: f64,
+    ln_pi_m2: f64,
+}
+
+impl TowardPair<'_> {
+    /// `f`, sr⁻¹, for the normal `n` (any length; zero gives 0): the operations of [`CookTorrance::evaluate`]
+    /// that depend on `n`, in its order.
+    #[inline]
+    pub fn f_per_sr(&self, n: DVec3) -> f64 {
+        let n = n.normalize_or_zero();
+        if n == DVec3::ZERO || self.v == DVec3::ZERO || self.l == DVec3::ZERO {
+            return 0.0;
+        }
+        // as in `evaluate_unit`: −0.0 to +0.0
+        let (nv, nl) = (n.dot(self.v) + 0.0, n.dot(self.l) + 0.0);
+        if !(nv >= 0.0 && nl >= 0.0) {
+            return 0.0;
+        }
+        let brdf = self.brdf;
+        let diffuse = brdf.kd / PI;
+        let Some((h, vh, fresnel)) = self.half else {
+            return diffuse;
+        };
+        let nh = n.dot(h);
+        let distribution = beckmann_in_logs(nh, n.cross(h).length(), self.m2, self.ln_pi_m2);
+        diffuse + brdf.ks * specular_term(fresnel, distribution, nh, nv, nl, vh)
+    }
+}
+
+/// Beckmann's `D` for the angle between `n` and `h` given by its cosine and sine, with `m²` and `ln(π m²)`.
+#[inline]
+fn beckmann_in_logs(cos_a: f64, sin_a: f64, m2: f64, ln_pi_m2: f64) -> f64 {
+    if !(cos_a > 0.0) {
+        return 0.0;
+    }
+    let tan2 = (sin_a / cos_a) * (sin_a / cos_a);
+    (-tan2 / m2 - ln_pi_m2 - 4.0 * cos_a.ln()).exp()
+}
+
+/// The specular term `F·D·G/(π (n·v)(n·l))` (0 where `D` is 0 or `n·h ≤ 0`), with `G/((n·v)(n·l))` formed
+/// without 0/0 at grazing incidence.
+#[inline]
+fn specular_term(fresnel: f64, distribution: f64, nh: f64, nv: f64, nl: f64, vh: f64) -> f64 {
+    if distribution == 0.0 || nh <= 0.0 {
+        return 0.0;
+    }
+    let g_over = (1.0 / (nv * nl)).min(2.0 * nh / (vh * nl)).min(2.0 * nh / (vh * nv));
+    fresnel * distribution * g_over / PI
+}
+
 /// The value of the BRDF for one pair of directions, with its parts.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct BrdfValue {
@@ -128,12 +188,8 @@ impl CookTorrance {
 
     /// Beckmann distribution (eq 6) for the angle between `n` and `h` given by its cosine and sine.
     fn beckmann(&self, cos_a: f64, sin_a: f64) -> f64 {
-        if !(cos_a > 0.0) {
-            return 0.0;
-        }
         let m2 = self.roughness * self.roughness;
-        let tan2 = (sin_a / cos_a) * (sin_a / cos_a);
-        (-tan2 / m2 - (PI * m2).ln() - 4.0 * cos_a.ln()).exp()
+        beckmann_in_logs(cos_a, sin_a, m2, (PI * m2).ln())
     }
 
     /// The general form (eq 4) for unit normal `n`, unit direction to the viewer `v` and to the light `l`.
@@ -145,6 +201,23 @@ impl CookTorrance {
             return BrdfValue::zero(BrdfRegime::BelowHorizon);
         }
         self.evaluate_unit(n.dot(v), n.dot(l), n, v + l)
+    }
+
+    /// [`CookTorrance::evaluate`] for one viewer direction `v` and light direction `l` and many normals: what
+    /// depends on `v` and `l` alone (their normalisation, the half vector, `v·h`, the Fresnel term) is worked
+    /// out once here, and [`TowardPair::f_per_sr`] gives `evaluate(n, v, l).f_per_sr`, the same bits, per normal.
+    pub fn toward(&self, v: DVec3, l: DVec3) -> TowardPair<'_> {
+        let (v, l) = (v.normalize_or_zero(), l.normalize_or_zero());
+        let sum = v + l;
+        let len = sum.length();
+        let half = if len < HALF_VECTOR_MIN {
+            None
+        } else {
+            let vh = (0.5 * len).min(1.0);
+            Some((sum / len, vh, self.fresnel(vh)))
+        };
+        let m2 = self.roughness * self.roughness;
+        TowardPair { brdf: self, v, l, half, m2, ln_pi_m2: (PI * m2).ln() }
     }
 
     /// The general form with the normal along +z, from zenith angles of view and light and the azimuth between
@@ -191,13 +264,7 @@ impl CookTorrance {
         let distribution = self.beckmann(nh, n.cross(h).length());
         let geometry = (2.0 * nh * nv / vh).min(2.0 * nh * nl / vh).clamp(0.0, 1.0);
         let regime = if nv > 0.0 && nl > 0.0 { BrdfRegime::Regular } else { BrdfRegime::GrazingLimit };
-        let specular = if distribution == 0.0 || nh <= 0.0 {
-            0.0
-        } else {
-            // G/((n·v)(n·l)) without forming 0/0 at grazing incidence.
-            let g_over = (1.0 / (nv * nl)).min(2.0 * nh / (vh * nl)).min(2.0 * nh / (vh * nv));
-            fresnel * distribution * g_over / PI
-        };
+        let specular = specular_term(fresnel, distribution, nh, nv, nl, vh);
         BrdfValue {
             f_per_sr: diffuse + self.ks * specular,
             specular_per_sr: specular,
@@ -291,6 +358,44 @@ mod tests {
                     }
                 }
                 assert!(brdf.evaluate_facet(v, l).f_per_sr * 0.5 * (v + l).length() <= bound);
+            }
+        }
+    }
+
+    #[test]
+    fn a_pair_s_value_is_evaluate_s_bit_for_bit() {
+        // unnormalised, grazing, below the horizon, opposite, equal and zero directions, several materials
+        let dir = |th: f64, ph: f64, r: f64| r * DVec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
+        let mut pairs = vec![
+            (DVec3::Z, -DVec3::Z),
+            (DVec3::X, -DVec3::X),
+            (DVec3::Z, DVec3::Z),
+            (DVec3::ZERO, DVec3::Z),
+            (DVec3::X, DVec3::ZERO),
+            (dir(1.0, 0.2, 3.0), dir(1.0, 0.2 + std::f64::consts::PI, 0.5)),
+        ];
+        for k in 0..40 {
+            let t = k as f64;
+            pairs.push((dir(0.08 * t, 0.7 * t, 1.0 + 0.1 * t), dir(3.1 - 0.077 * t, 1.3 * t, 0.3 + 0.05 * t)));
+        }
+        let mut normals = vec![DVec3::ZERO, DVec3::X, DVec3::Z, -DVec3::Z];
+        for i in 0..24 {
+            for j in 0..48 {
+                normals.push(dir(
+                    std::f64::consts::PI * (i as f64 + 0.5) / 24.0,
+                    0.1309 * j as f64,
+                    0.5 + 0.01 * j as f64,
+                ));
+            }
+        }
+        for m in [1e-4, 0.05, 0.3, 2.0] {
+            let brdf = CookTorrance { kd: 0.3, ks: 0.7, f0: 0.04, roughness: m };
+            for &(v, l) in &pairs {
+                let pair = brdf.toward(v, l);
+                for &n in &normals {
+                    let (want, got) = (brdf.evaluate(n, v, l).f_per_sr, pair.f_per_sr(n));
+                    assert_eq!(want.to_bits(), got.to_bits(), "m {m}, n {n}, v {v}, l {l}: {want} against {got}");
+                }
             }
         }
     }

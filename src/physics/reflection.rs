@@ -115,6 +115,7 @@ pub fn ellipsoid_reflectance(
     let v_body = body_to_world.transpose() * v.normalize_or_zero();
     let l_body = body_to_world.transpose() * l.normalize_or_zero();
     let inv = semi_axes_m.recip();
+    let brdf = brdf.toward(v_body, l_body);
     // each point's terms of the two sums (0 where it adds nothing: x + 0 = x for the sums' non-negative x)
     let terms = |&(s, w): &(DVec3, f64)| -> (f64, f64) {
         let normal_scaled = s * inv; // A⁻ᵀ s for a diagonal A (det A cancels in the ratio)
@@ -124,7 +125,7 @@ pub fn ellipsoid_reflectance(
         }
         let n = normal_scaled.normalize();
         let nl = n.dot(l_body);
-        let weighted = if nl > 0.0 { w * projected * brdf.evaluate(n, v_body, l_body).f_per_sr * nl } else { 0.0 };
+        let weighted = if nl > 0.0 { w * projected * brdf.f_per_sr(n) * nl } else { 0.0 };
         (w * projected, weighted)
     };
     // a large grid's terms are evaluated in parallel and summed in the points' order, as one thread would
