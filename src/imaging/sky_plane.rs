@@ -590,6 +590,8 @@ struct RowGeometry {
     dv: DVec3,
     /// The linear forms that bound where a ray may see the image ([`RowGeometry::seen_forms`]).
     seen: Option<[DVec3; 5]>,
+    /// Every ray of the camera's sensor may see the image ([`RowGeometry::sees_all`]).
+    sees_all: bool,
     /// Whether a row's ray cast skips the pixels that cannot see the image (off only to test that skipping
     /// changes nothing).
     clip: bool,
@@ -610,15 +612,36 @@ impl RowGeometry {
         let numerator = -rel.dot(plane.normal);
         let origin_px = plane.anchor_px + DVec2::new(rel.dot(axes[1]), rel.dot(axes[2]));
         let size = DVec2::new(plane.image.width as f64, plane.image.height as f64);
+        let (base, du, dv) = (dot(d0), dot(d_u), dot(d_v));
+        let seen = Self::seen_forms(numerator, origin_px, size);
+        let sensor = DVec2::new(f64::from(camera.intrinsics.width), f64::from(camera.intrinsics.height));
         Self {
             numerator,
             origin_px,
-            base: dot(d0),
-            du: dot(d_u),
-            dv: dot(d_v),
-            seen: Self::seen_forms(numerator, origin_px, size),
+            base,
+            du,
+            dv,
+            seen,
+            sees_all: Self::sees_all(seen, [base, du, dv], sensor),
             clip: true,
         }
+    }
+
+    /// Whether every one of [`RowGeometry::seen_forms`] is positive over the sensor rectangle `sensor` (px)
+    /// widened by two pixels all round, by a margin that no rounding of [`RowGeometry::seen_pixels`]'s
+    /// arithmetic can cross. Each form is affine in `(u, v)`, so it is smallest at a corner; then every row's
+    /// (or a tile row's) range of pixels that may see the image is the whole of it, and is not worked out.
+    fn sees_all(seen: Option<[DVec3; 5]>, [base, du, dv]: [DVec3; 3], sensor: DVec2) -> bool {
+        let Some(forms) = seen else {
+            return false;
+        };
+        let corners = [(-2.0, -2.0), (sensor.x + 2.0, -2.0), (-2.0, sensor.y + 2.0), (sensor.x + 2.0, sensor.y + 2.0)]
+            .map(|(u, v)| base + du * u + dv * v);
+        forms.iter().all(|c| {
+            // the size of the terms a form's value at a ray sums: its rounding is some 1e-16 of that
+            let scale = corners.iter().map(|d| c.abs().dot(d.abs())).fold(0.0, f64::max);
+            scale.is_finite() && corners.iter().all(|&d| c.dot(d) > 1e-9 * scale)
+        })
     }
 
     /// Casts the rays of one sensor row at `v`, pixel `i` at `u = i + u0`, writing (or adding, if `accumulate`)
@@ -722,7 +745,7 @@ impl RowGeometry {
     /// of the exact coordinates) lies inside. Along the row each of [`RowGeometry::seen_forms`] is `a + b·i`;
     /// the range is where all are ≥ 0, widened by one pixel for rounding.
     fn seen_pixels(&self, d0: DVec3, pixels: usize) -> std::ops::Range<usize> {
-        if !self.clip {
+        if !self.clip || self.sees_all {
             return 0..pixels;
         }
         let Some(forms) = self.seen else {
@@ -1170,6 +1193,7 @@ mod tests {
         let intr = Intrinsics::try_new(160, 120, 0.1, 17e-6).unwrap();
         let image: Vec<f32> = (0..640 * 480).map(|i| (i % 61) as f32 + 0.25 * (i / 640) as f32).collect();
         let mut skipped = 0usize;
+        let mut rows_all_seen = 0usize;
         let mut seen = 0usize;
         let mut views = [0usize; 2];
         for (normal, camera_x, roll) in [
@@ -1215,6 +1239,14 @@ mod tests {
                                         g.clip = true;
                                         g.cast_row(&p, v, 0.5, sampling, fill, &mut a, true);
                                         let range = g.seen_pixels(g.base + g.dv * v + g.du * 0.5, 160);
+                                        if g.sees_all {
+                                            // what the row's bounds would have been: all of it
+                                            g.sees_all = false;
+                                            let bounds = g.seen_pixels(g.base + g.dv * v + g.du * 0.5, 160);
+                                            assert_eq!(bounds, 0..160, "row {row}, look {look_x} {look_y}");
+                                            g.sees_all = true;
+                                            rows_all_seen += 1;
+                                        }
                                         g.clip = false;
                                         g.cast_row(&p, v, 0.5, sampling, fill, &mut b, true);
                                         let same = a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits());
@@ -1229,8 +1261,9 @@ mod tests {
                 }
             }
         }
-        // the test covers both kinds of pixel
+        // the test covers both kinds of pixel, and views whose every ray may see the image
         assert!(skipped > 100_000 && seen > 100_000, "{skipped} skipped, {seen} cast");
+        assert!(rows_all_seen > 1000, "{rows_all_seen} rows of views that see the image everywhere");
         assert!(views[0] >= 10 && views[1] >= 10, "{views:?} views unseen and seen");
     }
 
