@@ -258,7 +258,11 @@ pub fn band_radiance_in(measure: Measure, band: Band, temp_k: f64, emissivity: f
 /// `dL/dT = (p + 1)·L/T − A·Tᵖ·[x_hi^{p+1}/(e^{x_hi} − 1) − x_lo^{p+1}/(e^{x_lo} − 1)]`. Exact to about 1e-11
 /// relative except for bands narrower than 1e-4 of their wavelength, where the bracket cancels. 0 where `L` is 0.
 pub fn band_radiance_derivative(measure: Measure, band: Band, temp_k: f64) -> f64 {
-    let l = band_radiance_in(measure, band, temp_k, 1.0);
+    derivative_at(measure, band, temp_k, band_radiance_in(measure, band, temp_k, 1.0))
+}
+
+/// [`band_radiance_derivative`] given the band radiance `l` at `temp_k` ([`band_radiance_in`], emissivity 1).
+fn derivative_at(measure: Measure, band: Band, temp_k: f64, l: f64) -> f64 {
     if l == 0.0 {
         return 0.0;
     }
@@ -286,16 +290,17 @@ pub fn brightness_temperature(measure: Measure, band: Band, radiance: f64) -> Op
     }
     let target = radiance.ln();
     let (mut lo, mut hi) = (1e-3f64, 1e6f64);
+    // `ln L(t) − ln radiance`, and `L(t)` for Newton's step
     let f = |t: f64| {
         let l = band_radiance_in(measure, band, t, 1.0);
-        if l > 0.0 { l.ln() - target } else { f64::NEG_INFINITY }
+        (if l > 0.0 { l.ln() - target } else { f64::NEG_INFINITY }, l)
     };
-    if f(hi) < 0.0 || f(lo) > 0.0 {
+    if f(hi).0 < 0.0 || f(lo).0 > 0.0 {
         return None;
     }
     let mut t = 300.0f64.clamp(lo, hi);
     for _ in 0..200 {
-        let ft = f(t);
+        let (ft, l) = f(t);
         if ft == 0.0 {
             return Some(t);
         }
@@ -304,8 +309,7 @@ pub fn brightness_temperature(measure: Measure, band: Band, radiance: f64) -> Op
         } else {
             hi = t;
         }
-        let l = band_radiance_in(measure, band, t, 1.0);
-        let d = band_radiance_derivative(measure, band, t);
+        let d = derivative_at(measure, band, t, l);
         let newton = if l > 0.0 && d > 0.0 { t - ft * l / d } else { f64::NAN };
         let next = if newton > lo && newton < hi { newton } else { (lo * hi).sqrt() };
         if (next - t).abs() <= 1e-13 * t {
