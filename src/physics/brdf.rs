@@ -364,16 +364,24 @@ mod tests {
 
     #[test]
     fn a_pair_s_value_is_evaluate_s_bit_for_bit() {
-        // unnormalised, grazing, below the horizon, opposite, equal and zero directions, several materials
+        // unnormalised, grazing, below the horizon, opposite and nearly opposite (|v + l| under the half
+        // vector's threshold, not 0), mirrored, equal and zero directions, several materials
         let dir = |th: f64, ph: f64, r: f64| r * DVec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
         let mut pairs = vec![
             (DVec3::Z, -DVec3::Z),
             (DVec3::X, -DVec3::X),
+            (DVec3::X, -DVec3::X + 1e-14 * DVec3::Z),
+            (2.0 * DVec3::Z, -DVec3::Z + 3e-13 * DVec3::Y),
             (DVec3::Z, DVec3::Z),
             (DVec3::ZERO, DVec3::Z),
             (DVec3::X, DVec3::ZERO),
             (dir(1.0, 0.2, 3.0), dir(1.0, 0.2 + std::f64::consts::PI, 0.5)),
         ];
+        // the nearly opposite pairs take the undefined half vector's branch without |v + l| being 0
+        for &(v, l) in &pairs[2..4] {
+            let len = (v.normalize() + l.normalize()).length();
+            assert!(len > 0.0 && len < HALF_VECTOR_MIN, "{len}");
+        }
         for k in 0..40 {
             let t = k as f64;
             pairs.push((dir(0.08 * t, 0.7 * t, 1.0 + 0.1 * t), dir(3.1 - 0.077 * t, 1.3 * t, 0.3 + 0.05 * t)));
