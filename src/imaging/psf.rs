@@ -978,6 +978,10 @@ thread_local! {
     /// Each thread's tile columns that a padded row's horizontal pass covers, for
     /// [`Convolver::apply_where_needed_in`] (kept from frame to frame).
     static BLURRED_COLUMNS: std::cell::RefCell<Vec<bool>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// Each thread's padded row and band of horizontal passes for [`Convolver::apply`]'s separable method (kept
+    /// from frame to frame).
+    static SEPARABLE_BAND: std::cell::RefCell<(Vec<f32>, Vec<f32>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
 /// The curvature measure `|f_xx| + |f_yy| + 2·|f_xy|` of row `mid` (rows `up` and `down` around it, edges
@@ -1218,9 +1222,9 @@ impl Convolver {
         // each band clears its own rows, while they are in its cache
         self.acc.resize(w * h, 0.0);
         let src = frame.pixels();
-        self.acc.par_chunks_mut(w * band).enumerate().for_each_init(
-            || (vec![0.0f32; w + 2 * r], Vec::new()),
-            |(pad, tmp), (b, out)| {
+        self.acc.par_chunks_mut(w * band).enumerate().for_each(|(b, out)| {
+            SEPARABLE_BAND.with_borrow_mut(|(pad, tmp)| {
+                pad.resize(w + 2 * r, 0.0);
                 out.fill(0.0);
                 let (y0, rows) = (b * band, out.len() / w);
                 // band row k of `tmp` is the horizontal pass of frame row y0 + k − r (clamped to the frame)
@@ -1249,8 +1253,8 @@ impl Convolver {
                         );
                     }
                 }
-            },
-        );
+            });
+        });
         frame.pixels_mut().copy_from_slice(&self.acc);
     }
 

@@ -72,10 +72,9 @@ pub struct TowardPair<'a> {
     /// The unit viewer and light directions (zero for a zero input).
     v: DVec3,
     l: DVec3,
-    /// The half vector, `v·h` and the Fresnel term; `None` where `v + l` is shorter than [`HALF_VECTOR_MIN`].
+    /// [`CookTorrance::half`] of `v + l`.
     half: Option<(DVec3, f64, f64)>,
-    /// `m²` and `ln(π m²)`.
-    m2: f64,
+    /// `ln(π m²)`.
     ln_pi_m2: f64,
 }
 
@@ -99,7 +98,8 @@ impl TowardPair<'_> {
             return diffuse;
         };
         let nh = n.dot(h);
-        let distribution = beckmann_in_logs(nh, n.cross(h).length(), self.m2, self.ln_pi_m2);
+        let m2 = brdf.roughness * brdf.roughness;
+        let distribution = beckmann_in_logs(nh, n.cross(h).length(), m2, self.ln_pi_m2);
         diffuse + brdf.ks * specular_term(fresnel, distribution, nh, nv, nl, vh)
     }
 }
@@ -208,16 +208,20 @@ impl CookTorrance {
     /// out once here, and [`TowardPair::f_per_sr`] gives `evaluate(n, v, l).f_per_sr`, the same bits, per normal.
     pub fn toward(&self, v: DVec3, l: DVec3) -> TowardPair<'_> {
         let (v, l) = (v.normalize_or_zero(), l.normalize_or_zero());
-        let sum = v + l;
-        let len = sum.length();
-        let half = if len < HALF_VECTOR_MIN {
-            None
-        } else {
-            let vh = (0.5 * len).min(1.0);
-            Some((sum / len, vh, self.fresnel(vh)))
-        };
         let m2 = self.roughness * self.roughness;
-        TowardPair { brdf: self, v, l, half, m2, ln_pi_m2: (PI * m2).ln() }
+        TowardPair { brdf: self, v, l, half: self.half(v + l), ln_pi_m2: (PI * m2).ln() }
+    }
+
+    /// The half vector `h`, `v·h` and the Fresnel term for `sum = v + l` (unit `v`, `l`); `None` where `v + l` is
+    /// shorter than [`HALF_VECTOR_MIN`] and `h` is undefined.
+    fn half(&self, sum: DVec3) -> Option<(DVec3, f64, f64)> {
+        let len = sum.length();
+        if len < HALF_VECTOR_MIN {
+            return None;
+        }
+        // |v + l|² = 2 + 2 v·l, so v·h = (1 + v·l)/|v + l| = |v + l|/2, without cancellation near v = −l.
+        let vh = (0.5 * len).min(1.0);
+        Some((sum / len, vh, self.fresnel(vh)))
     }
 
     /// The general form with the normal along +z, from zenith angles of view and light and the azimuth between
@@ -250,17 +254,12 @@ impl CookTorrance {
             return BrdfValue::zero(BrdfRegime::BelowHorizon);
         }
         let diffuse = self.kd / PI;
-        let len = sum.length();
-        if len < HALF_VECTOR_MIN {
+        let Some((h, vh, fresnel)) = self.half(sum) else {
             let mut value = BrdfValue::zero(BrdfRegime::BackScatterUndefined);
             value.f_per_sr = diffuse;
             return value;
-        }
-        let h = sum / len;
+        };
         let nh = n.dot(h);
-        // |v + l|² = 2 + 2 v·l, so v·h = (1 + v·l)/|v + l| = |v + l|/2, without cancellation near v = −l.
-        let vh = (0.5 * len).min(1.0);
-        let fresnel = self.fresnel(vh);
         let distribution = self.beckmann(nh, n.cross(h).length());
         let geometry = (2.0 * nh * nv / vh).min(2.0 * nh * nl / vh).clamp(0.0, 1.0);
         let regime = if nv > 0.0 && nl > 0.0 { BrdfRegime::Regular } else { BrdfRegime::GrazingLimit };
