@@ -49,6 +49,16 @@ impl Frame {
         Self { width, height, pixels: vec![0.0; width * height] }
     }
 
+    /// Exchanges this frame's pixels with `pixels` (row-major, the frame's size): what a pass that wrote a whole
+    /// new frame elsewhere hands over in place of copying it back.
+    ///
+    /// # Panics
+    /// If `pixels.len() != width·height`.
+    pub fn swap_pixels(&mut self, pixels: &mut Vec<f32>) {
+        assert_eq!(pixels.len(), self.pixels.len(), "frame data length");
+        std::mem::swap(&mut self.pixels, pixels);
+    }
+
     /// A frame from row-major data.
     ///
     /// # Panics

@@ -1255,7 +1255,8 @@ impl Convolver {
                 }
             });
         });
-        frame.pixels_mut().copy_from_slice(&self.acc);
+        // the sums are the frame now; its old pixels are the next blur's buffer
+        frame.swap_pixels(&mut self.acc);
     }
 
     /// As [`Convolver::apply`], only on the tiles of [`BLUR_TILE_PX`] px where the blur can change a pixel by
