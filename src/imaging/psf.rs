@@ -977,7 +977,8 @@ thread_local! {
         const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
     /// Each thread's tile columns that a padded row's horizontal pass covers, for
     /// [`Convolver::apply_where_needed_in`] (kept from frame to frame).
-    static BLURRED_COLUMNS: std::cell::RefCell<Vec<bool>> = const { std::cell::RefCell::new(Vec::new()) };
+    static BLURRED_COLUMNS: std::cell::RefCell<(Vec<bool>, Vec<f32>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
     /// Each thread's padded row and band of horizontal passes for [`Convolver::apply`]'s separable method (kept
     /// from frame to frame).
     static SEPARABLE_BAND: std::cell::RefCell<(Vec<f32>, Vec<f32>)> =
@@ -1034,8 +1035,6 @@ pub struct Convolver {
     wanted: Vec<bool>,
     /// The vertical pass's pieces of blurred tiles: (band, first column, columns), in band order.
     pieces: Vec<(usize, usize, usize)>,
-    /// Each piece's blurred pixels (`rows × columns`), until they are copied into the frame.
-    piece_sums: Vec<Vec<f32>>,
 }
 
 /// Per tile of a row-major grid `tiles_x` wide (`flags`): whether a tile within `reach` tiles of it (on either
@@ -1126,6 +1125,85 @@ fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
     }
     for (i, o) in out.iter_mut().enumerate().skip(x) {
         *o += rows.iter().zip(v).map(|(row, &c)| c * row[i]).sum::<f32>();
+    }
+}
+
+/// Fills `pad` with columns `x0 − r .. x0 + cols + r` of `line`, the columns beyond its ends replicating its
+/// first and last values.
+fn pad_span(line: &[f32], x0: usize, cols: usize, r: usize, pad: &mut Vec<f32>) {
+    let w = line.len();
+    let (lo, hi) = (x0 as isize - r as isize, x0 + cols + r);
+    pad.clear();
+    pad.resize(lo.min(0).unsigned_abs(), line[0]);
+    pad.extend_from_slice(&line[lo.max(0) as usize..hi.min(w)]);
+    pad.resize(cols + 2 * r, line[w - 1]);
+}
+
+/// Columns of a vertical pass taken down all of a piece's rows before the next (a multiple of the passes'
+/// 64-output step): every term's taps of one output row, 64 columns wide, fit the first-level cache.
+const VERTICAL_COLUMNS: usize = 64;
+
+/// The vertical pass of every term at once: `out[x] = Σ_t (Σ_k v_t[k]·h[first + k·row_stride + t·term_stride + x])`
+/// with each term's sum taken from 0 in `k`'s order and the terms added to 0 in their order — the sums, to the
+/// bit, of clearing `out` and then [`accumulate_rows`] term after term, without storing and reloading `out`
+/// between terms or gathering the rows' slices for each (four blocks of sixteen outputs in registers).
+#[inline(always)]
+fn vertical_terms(
+    h: &[f32],
+    first: usize,
+    [row_stride, term_stride]: [usize; 2],
+    verticals: &[Vec<f32>],
+    out: &mut [f32],
+) {
+    const LANES: usize = 16;
+    const WIDE: usize = 4 * LANES;
+    let cols = out.len();
+    let mut x = 0;
+    while x + WIDE <= cols {
+        let mut total = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        for (t, v) in verticals.iter().enumerate() {
+            let mut acc = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+            for (k, &c) in v.iter().enumerate() {
+                let at = first + k * row_stride + t * term_stride + x;
+                add_four_blocks(&mut acc, c, h[at..at + WIDE].try_into().expect("four blocks of LANES"));
+            }
+            for j in 0..LANES {
+                total.0[j] += acc.0[j];
+                total.1[j] += acc.1[j];
+                total.2[j] += acc.2[j];
+                total.3[j] += acc.3[j];
+            }
+        }
+        for (b, sums) in [total.0, total.1, total.2, total.3].iter().enumerate() {
+            out[x + b * LANES..x + (b + 1) * LANES].copy_from_slice(sums);
+        }
+        x += WIDE;
+    }
+    while x + LANES <= cols {
+        let mut total = [0.0f32; LANES];
+        for (t, v) in verticals.iter().enumerate() {
+            let mut acc = [0.0f32; LANES];
+            for (k, &c) in v.iter().enumerate() {
+                let at = first + k * row_stride + t * term_stride + x;
+                let p: &[f32; LANES] = h[at..at + LANES].try_into().expect("a block of LANES");
+                for j in 0..LANES {
+                    acc[j] += c * p[j];
+                }
+            }
+            for j in 0..LANES {
+                total[j] += acc[j];
+            }
+        }
+        out[x..x + LANES].copy_from_slice(&total);
+        x += LANES;
+    }
+    for (i, o) in out.iter_mut().enumerate().skip(x) {
+        let mut total = 0.0f32;
+        for (t, v) in verticals.iter().enumerate() {
+            total +=
+                v.iter().enumerate().map(|(k, &c)| c * h[first + k * row_stride + t * term_stride + i]).sum::<f32>();
+        }
+        *o = total;
     }
 }
 
@@ -1343,10 +1421,13 @@ impl Convolver {
         let needed_tiles = std::mem::take(&mut self.needed);
         let needed = &needed_tiles;
         let band_needed = |ty: usize| needed[ty * tw..(ty + 1) * tw].iter().any(|&n| n);
+        // the first and last bands blurred (there is one: `blurred > 0`), and the padded rows they read
+        let (first_band, last_band) =
+            ((0..th).find(|&ty| band_needed(ty)).unwrap_or(0), (0..th).rfind(|&ty| band_needed(ty)).unwrap_or(0));
+        let padded_rows = first_band * t..(last_band * t + t + 2 * r).min(h + 2 * r);
         // padded row py is read by the bands ty with ty·t ≤ py < ty·t + t + 2r
         let bands_reading = |py: usize| py.saturating_sub(t + 2 * r - 1) / t..=(py / t).min(th - 1);
-        let pw = self.pad_rows(frame, r, |py| bands_reading(py).any(band_needed));
-        let padded = &self.padded;
+        let src = frame.pixels();
         // each padded row's horizontal pass, every term, once: on the tiles' columns that any band reading the
         // row blurs (rows shared by the bands of a horizontal edge are not made again for each band); the same
         // sums, pixel by pixel, as a band's own pass (a run starts on a tile's edge, a multiple of the rows' 16
@@ -1355,9 +1436,11 @@ impl Convolver {
         self.horizontal.resize((h + 2 * r) * terms * w, 0.0);
         // a few rows a task: the rows to blur are often one strip of the frame, which in a handful of large tasks
         // fell to one thread
-        self.horizontal.par_chunks_mut(terms * w).enumerate().with_max_len(split_finely(BLUR_TILE_PX / 2)).for_each(
-            |(py, row)| {
-                BLURRED_COLUMNS.with_borrow_mut(|columns| {
+        let rows_made = &mut self.horizontal[padded_rows.start * terms * w..padded_rows.end * terms * w];
+        rows_made.par_chunks_mut(terms * w).enumerate().with_max_len(split_finely(BLUR_TILE_PX / 2)).for_each(
+            |(k, row)| {
+                let py = padded_rows.start + k;
+                BLURRED_COLUMNS.with_borrow_mut(|(columns, pad)| {
                     columns.clear();
                     columns.resize(tw, false);
                     for ty in bands_reading(py) {
@@ -1365,14 +1448,17 @@ impl Convolver {
                             *c |= n;
                         }
                     }
+                    // frame row py − r (the edge rows replicated beyond the frame), padded here on the run's
+                    // columns alone: the values a padded copy of the frame would hold
+                    let line = &src[py.saturating_sub(r).min(h - 1) * w..][..w];
                     for run in true_runs(columns) {
                         let x0 = run.start * t;
                         let cols = (run.end * t).min(w) - x0;
-                        let src = &padded[py * pw + x0..];
+                        pad_span(line, x0, cols, r, pad);
                         for ((_, v), out) in kernel.terms.iter().zip(row.chunks_exact_mut(w)) {
                             widest(
                                 #[inline(always)]
-                                || correlate_row(src, v, &mut out[x0..x0 + cols]),
+                                || correlate_row(pad, v, &mut out[x0..x0 + cols]),
                             );
                         }
                     }
@@ -1393,61 +1479,57 @@ impl Convolver {
                 }
             }
         }
-        if self.piece_sums.len() < self.pieces.len() {
-            self.piece_sums.resize_with(self.pieces.len(), Vec::new);
-        }
-        let horizontal = &self.horizontal;
+        // each piece's rows of the frame (the pieces of a band are consecutive, left to right), written by the
+        // piece's own task: the sums go straight into the frame, not through a buffer copied in afterwards (which
+        // another core had written)
         let pieces = &self.pieces;
-        self.piece_sums[..pieces.len()].par_iter_mut().zip(pieces.par_iter()).with_max_len(split_finely(1)).for_each(
-            |(acc, &(ty, x0, cols))| {
-                let rows = t.min(h - ty * t);
-                acc.clear();
-                acc.resize(rows * cols, 0.0);
-                for (term, scaled) in kernel.vertical.iter().enumerate() {
-                    let mut src: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
-                    for y in 0..rows {
-                        for (k, row) in src.iter_mut().enumerate().take(scaled.len()) {
-                            let at = ((ty * t + y + k) * terms + term) * w + x0;
-                            *row = &horizontal[at..at + cols];
-                        }
-                        widest(
-                            #[inline(always)]
-                            || accumulate_rows(&src[..scaled.len()], scaled, &mut acc[y * cols..(y + 1) * cols]),
-                        );
-                    }
-                }
-            },
-        );
-        // into the frame, band by band (a band's pieces are consecutive)
-        let sums = &self.piece_sums;
-        frame.pixels_mut().par_chunks_mut(t * w).enumerate().for_each(|(ty, band)| {
-            let first = pieces.partition_point(|p| p.0 < ty);
-            for (&(_, x0, cols), acc) in pieces[first..].iter().zip(&sums[first..]).take_while(|(p, _)| p.0 == ty) {
-                for (y, sum) in acc.chunks_exact(cols).enumerate() {
-                    band[y * w + x0..y * w + x0 + cols].copy_from_slice(sum);
+        let mut rows_of: Vec<Vec<&mut [f32]>> = pieces.iter().map(|_| Vec::with_capacity(t)).collect();
+        let bands = &mut frame.pixels_mut()[first_band * t * w..((last_band + 1) * t * w).min(w * h)];
+        let mut next = 0;
+        for (k, band) in bands.chunks_mut(t * w).enumerate() {
+            let first = next;
+            while next < pieces.len() && pieces[next].0 == first_band + k {
+                next += 1;
+            }
+            for row in band.chunks_mut(w) {
+                let (mut rest, mut at) = (row, 0);
+                for (j, &(_, x0, cols)) in pieces[first..next].iter().enumerate() {
+                    let (segment, after) = std::mem::take(&mut rest)[x0 - at..].split_at_mut(cols);
+                    rows_of[first + j].push(segment);
+                    (rest, at) = (after, x0 + cols);
                 }
             }
-        });
+        }
+        let horizontal = &self.horizontal;
+        rows_of.into_par_iter().zip(pieces.par_iter()).with_max_len(split_finely(1)).for_each(
+            |(mut rows, &(ty, x0, cols))| {
+                widest(
+                    #[inline(always)]
+                    || {
+                        // a few tiles' columns down all the rows, then the next few: the rows one output row
+                        // reads (every term's taps) stay in the first-level cache (a pool of one takes whole runs)
+                        for c0 in (0..cols).step_by(VERTICAL_COLUMNS) {
+                            let c1 = (c0 + VERTICAL_COLUMNS).min(cols);
+                            for (y, out) in rows.iter_mut().enumerate() {
+                                let first = (ty * t + y) * terms * w + x0 + c0;
+                                vertical_terms(horizontal, first, [terms * w, w], &kernel.vertical, &mut out[c0..c1]);
+                            }
+                        }
+                    },
+                );
+            },
+        );
         self.needed = needed_tiles;
         BlurStats { tiles_needed: blurred, tiles_blurred: blurred, tiles }
     }
 
-    /// Copies `frame` into `self.padded` with `r` replicated pixels on every side.
+    /// Copies `frame` into `self.padded` with `r` replicated pixels on every side; returns the padded width.
     fn pad(&mut self, frame: &Frame, r: usize) -> usize {
-        self.pad_rows(frame, r, |_| true)
-    }
-
-    /// As [`Convolver::pad`], writing only the padded rows `py` (`0..height + 2r`) for which `wanted(py)`;
-    /// returns the padded width.
-    fn pad_rows(&mut self, frame: &Frame, r: usize, wanted: impl Fn(usize) -> bool + Sync) -> usize {
         let (w, h) = (frame.width(), frame.height());
         let pw = w + 2 * r;
         self.padded.resize(pw * (h + 2 * r), 0.0);
         let src = frame.pixels();
         self.padded.par_chunks_mut(pw).enumerate().with_max_len(split_finely(BLUR_TILE_PX)).for_each(|(py, out)| {
-            if !wanted(py) {
-                return;
-            }
             let y = py.saturating_sub(r).min(h - 1);
             let row = &src[y * w..(y + 1) * w];
             out[..r].fill(row[0]);
@@ -1781,8 +1863,9 @@ mod tests {
     #[test]
     fn tiles_blurred_where_needed_are_the_separable_sums_bit_for_bit() {
         // candidate tiles alone, in a row, in a column, in a block, at the right and bottom edges (partial
-        // tiles): every pixel of a blurred tile is the kernel's sums in their order (horizontal per term, then
-        // vertical, terms added in turn), whichever band shares its rows; the other tiles are untouched
+        // tiles), in a run wider than the vertical pass's column steps: every pixel of a blurred tile is the
+        // kernel's sums in their order (horizontal per term, then vertical, terms added in turn), whichever band
+        // shares its rows and however many threads split the pieces; the other tiles are untouched
         let psf = Psf::new(&PsfSpec::default(), &optics(4.0, Band::MWIR_3_5)).unwrap();
         let kernel = psf.point_kernel();
         assert!(
@@ -1802,15 +1885,31 @@ mod tests {
         }
         candidates[(th - 1) * tw + tw - 1] = true;
         candidates[tw - 1] = true;
-        let mut frame = base.clone();
-        let stats = Convolver::new().apply_where_needed_in(
-            kernel,
-            &mut frame,
-            ConvolutionMethod::Separable,
-            1e-6,
-            Some(&candidates),
-        );
-        assert_eq!(stats.tiles_blurred, candidates.iter().filter(|&&c| c).count());
+        // the bottom band's partial tiles, seven of them: 102 columns, more than one step of the vertical pass
+        for tx in 3..tw - 1 {
+            candidates[(th - 1) * tw + tx] = true;
+        }
+        assert!((tw - 3) * t > VERTICAL_COLUMNS);
+        let mut frames = Vec::new();
+        for threads in [1, 2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let mut frame = base.clone();
+            let stats = pool.install(|| {
+                Convolver::new().apply_where_needed_in(
+                    kernel,
+                    &mut frame,
+                    ConvolutionMethod::Separable,
+                    1e-6,
+                    Some(&candidates),
+                )
+            });
+            assert_eq!(stats.tiles_blurred, candidates.iter().filter(|&&c| c).count());
+            frames.push(frame);
+        }
+        for f in &frames[1..] {
+            assert!(f.pixels().iter().zip(frames[0].pixels()).all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+        let frame = &frames[0];
         let r = kernel.radius() as isize;
         let at =
             |x: isize, y: isize| base.get(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
