@@ -1090,8 +1090,9 @@ fn add_four_blocks(acc: &mut ([f32; 16], [f32; 16], [f32; 16], [f32; 16]), c: f3
     }
 }
 
-/// `out[x] += Σ_k v[k]·src[k][x]` for every `x` of `out`, sixteen outputs at a time in registers.
-#[inline(always)]
+/// `out[x] += Σ_k v[k]·src[k][x]` for every `x` of `out`, sixteen outputs at a time in registers: one term's
+/// vertical pass as the tests spell it out, which [`vertical_terms`] must match to the bit.
+#[cfg(test)]
 fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
     const LANES: usize = 16;
     // four blocks of sixteen outputs at a time (add_four_blocks)
@@ -1145,8 +1146,9 @@ const VERTICAL_COLUMNS: usize = 64;
 
 /// The vertical pass of every term at once: `out[x] = Σ_t (Σ_k v_t[k]·h[first + k·row_stride + t·term_stride + x])`
 /// with each term's sum taken from 0 in `k`'s order and the terms added to 0 in their order — the sums, to the
-/// bit, of clearing `out` and then [`accumulate_rows`] term after term, without storing and reloading `out`
-/// between terms or gathering the rows' slices for each (four blocks of sixteen outputs in registers).
+/// bit, of clearing `out` and then adding each term's vertical pass in turn (`accumulate_rows`, as the tests
+/// spell it), without storing and reloading `out` between terms or gathering the rows' slices for each (four
+/// blocks of sixteen outputs in registers).
 #[inline(always)]
 fn vertical_terms(
     h: &[f32],
@@ -1286,9 +1288,9 @@ impl Convolver {
 
     /// The separable terms, in one parallel pass over bands of output rows: each band makes the horizontal
     /// pass of the rows it reads (its own rows and `r` more on each side, made again by the neighbouring band)
-    /// and then its vertical pass, term after term. Every output is the same sum in the same order as a whole
-    /// frame's horizontal pass followed by its vertical pass (one fork-join per frame instead of two per term,
-    /// which on a small frame cost more than the arithmetic).
+    /// and then the vertical pass of every term ([`vertical_terms`]). Every output is the same sum in the same
+    /// order as a whole frame's horizontal pass followed by its vertical pass (one fork-join per frame instead
+    /// of two per term, which on a small frame cost more than the arithmetic).
     fn separable(&mut self, kernel: &Kernel, frame: &mut Frame) {
         let (w, h) = (frame.width(), frame.height());
         if w == 0 || h == 0 {
@@ -1297,40 +1299,44 @@ impl Convolver {
         let r = kernel.radius;
         // bands of several times the halo, a few per thread
         let band = h.div_ceil(4 * rayon::current_num_threads()).max(4 * r).max(1);
-        // each band clears its own rows, while they are in its cache
+        // every output is written (not added to): the buffer's old values do not matter
         self.acc.resize(w * h, 0.0);
         let src = frame.pixels();
+        let terms = kernel.terms.len();
         self.acc.par_chunks_mut(w * band).enumerate().for_each(|(b, out)| {
             SEPARABLE_BAND.with_borrow_mut(|(pad, tmp)| {
                 pad.resize(w + 2 * r, 0.0);
-                out.fill(0.0);
                 let (y0, rows) = (b * band, out.len() / w);
-                // band row k of `tmp` is the horizontal pass of frame row y0 + k − r (clamped to the frame)
-                tmp.resize((rows + 2 * r) * w, 0.0);
-                for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
-                    for (k, line) in tmp.chunks_exact_mut(w).enumerate() {
-                        let sy = (y0 + k).saturating_sub(r).min(h - 1);
-                        let row = &src[sy * w..(sy + 1) * w];
-                        pad[..r].fill(row[0]);
-                        pad[r..r + w].copy_from_slice(row);
-                        pad[r + w..].fill(row[w - 1]);
+                // band row k of `tmp` holds every term's horizontal pass of frame row y0 + k − r (clamped to the
+                // frame), term after term
+                tmp.resize((rows + 2 * r) * terms * w, 0.0);
+                for (k, line) in tmp.chunks_exact_mut(terms * w).enumerate() {
+                    let sy = (y0 + k).saturating_sub(r).min(h - 1);
+                    let row = &src[sy * w..(sy + 1) * w];
+                    pad[..r].fill(row[0]);
+                    pad[r..r + w].copy_from_slice(row);
+                    pad[r + w..].fill(row[w - 1]);
+                    for ((_, v), out) in kernel.terms.iter().zip(line.chunks_exact_mut(w)) {
                         widest(
                             #[inline(always)]
-                            || correlate_row(pad, v, line),
-                        );
-                    }
-                    // vertical pass, scaled by λ, accumulated
-                    for (y, line) in out.chunks_exact_mut(w).enumerate() {
-                        let mut taps: [&[f32]; 2 * MAX_RADIUS_PX + 1] = [&[]; 2 * MAX_RADIUS_PX + 1];
-                        for (k, row) in taps.iter_mut().enumerate().take(scaled.len()) {
-                            *row = &tmp[(y + k) * w..(y + k + 1) * w];
-                        }
-                        widest(
-                            #[inline(always)]
-                            || accumulate_rows(&taps[..scaled.len()], scaled, line),
+                            || correlate_row(pad, v, out),
                         );
                     }
                 }
+                // vertical pass, scaled by λ, the terms added in turn; 64 columns down the band at a time, so that
+                // an output row's taps stay in the first-level cache
+                widest(
+                    #[inline(always)]
+                    || {
+                        for c0 in (0..w).step_by(VERTICAL_COLUMNS) {
+                            let c1 = (c0 + VERTICAL_COLUMNS).min(w);
+                            for (y, line) in out.chunks_exact_mut(w).enumerate() {
+                                let first = y * terms * w + c0;
+                                vertical_terms(tmp, first, [terms * w, w], &kernel.vertical, &mut line[c0..c1]);
+                            }
+                        }
+                    },
+                );
             });
         });
         // the sums are the frame now; its old pixels are the next blur's buffer
