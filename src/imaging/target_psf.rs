@@ -90,7 +90,9 @@ pub fn psf_region(ellipse: &ImageEllipse, psf: &Psf, width: usize, height: usize
 }
 
 /// Renders `amplitude·∫_E PSF(p − x) dx` at the centres of the pixels of `rect` into `out` (row-major,
-/// `rect.width()` wide, overwritten); returns the largest value written.
+/// `rect.width()` wide, overwritten); returns the largest value written. `spread`: no other patch is drawn
+/// beside this one, so a patch of a few hundred nodes is worth splitting across the pool's threads (the values
+/// are the same either way).
 ///
 /// # Panics
 /// If `out` is shorter than the rectangle.
@@ -101,6 +103,7 @@ pub fn render_target(
     spec: &TargetPsfSpec,
     rect: PixelRect,
     out: &mut [f32],
+    spread: bool,
 ) -> f32 {
     let w = rect.width();
     assert!(out.len() >= w * rect.height(), "patch buffer too short");
@@ -118,7 +121,7 @@ pub fn render_target(
     let mut nodes = NODES.take();
     nodes.clear();
     let rings = quadrature_nodes(ellipse, psf, spacing, seven_point_max, |x, y, weight| nodes.push((x, y, weight)));
-    scatter_nodes(psf, &nodes, rect, out);
+    scatter_nodes(psf, &nodes, rect, out, spread);
     NODES.set(nodes);
     if rings {
         fill_deep_pixels(ellipse, psf, rect, out);
@@ -230,23 +233,36 @@ thread_local! {
 const BAND_ROWS: usize = 32;
 /// Fewest nodes worth splitting a patch for.
 const BAND_MIN_NODES: usize = 2_000;
+/// Fewest nodes worth splitting a patch drawn alone across the pool's threads (each band goes through every
+/// node that reaches it, so a band of few rows repeats most nodes' set-up): supersonic_climb's 1233-node target
+/// went from 357 to 260–304 µs a frame on two threads, while two targets of 800–1200 nodes drawn side by side
+/// (crossing_pair) lost 278–304 → 336–347 µs when split as well.
+const SPREAD_MIN_NODES: usize = 300;
+/// Fewest rows of a band of a patch split across the threads.
+const SPREAD_MIN_ROWS: usize = 8;
 
 /// Adds every node's point source ([`scatter`]) to the patch `rect` (`out`). A patch of many nodes and rows is
-/// split into bands of [`BAND_ROWS`] rows, filled in parallel, each from the nodes that reach it in their order:
-/// every pixel gets the same sums, to the bit, as from one pass (the bands depend on the patch, not on the
-/// threads), where one large target had filled its patch on one thread.
-fn scatter_nodes(psf: &Psf, nodes: &[(f64, f64, f32)], rect: PixelRect, out: &mut [f32]) {
+/// split into bands of [`BAND_ROWS`] rows, filled in parallel, each from the nodes that reach it in their order,
+/// where one large target had filled its patch on one thread; with `spread`, a patch of fewer (a few hundred
+/// nodes) into one band per thread. Every pixel gets the same sums, to the bit, as from one pass, however the
+/// rows are split.
+fn scatter_nodes(psf: &Psf, nodes: &[(f64, f64, f32)], rect: PixelRect, out: &mut [f32], spread: bool) {
     use rayon::prelude::*;
     let rows = rect.height();
     let w = rect.width();
-    if nodes.len() < BAND_MIN_NODES || rows < 2 * BAND_ROWS {
+    let threads = rayon::current_num_threads();
+    let band_rows = if nodes.len() >= BAND_MIN_NODES && rows >= 2 * BAND_ROWS {
+        BAND_ROWS
+    } else if spread && threads > 1 && nodes.len() >= SPREAD_MIN_NODES && rows >= 2 * SPREAD_MIN_ROWS {
+        rows.div_ceil(threads).max(SPREAD_MIN_ROWS)
+    } else {
         for &(x, y, weight) in nodes {
             scatter(psf, x, y, weight, rect, rect.y0..rect.y1, out);
         }
         return;
-    }
-    out[..rows * w].par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(b, band)| {
-        let (y0, y1) = (rect.y0 + b * BAND_ROWS, (rect.y0 + (b + 1) * BAND_ROWS).min(rect.y1));
+    };
+    out[..rows * w].par_chunks_mut(band_rows * w).enumerate().for_each(|(b, band)| {
+        let (y0, y1) = (rect.y0 + b * band_rows, (rect.y0 + (b + 1) * band_rows).min(rect.y1));
         // a node reaches the rows within the PSF's reach of it (as scatter clips them)
         let reach = psf.radius_px() as f64 + 1.0;
         for &(x, y, weight) in nodes {
@@ -301,7 +317,7 @@ mod tests {
         let node_spacing_px =
             if method == TargetMethod::Reference { REFERENCE_NODE_SPACING_PX } else { NODE_SPACING_PX };
         let spec = TargetPsfSpec { method, node_spacing_px, ..TargetPsfSpec::default() };
-        render_target(e, 1.0, psf, &spec, rect, &mut out);
+        render_target(e, 1.0, psf, &spec, rect, &mut out, false);
         (rect, out)
     }
 
@@ -366,7 +382,7 @@ mod tests {
             let rect = psf_region(&e, &psf, 200, 200);
             let mut got = vec![0.0; rect.width() * rect.height()];
             let spec = TargetPsfSpec { node_spacing_px: 0.6, ..TargetPsfSpec::default() };
-            render_target(&e, 1.0, &psf, &spec, rect, &mut got);
+            render_target(&e, 1.0, &psf, &spec, rect, &mut got, false);
             let (_, want) = render(&e, &psf, TargetMethod::Reference);
             let peak = want.iter().fold(0.0f32, |m, v| m.max(*v));
             let err = got.iter().zip(&want).map(|(g, w)| (g - w).abs()).fold(0.0f32, f32::max) / peak;
@@ -390,7 +406,7 @@ mod tests {
         quadrature_nodes(&e, &psf, NODE_SPACING_PX, 0.6, |x, y, w| nodes.push((x, y, w)));
         assert!(nodes.len() >= BAND_MIN_NODES && rect.height() >= 2 * BAND_ROWS, "the patch is split");
         let mut banded = vec![0f32; rect.width() * rect.height()];
-        scatter_nodes(&psf, &nodes, rect, &mut banded);
+        scatter_nodes(&psf, &nodes, rect, &mut banded, false);
         let mut one = vec![0f32; rect.width() * rect.height()];
         for &(x, y, w) in &nodes {
             scatter(&psf, x, y, w, rect, rect.y0..rect.y1, &mut one);
@@ -420,6 +436,27 @@ mod tests {
                 ellipses.par_iter().with_max_len(1).map(|e| render(e, &psf, TargetMethod::Auto).1).collect()
             });
             assert_eq!(together, alone);
+        }
+    }
+
+    #[test]
+    fn a_patch_spread_across_threads_is_the_patch_drawn_on_one() {
+        // supersonic_climb's target (some 1200 nodes, 30 rows) and a smaller one, split into bands on pools of
+        // two and three threads: every pixel the same, to the bit, as drawn in one pass
+        let psf = psf();
+        for (a, b) in [(5.83, 1.25), (3.0, 2.0)] {
+            let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a, b, angle_rad: 0.3 };
+            let (rect, alone) = render(&e, &psf, TargetMethod::Auto);
+            let mut nodes = 0;
+            quadrature_nodes(&e, &psf, NODE_SPACING_PX, 0.6, |_, _, _| nodes += 1);
+            assert!(nodes >= SPREAD_MIN_NODES && rect.height() >= 2 * SPREAD_MIN_ROWS, "{nodes} nodes");
+            for threads in [2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let mut got = vec![0.0; rect.width() * rect.height()];
+                let spec = TargetPsfSpec::default();
+                pool.install(|| render_target(&e, 1.0, &psf, &spec, rect, &mut got, true));
+                assert!(got.iter().zip(&alone).all(|(g, w)| g.to_bits() == w.to_bits()), "{a} × {b}, {threads}");
+            }
         }
     }
 

@@ -71,13 +71,21 @@ pub fn draw_targets(
         jobs.push((fp, ellipse, delta, bg, 0.0f64));
         patches.used += 1;
     }
-    // ... then drawn in parallel, each into its own buffer (the same values as one after the other) ...
+    // ... then drawn in parallel, each into its own buffer (the same values as one after the other; fewer
+    // targets than threads split their patches across them) ...
+    let spread = jobs.len() < rayon::current_num_threads();
     jobs.par_iter_mut().zip(&mut patches.patches[..patches.used]).with_max_len(1).for_each(
         |((fp, ellipse, delta, _, peak), (roi, values))| {
             *peak = match (settings.blob.model, &sensor.psf, fp.blob) {
-                (TargetModel::Psf, Some(psf), _) => {
-                    f64::from(render_target(ellipse, *delta as f32, psf, &settings.blob.target_psf(), *roi, values))
-                }
+                (TargetModel::Psf, Some(psf), _) => f64::from(render_target(
+                    ellipse,
+                    *delta as f32,
+                    psf,
+                    &settings.blob.target_psf(),
+                    *roi,
+                    values,
+                    spread,
+                )),
                 (_, _, Some(mut blob)) => {
                     blob.peak = *delta * ellipse.area_px2() / blob.integral();
                     blob.render_patch(*roi, settings.blob.sampling, values);
