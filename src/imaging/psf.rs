@@ -975,8 +975,8 @@ thread_local! {
     #[allow(clippy::type_complexity)]
     static CURVATURE_ROW: std::cell::RefCell<(Vec<f32>, Vec<[f32; 16]>, Vec<bool>)> =
         const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
-    /// Each thread's tile columns that a padded row's horizontal pass covers, for
-    /// [`Convolver::apply_where_needed_in`] (kept from frame to frame).
+    /// Each thread's tile columns that a padded row's horizontal pass covers, and the run of the row it pads
+    /// ([`pad_span`]), for [`Convolver::apply_where_needed_in`] (kept from frame to frame).
     static BLURRED_COLUMNS: std::cell::RefCell<(Vec<bool>, Vec<f32>)> =
         const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
     /// Each thread's padded row and band of horizontal passes for [`Convolver::apply`]'s separable method (kept
@@ -1090,42 +1090,16 @@ fn add_four_blocks(acc: &mut ([f32; 16], [f32; 16], [f32; 16], [f32; 16]), c: f3
     }
 }
 
-/// `out[x] += Σ_k v[k]·src[k][x]` for every `x` of `out`, sixteen outputs at a time in registers: one term's
-/// vertical pass as the tests spell it out, which [`vertical_terms`] must match to the bit.
+/// `out[x] += Σ_k v[k]·src[k][x]` for every `x` of `out`, the sum from 0 in `k`'s order: one term's vertical
+/// pass as the tests spell it out, output by output, which [`vertical_terms`] must match to the bit.
 #[cfg(test)]
 fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
-    const LANES: usize = 16;
-    // four blocks of sixteen outputs at a time (add_four_blocks)
-    const WIDE: usize = 4 * LANES;
-    let w = out.len();
-    let mut x = 0;
-    while x + WIDE <= w {
-        let mut acc = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+    for (x, o) in out.iter_mut().enumerate() {
+        let mut sum = 0.0f32;
         for (row, &c) in rows.iter().zip(v) {
-            add_four_blocks(&mut acc, c, row[x..x + WIDE].try_into().expect("four blocks of LANES"));
+            sum += c * row[x];
         }
-        for (b, acc) in [acc.0, acc.1, acc.2, acc.3].iter().enumerate() {
-            for (o, a) in out[x + b * LANES..x + (b + 1) * LANES].iter_mut().zip(acc) {
-                *o += a;
-            }
-        }
-        x += WIDE;
-    }
-    while x + LANES <= w {
-        let mut acc = [0.0f32; LANES];
-        for (row, &c) in rows.iter().zip(v) {
-            let p: &[f32; LANES] = row[x..x + LANES].try_into().expect("a block of LANES");
-            for j in 0..LANES {
-                acc[j] += c * p[j];
-            }
-        }
-        for (o, a) in out[x..x + LANES].iter_mut().zip(acc) {
-            *o += a;
-        }
-        x += LANES;
-    }
-    for (i, o) in out.iter_mut().enumerate().skip(x) {
-        *o += rows.iter().zip(v).map(|(row, &c)| c * row[i]).sum::<f32>();
+        *o += sum;
     }
 }
 
@@ -1312,10 +1286,7 @@ impl Convolver {
                 tmp.resize((rows + 2 * r) * terms * w, 0.0);
                 for (k, line) in tmp.chunks_exact_mut(terms * w).enumerate() {
                     let sy = (y0 + k).saturating_sub(r).min(h - 1);
-                    let row = &src[sy * w..(sy + 1) * w];
-                    pad[..r].fill(row[0]);
-                    pad[r..r + w].copy_from_slice(row);
-                    pad[r + w..].fill(row[w - 1]);
+                    pad_span(&src[sy * w..(sy + 1) * w], 0, w, r, pad);
                     for ((_, v), out) in kernel.terms.iter().zip(line.chunks_exact_mut(w)) {
                         widest(
                             #[inline(always)]
@@ -1489,6 +1460,7 @@ impl Convolver {
         // piece's own task: the sums go straight into the frame, not through a buffer copied in afterwards (which
         // another core had written)
         let pieces = &self.pieces;
+        debug_assert!(pieces.windows(2).all(|p| (p[0].0, p[0].1 + p[0].2) <= (p[1].0, p[1].1)), "pieces in order");
         let mut rows_of: Vec<Vec<&mut [f32]>> = pieces.iter().map(|_| Vec::with_capacity(t)).collect();
         let bands = &mut frame.pixels_mut()[first_band * t * w..((last_band + 1) * t * w).min(w * h)];
         let mut next = 0;
@@ -1885,61 +1857,68 @@ mod tests {
         let (tw, th) = (w.div_ceil(t), h.div_ceil(t));
         let base =
             Frame::from_pixels(w, h, (0..w * h).map(|i| 1000.0 + ((i * 7919 + 13) % 997) as f32 * 0.1).collect());
-        let mut candidates = vec![false; tw * th];
+        let mut everywhere = vec![false; tw * th];
         for (tx, ty) in [(1, 1), (3, 2), (4, 2), (5, 2), (7, 3), (7, 4), (7, 5), (1, 6), (2, 6), (1, 7), (2, 7)] {
-            candidates[ty * tw + tx] = true;
+            everywhere[ty * tw + tx] = true;
         }
-        candidates[(th - 1) * tw + tw - 1] = true;
-        candidates[tw - 1] = true;
+        everywhere[(th - 1) * tw + tw - 1] = true;
+        everywhere[tw - 1] = true;
         // the bottom band's partial tiles, seven of them: 102 columns, more than one step of the vertical pass
         for tx in 3..tw - 1 {
-            candidates[(th - 1) * tw + tx] = true;
+            everywhere[(th - 1) * tw + tx] = true;
         }
         assert!((tw - 3) * t > VERTICAL_COLUMNS);
-        let mut frames = Vec::new();
-        for threads in [1, 2, 3] {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            let mut frame = base.clone();
-            let stats = pool.install(|| {
-                Convolver::new().apply_where_needed_in(
-                    kernel,
-                    &mut frame,
-                    ConvolutionMethod::Separable,
-                    1e-6,
-                    Some(&candidates),
-                )
-            });
-            assert_eq!(stats.tiles_blurred, candidates.iter().filter(|&&c| c).count());
-            frames.push(frame);
-        }
-        for f in &frames[1..] {
-            assert!(f.pixels().iter().zip(frames[0].pixels()).all(|(a, b)| a.to_bits() == b.to_bits()));
-        }
-        let frame = &frames[0];
-        let r = kernel.radius() as isize;
-        let at =
-            |x: isize, y: isize| base.get(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
-        for y in 0..h {
-            for x in 0..w {
-                let got = frame.get(x, y);
-                if !candidates[(y / t) * tw + x / t] {
-                    assert_eq!(got.to_bits(), base.get(x, y).to_bits(), "({x}, {y}) changed");
-                    continue;
-                }
-                let mut want = 0.0f32;
-                for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
-                    let mut term = 0.0f32;
-                    for (k, &c) in scaled.iter().enumerate() {
-                        let row = y as isize + k as isize - r;
-                        let mut across = 0.0f32;
-                        for (j, &cj) in v.iter().enumerate() {
-                            across += cj * at(x as isize + j as isize - r, row);
-                        }
-                        term += c * across;
+        // and two bands alone, neither the first nor the last, with bands between them that blur nothing: a
+        // whole band (150 columns, more than two steps) and a tile
+        let mut two_bands = vec![false; tw * th];
+        two_bands[2 * tw..3 * tw].fill(true);
+        two_bands[5 * tw + 4] = true;
+        for candidates in [everywhere, two_bands] {
+            let mut frames = Vec::new();
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let mut frame = base.clone();
+                let stats = pool.install(|| {
+                    Convolver::new().apply_where_needed_in(
+                        kernel,
+                        &mut frame,
+                        ConvolutionMethod::Separable,
+                        1e-6,
+                        Some(&candidates),
+                    )
+                });
+                assert_eq!(stats.tiles_blurred, candidates.iter().filter(|&&c| c).count());
+                frames.push(frame);
+            }
+            for f in &frames[1..] {
+                assert!(f.pixels().iter().zip(frames[0].pixels()).all(|(a, b)| a.to_bits() == b.to_bits()));
+            }
+            let frame = &frames[0];
+            let r = kernel.radius() as isize;
+            let at =
+                |x: isize, y: isize| base.get(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
+            for y in 0..h {
+                for x in 0..w {
+                    let got = frame.get(x, y);
+                    if !candidates[(y / t) * tw + x / t] {
+                        assert_eq!(got.to_bits(), base.get(x, y).to_bits(), "({x}, {y}) changed");
+                        continue;
                     }
-                    want += term;
+                    let mut want = 0.0f32;
+                    for ((_, v), scaled) in kernel.terms.iter().zip(&kernel.vertical) {
+                        let mut term = 0.0f32;
+                        for (k, &c) in scaled.iter().enumerate() {
+                            let row = y as isize + k as isize - r;
+                            let mut across = 0.0f32;
+                            for (j, &cj) in v.iter().enumerate() {
+                                across += cj * at(x as isize + j as isize - r, row);
+                            }
+                            term += c * across;
+                        }
+                        want += term;
+                    }
+                    assert_eq!(got.to_bits(), want.to_bits(), "({x}, {y}): {got} vs {want}");
                 }
-                assert_eq!(got.to_bits(), want.to_bits(), "({x}, {y}): {got} vs {want}");
             }
         }
     }

@@ -92,7 +92,7 @@ pub fn psf_region(ellipse: &ImageEllipse, psf: &Psf, width: usize, height: usize
 /// Renders `amplitude·∫_E PSF(p − x) dx` at the centres of the pixels of `rect` into `out` (row-major,
 /// `rect.width()` wide, overwritten); returns the largest value written. `spread`: no other patch is drawn
 /// beside this one, so a patch of a few hundred nodes is worth splitting across the pool's threads (the values
-/// are the same either way).
+/// are the same either way; two patches drawn side by side and split as well were slower).
 ///
 /// # Panics
 /// If `out` is shorter than the rectangle.
@@ -235,17 +235,18 @@ const BAND_ROWS: usize = 32;
 const BAND_MIN_NODES: usize = 2_000;
 /// Fewest nodes worth splitting a patch drawn alone across the pool's threads (each band goes through every
 /// node that reaches it, so a band of few rows repeats most nodes' set-up): supersonic_climb's 1233-node target
-/// went from 357 to 260–304 µs a frame on two threads, while two targets of 800–1200 nodes drawn side by side
-/// (crossing_pair) lost 278–304 → 336–347 µs when split as well.
+/// went from 331–332 to 251–257 µs a frame on two threads, while two targets of 800–1200 nodes drawn side by
+/// side (crossing_pair) lost 278–304 → 336–347 µs when split as well.
 const SPREAD_MIN_NODES: usize = 300;
 /// Fewest rows of a band of a patch split across the threads.
 const SPREAD_MIN_ROWS: usize = 8;
 
 /// Adds every node's point source ([`scatter`]) to the patch `rect` (`out`). A patch of many nodes and rows is
 /// split into bands of [`BAND_ROWS`] rows, filled in parallel, each from the nodes that reach it in their order,
-/// where one large target had filled its patch on one thread; with `spread`, a patch of fewer (a few hundred
-/// nodes) into one band per thread. Every pixel gets the same sums, to the bit, as from one pass, however the
-/// rows are split.
+/// where one large target had filled its patch on one thread; with `spread`, a patch of fewer (at least
+/// [`SPREAD_MIN_NODES`] nodes and twice [`SPREAD_MIN_ROWS`] rows) into bands of one thread's share of the rows,
+/// [`SPREAD_MIN_ROWS`] at least. Every pixel gets the same sums, to the bit, as from one pass, however the rows
+/// are split.
 fn scatter_nodes(psf: &Psf, nodes: &[(f64, f64, f32)], rect: PixelRect, out: &mut [f32], spread: bool) {
     use rayon::prelude::*;
     let rows = rect.height();

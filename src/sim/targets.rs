@@ -71,9 +71,9 @@ pub fn draw_targets(
         jobs.push((fp, ellipse, delta, bg, 0.0f64));
         patches.used += 1;
     }
-    // ... then drawn in parallel, each into its own buffer (the same values as one after the other; fewer
-    // targets than threads split their patches across them) ...
-    let spread = jobs.len() < rayon::current_num_threads();
+    // ... then drawn in parallel, each into its own buffer (the same values as one after the other; a target
+    // drawn alone may split its patch across the threads) ...
+    let spread = jobs.len() == 1;
     jobs.par_iter_mut().zip(&mut patches.patches[..patches.used]).with_max_len(1).for_each(
         |((fp, ellipse, delta, _, peak), (roi, values))| {
             *peak = match (settings.blob.model, &sensor.psf, fp.blob) {
