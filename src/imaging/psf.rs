@@ -1876,17 +1876,7 @@ mod tests {
         for candidates in [everywhere, two_bands] {
             let mut frames = Vec::new();
             for threads in [1, 2, 3] {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-                let mut frame = base.clone();
-                let stats = pool.install(|| {
-                    Convolver::new().apply_where_needed_in(
-                        kernel,
-                        &mut frame,
-                        ConvolutionMethod::Separable,
-                        1e-6,
-                        Some(&candidates),
-                    )
-                });
+                let (frame, stats) = blur_candidates_on(threads, kernel, &base, &candidates);
                 assert_eq!(stats.tiles_blurred, candidates.iter().filter(|&&c| c).count());
                 frames.push(frame);
             }
@@ -1895,6 +1885,23 @@ mod tests {
             }
             assert_blurred_where_needed(kernel, &base, &frames[0], &candidates, true);
         }
+    }
+
+    /// `base` blurred where needed on the `candidates` tiles (every one of them rough enough at a threshold of
+    /// 1e-6), by a fresh convolver on a pool of `threads`.
+    fn blur_candidates_on(threads: usize, kernel: &Kernel, base: &Frame, candidates: &[bool]) -> (Frame, BlurStats) {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let mut frame = base.clone();
+        let stats = pool.install(|| {
+            Convolver::new().apply_where_needed_in(
+                kernel,
+                &mut frame,
+                ConvolutionMethod::Separable,
+                1e-6,
+                Some(candidates),
+            )
+        });
+        (frame, stats)
     }
 
     /// The separable sums at pixel `(x, y)` of `base`, spelled out (horizontal per term from 0, then vertical
@@ -1962,17 +1969,7 @@ mod tests {
             let pixels = (0..w * h).map(|i| 1000.0 + ((i * 7919 + case) % 997) as f32 * 0.1).collect();
             let base = Frame::from_pixels(w, h, pixels);
             let candidates: Vec<bool> = (0..w.div_ceil(t) * h.div_ceil(t)).map(|_| draw(3) == 0).collect();
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(1 + draw(3)).build().unwrap();
-            let mut frame = base.clone();
-            let stats = pool.install(|| {
-                Convolver::new().apply_where_needed_in(
-                    kernel,
-                    &mut frame,
-                    ConvolutionMethod::Separable,
-                    1e-6,
-                    Some(&candidates),
-                )
-            });
+            let (frame, stats) = blur_candidates_on(1 + draw(3), kernel, &base, &candidates);
             // the whole-frame method blurs the other tiles too
             let whole = 2 * stats.tiles_needed > stats.tiles;
             assert_blurred_where_needed(kernel, &base, &frame, &candidates, !whole);
