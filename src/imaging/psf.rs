@@ -1103,15 +1103,17 @@ fn accumulate_rows(rows: &[&[f32]], v: &[f32], out: &mut [f32]) {
     }
 }
 
-/// Fills `pad` with columns `x0 − r .. x0 + cols + r` of `line`, the columns beyond its ends replicating its
-/// first and last values.
-fn pad_span(line: &[f32], x0: usize, cols: usize, r: usize, pad: &mut Vec<f32>) {
-    let w = line.len();
-    let (lo, hi) = (x0 as isize - r as isize, x0 + cols + r);
-    pad.clear();
-    pad.resize(lo.min(0).unsigned_abs(), line[0]);
-    pad.extend_from_slice(&line[lo.max(0) as usize..hi.min(w)]);
-    pad.resize(cols + 2 * r, line[w - 1]);
+/// Fills `out` with columns `x0 − r .. x0 − r + out.len()` of `line` (`x0` a column of it), the columns beyond
+/// its ends replicating its first and last values: a row padded by `r` on each side, or a run of one.
+fn pad_span(line: &[f32], x0: usize, r: usize, out: &mut [f32]) {
+    let (w, n) = (line.len() as isize, out.len() as isize);
+    let lo = x0 as isize - r as isize;
+    let (a, b) = (lo.clamp(0, w), (lo + n).clamp(0, w));
+    let left = ((a - lo) as usize).min(out.len());
+    let inside = (b - a) as usize;
+    out[..left].fill(line[0]);
+    out[left..left + inside].copy_from_slice(&line[a as usize..b as usize]);
+    out[left + inside..].fill(line[line.len() - 1]);
 }
 
 /// Columns of a vertical pass taken down all of a piece's rows before the next (a multiple of the passes'
@@ -1286,7 +1288,7 @@ impl Convolver {
                 tmp.resize((rows + 2 * r) * terms * w, 0.0);
                 for (k, line) in tmp.chunks_exact_mut(terms * w).enumerate() {
                     let sy = (y0 + k).saturating_sub(r).min(h - 1);
-                    pad_span(&src[sy * w..(sy + 1) * w], 0, w, r, pad);
+                    pad_span(&src[sy * w..(sy + 1) * w], 0, r, pad);
                     for ((_, v), out) in kernel.terms.iter().zip(line.chunks_exact_mut(w)) {
                         widest(
                             #[inline(always)]
@@ -1431,7 +1433,8 @@ impl Convolver {
                     for run in true_runs(columns) {
                         let x0 = run.start * t;
                         let cols = (run.end * t).min(w) - x0;
-                        pad_span(line, x0, cols, r, pad);
+                        pad.resize(cols + 2 * r, 0.0);
+                        pad_span(line, x0, r, pad);
                         for ((_, v), out) in kernel.terms.iter().zip(row.chunks_exact_mut(w)) {
                             widest(
                                 #[inline(always)]
@@ -1461,7 +1464,9 @@ impl Convolver {
         // another core had written)
         let pieces = &self.pieces;
         debug_assert!(pieces.windows(2).all(|p| (p[0].0, p[0].1 + p[0].2) <= (p[1].0, p[1].1)), "pieces in order");
-        let mut rows_of: Vec<Vec<&mut [f32]>> = pieces.iter().map(|_| Vec::with_capacity(t)).collect();
+        // piece p's row y of the frame at p·t + y (a partial last band leaves its pieces' last entries empty)
+        let mut segments: Vec<Option<&mut [f32]>> = Vec::new();
+        segments.resize_with(pieces.len() * t, || None);
         let bands = &mut frame.pixels_mut()[first_band * t * w..((last_band + 1) * t * w).min(w * h)];
         let mut next = 0;
         for (k, band) in bands.chunks_mut(t * w).enumerate() {
@@ -1469,18 +1474,18 @@ impl Convolver {
             while next < pieces.len() && pieces[next].0 == first_band + k {
                 next += 1;
             }
-            for row in band.chunks_mut(w) {
+            for (y, row) in band.chunks_mut(w).enumerate() {
                 let (mut rest, mut at) = (row, 0);
-                for (j, &(_, x0, cols)) in pieces[first..next].iter().enumerate() {
+                for (p, &(_, x0, cols)) in pieces.iter().enumerate().take(next).skip(first) {
                     let (segment, after) = std::mem::take(&mut rest)[x0 - at..].split_at_mut(cols);
-                    rows_of[first + j].push(segment);
+                    segments[p * t + y] = Some(segment);
                     (rest, at) = (after, x0 + cols);
                 }
             }
         }
         let horizontal = &self.horizontal;
-        rows_of.into_par_iter().zip(pieces.par_iter()).with_max_len(split_finely(1)).for_each(
-            |(mut rows, &(ty, x0, cols))| {
+        segments.par_chunks_mut(t).zip(pieces.par_iter()).with_max_len(split_finely(1)).for_each(
+            |(rows, &(ty, x0, cols))| {
                 widest(
                     #[inline(always)]
                     || {
@@ -1488,7 +1493,7 @@ impl Convolver {
                         // reads (every term's taps) stay in the first-level cache (a pool of one takes whole runs)
                         for c0 in (0..cols).step_by(VERTICAL_COLUMNS) {
                             let c1 = (c0 + VERTICAL_COLUMNS).min(cols);
-                            for (y, out) in rows.iter_mut().enumerate() {
+                            for (y, out) in rows.iter_mut().flatten().enumerate() {
                                 let first = (ty * t + y) * terms * w + x0 + c0;
                                 vertical_terms(horizontal, first, [terms * w, w], &kernel.vertical, &mut out[c0..c1]);
                             }
@@ -1509,10 +1514,7 @@ impl Convolver {
         let src = frame.pixels();
         self.padded.par_chunks_mut(pw).enumerate().with_max_len(split_finely(BLUR_TILE_PX)).for_each(|(py, out)| {
             let y = py.saturating_sub(r).min(h - 1);
-            let row = &src[y * w..(y + 1) * w];
-            out[..r].fill(row[0]);
-            out[r..r + w].copy_from_slice(row);
-            out[r + w..].fill(row[w - 1]);
+            pad_span(&src[y * w..(y + 1) * w], 0, r, out);
         });
         pw
     }
