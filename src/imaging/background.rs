@@ -497,13 +497,17 @@ mod tests {
     #[test]
     fn a_frame_does_not_depend_on_the_frames_before_it() {
         let (plane, dome) = (plane(), dome());
-        // a view, another turned far away, one over the image's edge, and the first panned (its crops share blocks)
+        // a view, another turned far away, one over the image's edge, the first panned (its crops share blocks),
+        // and the first rolled: more Jacobians than the cache keeps crops of, so that a view seen again finds its
+        // crop gone and its filter kept
         let views = [
             (DVec2::new(256.0, 250.0), 0.0),
             (DVec2::new(100.0, 400.0), 30.0),
             (DVec2::new(256.0, 28.0), 5.0),
             (DVec2::new(296.0, 250.0), 0.0),
             (DVec2::new(336.0, 290.0), 0.0),
+            (DVec2::new(256.0, 250.0), 12.0),
+            (DVec2::new(256.0, 250.0), 20.0),
         ];
         let fresh: Vec<Frame> = views
             .iter()
@@ -512,7 +516,7 @@ mod tests {
             })
             .collect();
         let mut renderer = BackgroundRenderer::new();
-        for order in [[0, 1, 2, 3, 4], [4, 2, 3, 1, 0], [1, 0, 3, 2, 4]] {
+        for order in [[0, 1, 2, 3, 4, 5, 6], [4, 2, 6, 3, 1, 5, 0], [1, 5, 0, 3, 6, 2, 4]] {
             for i in order {
                 let (l, r) = views[i];
                 let f = render(&mut renderer, &plane, &dome, &camera(&plane, l, r), SkyBlur::Prefilter);

@@ -37,6 +37,8 @@
 //! 5.87 ms for 16 when each phase sampled the PSF anew, 0.53 and 0.82 ms with the samples shared and the phases
 //! made side by side.
 
+use std::sync::Arc;
+
 use glam::{DMat2, DVec2};
 
 use super::frame::Frame;
@@ -57,6 +59,12 @@ const CACHE_ENTRIES: usize = 4;
 /// Bytes of prefiltered blocks kept for later crops (a panning view needs the blocks it saw a moment ago and
 /// a few new ones); the blocks one crop needs are kept whatever their size.
 const BLOCK_CACHE_BYTES: usize = 64 << 20;
+/// Bytes of texture filters kept for Jacobians seen before (a camera panning back, a run looped by `irsim
+/// bench`); the filter in use is kept whatever its size. A filter is a few hundred KiB at most on the shipped
+/// scenarios, and takes 0.5–2.5 ms to make (docs/accuracy.md).
+const FILTER_CACHE_BYTES: usize = 16 << 20;
+/// Most filters kept (keys whose kernels are too wide are kept as such, and hold no bytes).
+const FILTER_CACHE_ENTRIES: usize = 256;
 
 /// The PSF mapped into texel space by the Jacobian `jacobian` (texels per sensor pixel; column 0 is the
 /// change of image coordinates per pixel along the sensor's u, column 1 along v) and read `shift` texels from
@@ -201,6 +209,11 @@ impl TextureFilter {
     pub fn radius(&self) -> usize {
         self.phases.iter().map(Kernel::radius).max().unwrap_or(0)
     }
+
+    /// Bytes its kernels hold.
+    fn bytes(&self) -> usize {
+        self.phases.iter().map(|k| size_of_val(k.values())).sum()
+    }
 }
 
 /// A Jacobian rounded to a lattice: its scale (the RMS of its entries) to steps of `ln(1 + tolerance/2)`, the
@@ -244,10 +257,17 @@ type TexelRect = [usize; 4];
 #[derive(Debug)]
 struct Entry {
     key: JacobianKey,
-    filter: TextureFilter,
     rect: TexelRect,
     /// `None` in a plan (nothing is built).
     plane: Option<SkyPlane>,
+    last_used: u64,
+}
+
+/// A key's texture filter, or `None` where its kernels are too wide ([`MAX_TEXTURE_RADIUS`]).
+#[derive(Debug)]
+struct KeptFilter {
+    key: JacobianKey,
+    filter: Option<Arc<TextureFilter>>,
     last_used: u64,
 }
 
@@ -270,6 +290,8 @@ struct Block {
 pub struct PrefilterCache {
     entries: Vec<Entry>,
     blocks: Vec<Block>,
+    /// The filters of the keys seen (and the keys whose kernels are too wide), up to [`FILTER_CACHE_BYTES`].
+    filters: Vec<KeptFilter>,
     /// The transforms of the last key's kernels.
     spectra: Option<PhaseSpectra>,
     /// The source image and PSF the entries were made from (their addresses).
@@ -331,6 +353,7 @@ impl PrefilterCache {
         if self.source != Some(id) {
             self.entries.clear();
             self.blocks.clear();
+            self.filters.clear();
             self.source = Some(id);
         }
         self.clock += 1;
@@ -345,10 +368,7 @@ impl PrefilterCache {
             self.entries[i].last_used = self.clock;
             return Some(i);
         }
-        let filter = match self.entries.iter().find(|e| e.key == key) {
-            Some(e) => e.filter.clone(),
-            None => TextureFilter::new(psf, key.jacobian(tolerance))?,
-        };
+        let filter = self.filter(psf, key, tolerance)?;
         // the block-aligned box around what is needed, one block wider on every side so that a panning view
         // rebuilds it now and then rather than every frame
         let down = |v: usize| (v / BLOCK_TEXELS).saturating_sub(1) * BLOCK_TEXELS;
@@ -362,7 +382,7 @@ impl PrefilterCache {
             self.blocks.extend(missing.iter().map(|&at| Block { key, at, values: None, last_used: self.clock }));
         }
         self.evict_blocks(filter.per_texel);
-        let entry = Entry { key, filter, rect, plane, last_used: self.clock };
+        let entry = Entry { key, rect, plane, last_used: self.clock };
         self.builds += 1;
         let slot = if self.entries.len() < CACHE_ENTRIES {
             self.entries.push(entry);
@@ -373,6 +393,34 @@ impl PrefilterCache {
             i
         };
         Some(slot)
+    }
+
+    /// The texture filter of `key`, made or kept from before; the least recently used filters beyond
+    /// [`FILTER_CACHE_BYTES`] are dropped.
+    fn filter(&mut self, psf: &Psf, key: JacobianKey, tolerance: f64) -> Option<Arc<TextureFilter>> {
+        if let Some(kept) = self.filters.iter_mut().find(|f| f.key == key) {
+            kept.last_used = self.clock;
+            return kept.filter.clone();
+        }
+        let filter = TextureFilter::new(psf, key.jacobian(tolerance)).map(Arc::new);
+        self.filters.push(KeptFilter { key, filter: filter.clone(), last_used: self.clock });
+        let bytes = |f: &KeptFilter| f.filter.as_ref().map_or(0, |f| f.bytes());
+        let mut total: usize = self.filters.iter().map(bytes).sum();
+        while total > FILTER_CACHE_BYTES || self.filters.len() > FILTER_CACHE_ENTRIES {
+            let (i, oldest) = self
+                .filters
+                .iter()
+                .enumerate()
+                .min_by_key(|(_, f)| f.last_used)
+                .map(|(i, f)| (i, f.last_used))
+                .expect("filters");
+            if oldest == self.clock {
+                break;
+            }
+            total -= bytes(&self.filters[i]);
+            self.filters.swap_remove(i);
+        }
+        filter
     }
 
     /// The first texels of the blocks that cover `rect`, marked used; returns those not yet prefiltered for `key`.
@@ -532,8 +580,8 @@ struct PhaseSpectra {
     radius: usize,
     per_texel: usize,
     side: usize,
-    forward: std::sync::Arc<dyn rustfft::Fft<f32>>,
-    inverse: std::sync::Arc<dyn rustfft::Fft<f32>>,
+    forward: Arc<dyn rustfft::Fft<f32>>,
+    inverse: Arc<dyn rustfft::Fft<f32>>,
     /// Per pair of phases `(2p, 2p + 1)`, transposed.
     pairs: Vec<Vec<Complex<f32>>>,
 }
