@@ -290,6 +290,9 @@ struct Block {
 pub struct PrefilterCache {
     entries: Vec<Entry>,
     blocks: Vec<Block>,
+    /// The pixels of the last crop replaced, for the next crop to be made in (a new buffer of megabytes is
+    /// pages the system maps and zeroes one by one as they are first written).
+    spare: Vec<f32>,
     /// The filters of the keys seen (and the keys whose kernels are too wide), up to [`FILTER_CACHE_BYTES`].
     filters: Vec<KeptFilter>,
     /// The transforms of the last key's kernels.
@@ -389,7 +392,9 @@ impl PrefilterCache {
             self.entries.len() - 1
         } else {
             let i = (0..self.entries.len()).min_by_key(|&i| self.entries[i].last_used).expect("entries");
-            self.entries[i] = entry;
+            if let Some(old) = std::mem::replace(&mut self.entries[i], entry).plane {
+                self.spare = old.into_image().into_pixels();
+            }
             i
         };
         Some(slot)
@@ -529,19 +534,26 @@ impl PrefilterCache {
         let (cw, ch) = (rect[2] - rect[0], rect[3] - rect[1]);
         let (fw, fh) = (cw * m, ch * m);
         // the crop's fine rows in order, each from the blocks along it (no fill first: every value is written)
-        let mut pixels = Vec::with_capacity(fw * fh);
-        for fy in rect[1] * m..rect[3] * m {
+        // rows in parallel: a crop is megabytes, copied from blocks most of which were made frames ago
+        let mut pixels = std::mem::take(&mut self.spare);
+        // every value is written below: only a longer crop's new values are filled first
+        pixels.resize(fw * fh, 0.0);
+        pixels.par_chunks_mut(fw.max(1)).with_min_len(16).enumerate().for_each(|(i, out)| {
+            let fy = rect[1] * m + i;
             let (by, row_in_block) = (fy / bs, fy % bs);
             let blocks = &grid[(by - cols_y.start) * cols_x.len()..(by - cols_y.start + 1) * cols_x.len()];
+            let mut at = 0;
             for (bx, block) in cols_x.clone().zip(blocks) {
                 let values = block.expect("the blocks of a crop are kept while it is made");
                 // the block's columns inside `rect`, fine
                 let (x0, x1) = ((bx * s).max(rect[0]), ((bx + 1) * s).min(rect[2]));
                 let row = &values[row_in_block * bs..(row_in_block + 1) * bs];
-                pixels.extend_from_slice(&row[(x0 - bx * s) * m..(x1 - bx * s) * m]);
+                let part = &row[(x0 - bx * s) * m..(x1 - bx * s) * m];
+                out[at..at + part.len()].copy_from_slice(part);
+                at += part.len();
             }
-        }
-        debug_assert_eq!(pixels.len(), fw * fh);
+            debug_assert_eq!(at, fw);
+        });
         let image = SkyImage::from_finite(fw.max(1), fh.max(1), pixels);
         source.with_region(image, [rect[0], rect[1]], m)
     }

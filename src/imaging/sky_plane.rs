@@ -79,6 +79,11 @@ impl SkyImage {
         Self { width, height, pixels }
     }
 
+    /// Its pixels, row-major (a buffer to reuse).
+    pub(crate) fn into_pixels(self) -> Vec<f32> {
+        self.pixels
+    }
+
     /// Reads any image the `image` crate decodes (PNG, TIFF, PNM here). Gray images keep their integer values,
     /// float images their floats; colour
     /// images are converted to luma at their bit depth.
@@ -306,6 +311,11 @@ pub struct SkyPlane {
 }
 
 impl SkyPlane {
+    /// Its image (a buffer to reuse).
+    pub(crate) fn into_image(self) -> SkyImage {
+        self.image
+    }
+
     /// Places `image` in the world. `camera_position_m` orients a plane given without a normal: vertical, facing
     /// the camera.
     ///
