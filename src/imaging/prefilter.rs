@@ -391,7 +391,7 @@ impl PrefilterCache {
             self.entries.push(entry);
             self.entries.len() - 1
         } else {
-            let i = (0..self.entries.len()).min_by_key(|&i| self.entries[i].last_used).expect("entries");
+            let (i, _) = least_recent(&self.entries, |e| e.last_used);
             if let Some(old) = std::mem::replace(&mut self.entries[i], entry).plane {
                 self.spare = old.into_image().into_pixels();
             }
@@ -412,13 +412,7 @@ impl PrefilterCache {
         let bytes = |f: &KeptFilter| f.filter.as_ref().map_or(0, |f| f.bytes());
         let mut total: usize = self.filters.iter().map(bytes).sum();
         while total > FILTER_CACHE_BYTES || self.filters.len() > FILTER_CACHE_ENTRIES {
-            let (i, oldest) = self
-                .filters
-                .iter()
-                .enumerate()
-                .min_by_key(|(_, f)| f.last_used)
-                .map(|(i, f)| (i, f.last_used))
-                .expect("filters");
+            let (i, oldest) = least_recent(&self.filters, |f| f.last_used);
             if oldest == self.clock {
                 break;
             }
@@ -448,13 +442,7 @@ impl PrefilterCache {
         let bytes = (FFT_BLOCK_TEXELS * per_texel).pow(2) * size_of::<f32>();
         let keep = (BLOCK_CACHE_BYTES / bytes.max(1)).max(1);
         while self.blocks.len() > keep {
-            let (i, oldest) = self
-                .blocks
-                .iter()
-                .enumerate()
-                .min_by_key(|(_, b)| b.last_used)
-                .map(|(i, b)| (i, b.last_used))
-                .expect("blocks");
+            let (i, oldest) = least_recent(&self.blocks, |b| b.last_used);
             if oldest == self.clock {
                 break;
             }
@@ -557,6 +545,11 @@ impl PrefilterCache {
         let image = SkyImage::from_finite(fw.max(1), fh.max(1), pixels);
         source.with_region(image, [rect[0], rect[1]], m)
     }
+}
+
+/// The index of the least recently used of `items` (not empty), and when it was last used.
+fn least_recent<T>(items: &[T], last_used: impl Fn(&T) -> u64) -> (usize, u64) {
+    items.iter().map(last_used).enumerate().min_by_key(|&(_, t)| t).expect("a cache with an entry to drop")
 }
 
 /// How a texture filter is applied: directly while its widest kernel has up to 11 × 11 taps, by FFT above.
