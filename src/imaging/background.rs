@@ -516,12 +516,15 @@ mod tests {
             })
             .collect();
         let mut renderer = BackgroundRenderer::new();
-        for order in [[0, 1, 2, 3, 4, 5, 6], [4, 2, 6, 3, 1, 5, 0], [1, 5, 0, 3, 6, 2, 4]] {
-            for i in order {
+        for (pass, order) in [[0, 1, 2, 3, 4, 5, 6], [4, 2, 6, 3, 1, 5, 0], [1, 5, 0, 3, 6, 2, 4]].iter().enumerate() {
+            let builds = renderer.cache.builds();
+            for &i in order {
                 let (l, r) = views[i];
                 let f = render(&mut renderer, &plane, &dome, &camera(&plane, l, r), SkyBlur::Prefilter);
                 assert_eq!(f.pixels(), fresh[i].pixels(), "view {i}");
             }
+            // crops made again after theirs were dropped (their filters and blocks kept)
+            assert!(pass == 0 || renderer.cache.builds() > builds, "pass {pass} made no crop");
         }
     }
 }

@@ -97,6 +97,12 @@ impl PsfSamples {
         // texels per px along each texel axis, at most
         let stretch = DVec2::new(j.x_axis.x.abs() + j.y_axis.x.abs(), j.x_axis.y.abs() + j.y_axis.y.abs());
         // sample spacing: at most 1/16 px and 1/16 texel along either texel axis
+        // every phase's kernel reaches at least this far: too wide, none is made (before sampling a grid whose
+        // size grows with the stretch)
+        let reach_texels = reach_px * stretch;
+        if reach_texels.max_element().ceil() as usize + 1 > MAX_TEXTURE_RADIUS {
+            return None;
+        }
         let per_px = (16.0 * stretch.x.max(stretch.y).max(1.0)).ceil();
         let n = (2.0 * reach_px * per_px).ceil() as usize;
         let h = 2.0 * reach_px / n as f64;
@@ -111,7 +117,7 @@ impl PsfSamples {
                 }
             }
         }
-        Some(Self { reach_texels: reach_px * stretch, points })
+        Some(Self { reach_texels, points })
     }
 
     /// The kernel read `shift` texels from texel centres ([`texture_kernel`]).
@@ -290,15 +296,15 @@ struct Block {
 pub struct PrefilterCache {
     entries: Vec<Entry>,
     blocks: Vec<Block>,
-    /// The pixels of the last crop replaced, for the next crop to be made in (a new buffer of megabytes is
-    /// pages the system maps and zeroes one by one as they are first written).
+    /// The pixels of the last crop replaced, for the next crop to be made in (a new buffer of megabytes is made
+    /// of pages the system maps and zeroes as they are first written).
     spare: Vec<f32>,
     /// The filters of the keys seen (and the keys whose kernels are too wide), up to [`FILTER_CACHE_BYTES`].
     filters: Vec<KeptFilter>,
     /// The transforms of the last key's kernels.
     spectra: Option<PhaseSpectra>,
     /// The source image and PSF the entries were made from (their addresses).
-    source: Option<(usize, usize)>,
+    source: Option<(usize, usize, u64)>,
     convolver: Convolver,
     clock: u64,
     builds: u64,
@@ -352,7 +358,7 @@ impl PrefilterCache {
         need: [f64; 4],
         build: bool,
     ) -> Option<usize> {
-        let id = (source.image().pixels().as_ptr() as usize, psf as *const Psf as usize);
+        let id = (source.image().pixels().as_ptr() as usize, psf as *const Psf as usize, tolerance.to_bits());
         if self.source != Some(id) {
             self.entries.clear();
             self.blocks.clear();
@@ -369,6 +375,10 @@ impl PrefilterCache {
         let covers = |r: &TexelRect| r[0] <= want[0] && r[1] <= want[1] && r[2] >= want[2] && r[3] >= want[3];
         if let Some(i) = self.entries.iter().position(|e| e.key == key && covers(&e.rect)) {
             self.entries[i].last_used = self.clock;
+            // the key's filter is in use too: not the first to go when filters are dropped
+            if let Some(kept) = self.filters.iter_mut().find(|f| f.key == key) {
+                kept.last_used = self.clock;
+            }
             return Some(i);
         }
         let filter = self.filter(psf, key, tolerance)?;
@@ -401,7 +411,7 @@ impl PrefilterCache {
     }
 
     /// The texture filter of `key`, made or kept from before; the least recently used filters beyond
-    /// [`FILTER_CACHE_BYTES`] are dropped.
+    /// [`FILTER_CACHE_BYTES`] or [`FILTER_CACHE_ENTRIES`] are dropped.
     fn filter(&mut self, psf: &Psf, key: JacobianKey, tolerance: f64) -> Option<Arc<TextureFilter>> {
         if let Some(kept) = self.filters.iter_mut().find(|f| f.key == key) {
             kept.last_used = self.clock;
@@ -521,10 +531,14 @@ impl PrefilterCache {
         }
         let (cw, ch) = (rect[2] - rect[0], rect[3] - rect[1]);
         let (fw, fh) = (cw * m, ch * m);
-        // the crop's fine rows in order, each from the blocks along it (no fill first: every value is written)
-        // rows in parallel: a crop is megabytes, copied from blocks most of which were made frames ago
+        // the crop's fine rows, each from the blocks along it, in parallel (a crop is megabytes, copied from blocks
+        // most of which were made frames ago), into the last replaced crop's buffer: every value is written
+        // below, so only values beyond its length are filled first (and none are copied: a buffer too small is
+        // dropped)
         let mut pixels = std::mem::take(&mut self.spare);
-        // every value is written below: only a longer crop's new values are filled first
+        if pixels.capacity() < fw * fh {
+            pixels = Vec::new();
+        }
         pixels.resize(fw * fh, 0.0);
         pixels.par_chunks_mut(fw.max(1)).with_min_len(16).enumerate().for_each(|(i, out)| {
             let fy = rect[1] * m + i;
@@ -540,7 +554,8 @@ impl PrefilterCache {
                 out[at..at + part.len()].copy_from_slice(part);
                 at += part.len();
             }
-            debug_assert_eq!(at, fw);
+            // every value of the row written (the buffer may hold another crop's)
+            assert_eq!(at, fw, "a crop's row is its blocks' columns");
         });
         let image = SkyImage::from_finite(fw.max(1), fh.max(1), pixels);
         source.with_region(image, [rect[0], rect[1]], m)
@@ -834,6 +849,54 @@ mod tests {
         }
         assert!(texture_kernel(&p, DMat2::ZERO, DVec2::ZERO).is_none());
         assert!(texture_kernel(&p, DMat2::IDENTITY * 50.0, DVec2::ZERO).is_none());
+    }
+
+    #[test]
+    fn filters_are_kept_by_key_and_the_least_recently_used_dropped() {
+        let p = psf();
+        let tol = 0.05;
+        let bits = |f: &TextureFilter| -> Vec<Vec<u32>> {
+            f.phases.iter().map(|k| k.values().iter().map(|v| v.to_bits()).collect()).collect()
+        };
+        // more keys than are kept: 37 turns of the same magnified view at 7 scales, all distinct
+        let keys: Vec<JacobianKey> = (0..FILTER_CACHE_ENTRIES + 3)
+            .map(|i| {
+                let j = DMat2::from_angle(0.15 * (i % 37) as f64) * (0.6 * 1.04f64.powi((i / 37) as i32));
+                JacobianKey::new(j, tol).unwrap()
+            })
+            .collect();
+        let distinct: std::collections::HashSet<_> = keys.iter().collect();
+        assert_eq!(distinct.len(), keys.len());
+        let mut cache = PrefilterCache::new();
+        let get = |cache: &mut PrefilterCache, key: JacobianKey| {
+            cache.clock += 1;
+            cache.filter(&p, key, tol).expect("a filter")
+        };
+        let first = get(&mut cache, keys[0]);
+        assert_eq!(bits(&first), bits(&TextureFilter::new(&p, keys[0].jacobian(tol)).unwrap()));
+        for (n, &key) in keys.iter().enumerate().skip(1) {
+            let f = get(&mut cache, key);
+            // each key gets its own filter, the one made for it alone
+            if n % 50 == 0 {
+                assert_eq!(bits(&f), bits(&TextureFilter::new(&p, key.jacobian(tol)).unwrap()), "key {n}");
+            }
+            // the first key, asked for now and then, is kept
+            if n % 10 == 0 {
+                assert!(Arc::ptr_eq(&get(&mut cache, keys[0]), &first), "key 0 made again after key {n}");
+            }
+        }
+        assert_eq!(cache.filters.len(), FILTER_CACHE_ENTRIES);
+        let kept = |cache: &PrefilterCache, key: JacobianKey| cache.filters.iter().any(|f| f.key == key);
+        // the first key, used recently, and the newest are kept; the least recently used went
+        assert!(kept(&cache, keys[0]) && kept(&cache, keys[keys.len() - 1]));
+        assert!(!kept(&cache, keys[1]) && !kept(&cache, keys[2]));
+        // a key dropped is made again, the same
+        let again = get(&mut cache, keys[1]);
+        assert_eq!(bits(&again), bits(&TextureFilter::new(&p, keys[1].jacobian(tol)).unwrap()));
+        // a kernel too wide is known as such without sampling the PSF on a grid as fine as the texels
+        let wide = JacobianKey::new(DMat2::IDENTITY * 60.0, tol).unwrap();
+        cache.clock += 1;
+        assert!(cache.filter(&p, wide, tol).is_none() && kept(&cache, wide));
     }
 
     #[test]
