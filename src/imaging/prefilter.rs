@@ -376,9 +376,7 @@ impl PrefilterCache {
         if let Some(i) = self.entries.iter().position(|e| e.key == key && covers(&e.rect)) {
             self.entries[i].last_used = self.clock;
             // the key's filter is in use too: not the first to go when filters are dropped
-            if let Some(kept) = self.filters.iter_mut().find(|f| f.key == key) {
-                kept.last_used = self.clock;
-            }
+            self.touch_filter(key);
             return Some(i);
         }
         let filter = self.filter(psf, key, tolerance)?;
@@ -413,8 +411,7 @@ impl PrefilterCache {
     /// The texture filter of `key`, made or kept from before; the least recently used filters beyond
     /// [`FILTER_CACHE_BYTES`] or [`FILTER_CACHE_ENTRIES`] are dropped.
     fn filter(&mut self, psf: &Psf, key: JacobianKey, tolerance: f64) -> Option<Arc<TextureFilter>> {
-        if let Some(kept) = self.filters.iter_mut().find(|f| f.key == key) {
-            kept.last_used = self.clock;
+        if let Some(kept) = self.touch_filter(key) {
             return kept.filter.clone();
         }
         let filter = TextureFilter::new(psf, key.jacobian(tolerance)).map(Arc::new);
@@ -430,6 +427,13 @@ impl PrefilterCache {
             self.filters.swap_remove(i);
         }
         filter
+    }
+
+    /// The kept filter of `key`, marked used now.
+    fn touch_filter(&mut self, key: JacobianKey) -> Option<&KeptFilter> {
+        let kept = self.filters.iter_mut().find(|f| f.key == key)?;
+        kept.last_used = self.clock;
+        Some(kept)
     }
 
     /// The first texels of the blocks that cover `rect`, marked used; returns those not yet prefiltered for `key`.

@@ -1214,16 +1214,9 @@ mod tests {
     #[test]
     fn a_span_that_turns_beyond_the_image_is_not_stepped_in_fixed_point() {
         let intr = Intrinsics::try_new(160, 120, 0.1, 17e-6).unwrap();
-        let placement = SkyPlacement {
-            anchor_m: DVec3::new(0.0, 30_000.0, 6000.0),
-            anchor_px: None,
-            width_m: 4000.0,
-            height_m: 4000.0,
-            normal: None,
-            up: None,
-        };
         let cam_pos = DVec3::new(0.0, 0.0, 8000.0);
-        let p = SkyPlane::new(SkyImage::from_f32(64, 64, vec![1.0; 64 * 64]).unwrap(), &placement, cam_pos).unwrap();
+        let image = SkyImage::from_f32(64, 64, vec![1.0; 64 * 64]).unwrap();
+        let p = SkyPlane::new(image, &SkyPlacement::paper_fig8(), cam_pos).unwrap();
         let cam = Camera::look_at(intr, cam_pos, p.world_point(DVec2::splat(32.0)), 0.0).unwrap();
         let g = RowGeometry::new(&p, &cam);
         for bilinear in [false, true] {
