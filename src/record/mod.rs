@@ -1,13 +1,13 @@
 //! Recording a run: frames encoded in rayon's pool, labels, MOT ground truth and a manifest, all written
 //! atomically (a temporary file renamed into place).
 //!
-//! A frame's encoding and writing is done by the threads of the simulation's own pool, not by threads of their
-//! own: on a machine with few cores, threads of their own competed with the pool's workers for the cores, and a
-//! worker waiting for its share of a parallel stage spun while an encoder held its core. Frames wait in an
-//! [`EncodeQueue`]; a worker that the frame's stages leave idle encodes one (see
-//! [`crate::sim::with_workers_awake_and`]), looking for the pool's jobs every [`PAUSE_BYTES`] of the frame, and
-//! the simulation's thread encodes one itself when too many wait. Outside a pool, and for the formats whose
-//! encoders do not pause (all but 16-bit PNG at `fast`), each frame is a task of the pool instead.
+//! A frame's encoding and writing is done by the threads of the simulation's own pool, not by threads of their own: on
+//! a machine with few cores, threads of their own competed with the pool's workers for the cores, and a worker waiting
+//! for its share of a parallel stage spun while an encoder held its core. Frames wait in an [`EncodeQueue`]; a worker
+//! that the frame's stages leave idle encodes one (see [`crate::sim::with_workers_awake_and`], which holds the workers
+//! awake for the whole recording loop), looking for the pool's jobs every [`PAUSE_BYTES`] of the frame, and the
+//! simulation's thread encodes one itself when too many wait. Outside a pool, and for the formats whose encoders do not
+//! pause (all but 16-bit PNG at `fast`), each frame is a task of the pool instead.
 //!
 //! [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
 //!
