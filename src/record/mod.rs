@@ -16,16 +16,17 @@
 //! SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest whose
 //! `status` and `frames_written` say where the run stopped.
 //!
-//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary
-//! file and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
-//! waiting for the disk; each checkpoint first makes everything written since the last one durable (one `syncfs`
-//! of the output's file system on Linux, a sync of each file elsewhere), then writes the labels. A checkpoint
-//! during the run is written by a thread of its own from a copy of the texts, so the simulation does not wait for
-//! the disk (a checkpoint still being written when the next is due delays that one); the last one, at the end,
-//! is waited for. A crash of the machine loses at most the frames since the last checkpoint, and never leaves
-//! labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the
-//! manifest, so a process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one
-//! checkpoint behind the labels, never ahead of them.
+//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary file
+//! and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
+//! waiting for the disk but asking the system to start writing it (on Linux; the last checkpoint's sync then finds
+//! little left to write: 45 ms of `syncfs` after 2000 frames at 256 × 256 before); each checkpoint first makes
+//! everything written since the last one durable (one `syncfs` of the output's file system on Linux, a sync of each
+//! file elsewhere), then writes the labels. A checkpoint during the run is written by a thread of its own from a
+//! copy of the texts, so the simulation does not wait for the disk (a checkpoint still being written when the next
+//! is due delays that one); the last one, at the end, is waited for. A crash of the machine loses at most the
+//! frames since the last checkpoint, and never leaves labels that list a frame the disk does not hold. A checkpoint
+//! writes the labels, then the MOT file, then the manifest, so a process killed in the middle of one (`kill -9`)
+//! may leave the manifest's `frames_written` one checkpoint behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
@@ -131,6 +132,8 @@ fn write_renamed_pausing(
         }
         if sync {
             f.sync_data()?;
+        } else {
+            start_writeback(&f);
         }
         drop(f);
         pause();
@@ -140,6 +143,18 @@ fn write_renamed_pausing(
         let _ = std::fs::remove_file(tmp);
         io_err(path, e)
     })
+}
+
+/// Asks the system to start writing `f`'s data to the disk now, without waiting for it.
+fn start_writeback(f: &std::fs::File) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        // SAFETY: `f` is an open descriptor for the duration of the call
+        unsafe { libc::sync_file_range(f.as_raw_fd(), 0, 0, libc::SYNC_FILE_RANGE_WRITE) };
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = f;
 }
 
 /// [`write_atomic`] for a file that several processes may write at once with the same bytes (the shards of a
