@@ -182,6 +182,8 @@ impl Readout {
         const BLOCK: usize = 64;
         const ONES: [f32; BLOCK] = [1.0; BLOCK];
         const ZEROS: [f32; BLOCK] = [0.0; BLOCK];
+        // x + (−0) is x for every x, −0 included: absent column offsets add nothing, to the bit
+        const NEG_ZEROS: [f32; BLOCK] = [-0.0; BLOCK];
         let noisy = noise && (self.shot_noise || self.read_variance > 0.0);
         let mut normals = SplitMix64::substream(key, 2 * row);
         let mut uniforms = SplitMix64::substream(key, 2 * row + 1);
@@ -192,44 +194,75 @@ impl Readout {
             let at = b * BLOCK;
             let g = gain.map_or(&ONES[..n], |g| &g[at..at + n]);
             let o = offset.map_or(&ZEROS[..n], |o| &o[at..at + n]);
-            // mean signal
+            let c = columns.map_or(&NEG_ZEROS[..n], |c| &c[at..at + n]);
+            // mean signal, and whether every pixel of the block is on the normal path
+            let mut normal = true;
             for (p, &g) in block.iter_mut().zip(g) {
                 *p = self.signal_per_radiance * g * *p + self.dark_signal;
+                normal &= *p >= threshold;
             }
+            let z = &mut z[..n];
             if noisy {
-                let z = &mut z[..n];
                 fill_normals(&mut normals, z);
-                if block.iter().fold(true, |all, &s| all & (s >= threshold)) {
-                    let shot = if self.shot_noise { 1.0 } else { 0.0 };
-                    for (s, &z) in block.iter_mut().zip(z.iter()) {
-                        *s += (s.max(0.0) * shot + self.read_variance).sqrt() * z;
-                    }
+            }
+            if !noisy || normal {
+                // noise, saturation, ADC, columns and rounding in one pass (the same operations, in the same
+                // order, as the passes of the per-pixel path below)
+                let shot = if self.shot_noise { 1.0 } else { 0.0 };
+                match (noisy, max_level) {
+                    (true, Some(top)) => self.finish_block::<true, true>(block, z, o, c, shot, top),
+                    (true, None) => self.finish_block::<true, false>(block, z, o, c, shot, 0.0),
+                    (false, Some(top)) => self.finish_block::<false, true>(block, z, o, c, shot, top),
+                    (false, None) => self.finish_block::<false, false>(block, z, o, c, shot, 0.0),
+                }
+                continue;
+            }
+            let sd_read = self.read_variance.sqrt();
+            for (s, &z) in block.iter_mut().zip(z.iter()) {
+                if *s >= threshold {
+                    *s += (s.max(0.0) + self.read_variance).sqrt() * z;
                 } else {
-                    let sd_read = self.read_variance.sqrt();
-                    for (s, &z) in block.iter_mut().zip(z.iter()) {
-                        if *s >= threshold {
-                            *s += (s.max(0.0) + self.read_variance).sqrt() * z;
-                        } else {
-                            // exact Poisson shot noise, and the pixel's normal deviate for the read noise
-                            let count =
-                                poisson(f64::from(s.max(0.0)), f64::from(self.poisson_normal_threshold), &mut uniforms);
-                            *s = count as f32 + sd_read * z;
-                        }
-                    }
+                    // exact Poisson shot noise, and the pixel's normal deviate for the read noise
+                    let count = poisson(f64::from(s.max(0.0)), f64::from(self.poisson_normal_threshold), &mut uniforms);
+                    *s = count as f32 + sd_read * z;
                 }
             }
             // saturation, ADC
             for (p, &o) in block.iter_mut().zip(o) {
                 *p = self.offset_dn + o + p.min(self.full_well) * self.dn_per_signal;
             }
-            if let Some(c) = columns {
-                for (p, &c) in block.iter_mut().zip(&c[at..at + n]) {
+            if columns.is_some() {
+                for (p, &c) in block.iter_mut().zip(c) {
                     *p += c;
                 }
             }
             if let Some(top) = max_level {
                 quantize_row(block, top);
             }
+        }
+    }
+
+    /// A block of mean signals on the normal path to DN: the deviates `z` scaled by the pixel's noise (if
+    /// `NOISY`), the well, the ADC with the offsets `o` and the column offsets `c`, and the rounding to
+    /// `[0, top]` (if `ROUND`), in one pass.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn finish_block<const NOISY: bool, const ROUND: bool>(
+        &self,
+        block: &mut [f32],
+        z: &[f32],
+        o: &[f32],
+        c: &[f32],
+        shot: f32,
+        top: f32,
+    ) {
+        for (((p, &z), &o), &c) in block.iter_mut().zip(z).zip(o).zip(c) {
+            let mut s = *p;
+            if NOISY {
+                s += (s.max(0.0) * shot + self.read_variance).sqrt() * z;
+            }
+            let v = self.offset_dn + o + s.min(self.full_well) * self.dn_per_signal + c;
+            *p = if ROUND { quantize_level(v, top) } else { v };
         }
     }
 }
@@ -242,13 +275,19 @@ impl Readout {
 /// Rust's saturating semantics.
 #[inline]
 pub fn quantize_row(line: &mut [f32], top: f32) {
-    const SHIFT: f32 = 8_388_608.0; // 2²³
     for p in line {
-        // max first: NaN.max(0) is 0
-        let y = p.max(0.0).min(top) + 0.5;
-        let t = (y + SHIFT) - SHIFT;
-        *p = if t > y { t - 1.0 } else { t };
+        *p = quantize_level(*p, top);
     }
+}
+
+/// [`quantize_row`] of one value.
+#[inline(always)]
+fn quantize_level(v: f32, top: f32) -> f32 {
+    const SHIFT: f32 = 8_388_608.0; // 2²³
+    // max first: NaN.max(0) is 0
+    let y = v.max(0.0).min(top) + 0.5;
+    let t = (y + SHIFT) - SHIFT;
+    if t > y { t - 1.0 } else { t }
 }
 
 /// A Poisson sample of mean `mean`: exact below `threshold`, rounded normal above.
