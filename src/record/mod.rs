@@ -19,14 +19,16 @@
 //! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary file
 //! and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
 //! waiting for the disk but asking the system to start writing it (on Linux; the last checkpoint's sync then finds
-//! little left to write: 45 ms of `syncfs` after 2000 frames at 256 × 256 before); each checkpoint first makes
-//! everything written since the last one durable (one `syncfs` of the output's file system on Linux, a sync of each
-//! file elsewhere), then writes the labels. A checkpoint during the run is written by a thread of its own from a
-//! copy of the texts, so the simulation does not wait for the disk (a checkpoint still being written when the next
-//! is due delays that one); the last one, at the end, is waited for. A crash of the machine loses at most the
-//! frames since the last checkpoint, and never leaves labels that list a frame the disk does not hold. A checkpoint
-//! writes the labels, then the MOT file, then the manifest, so a process killed in the middle of one (`kill -9`)
-//! may leave the manifest's `frames_written` one checkpoint behind the labels, never ahead of them.
+//! little left to write: 45 ms of `syncfs` after 2000 frames at 256 × 256 before; on a congested device the request
+//! itself may wait, on the encoding thread); each checkpoint first makes everything written since the last one
+//! durable (one `syncfs` of the output's file system on Linux, through the directory opened when the recording
+//! began, so that a write-back error on any file since then is reported; a sync of each file elsewhere), then
+//! writes the labels. A checkpoint during the run is written by a thread of its own from a copy of the texts, so
+//! the simulation does not wait for the disk (a checkpoint still being written when the next is due delays that
+//! one); the last one, at the end, is waited for. A crash of the machine loses at most the frames since the last
+//! checkpoint, and never leaves labels that list a frame the disk does not hold. A checkpoint writes the labels,
+//! then the MOT file, then the manifest, so a process killed in the middle of one (`kill -9`) may leave the
+//! manifest's `frames_written` one checkpoint behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
@@ -170,17 +172,29 @@ pub fn write_shared(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
 }
 
 /// Makes every file written under `dir` so far durable: on Linux one `syncfs` of `dir`'s file system (its data
-/// and the renames that put the files in place, in one journal commit), elsewhere a sync of each of `files` and
-/// of their directories.
+/// and the renames that put the files in place, in one journal commit) through `handle`, the directory opened
+/// when the recording began, elsewhere a sync of each of `files` and of their directories.
+///
+/// A `syncfs` reports a write-back error that happened since the descriptor it is given was opened (and that
+/// no call on it has reported yet): through one descriptor held for the whole recording, an error on any file
+/// written since the start is reported, where a descriptor opened afresh for each checkpoint misses one that
+/// another process's `syncfs` of the same file system saw first.
 ///
 /// # Errors
 /// The I/O error with the path.
-fn sync_written(dir: &Path, files: &[PathBuf]) -> Result<(), RecordError> {
+fn sync_written(dir: &Path, handle: Option<&std::fs::File>, files: &[PathBuf]) -> Result<(), RecordError> {
     #[cfg(target_os = "linux")]
     {
         use std::os::fd::AsRawFd;
         let _ = files;
-        let d = std::fs::File::open(dir).map_err(|e| io_err(dir, e))?;
+        let opened;
+        let d = match handle {
+            Some(h) => h,
+            None => {
+                opened = std::fs::File::open(dir).map_err(|e| io_err(dir, e))?;
+                &opened
+            }
+        };
         // SAFETY: `d` is an open descriptor for the duration of the call
         if unsafe { libc::syncfs(d.as_raw_fd()) } != 0 {
             return Err(io_err(dir, std::io::Error::last_os_error()));
@@ -189,6 +203,7 @@ fn sync_written(dir: &Path, files: &[PathBuf]) -> Result<(), RecordError> {
     }
     #[cfg(not(target_os = "linux"))]
     {
+        let _ = handle;
         let mut dirs = std::collections::BTreeSet::new();
         for f in files {
             std::fs::File::open(f).and_then(|h| h.sync_all()).map_err(|e| io_err(f, e))?;
@@ -516,6 +531,9 @@ pub struct Progress {
 /// The recorder: encoding tasks, ordered commit, checkpoints.
 pub struct Recorder {
     dir: PathBuf,
+    /// The output directory, open for the whole recording: the checkpoints' syncs go through it
+    /// ([`sync_written`]); `None` where a directory cannot be opened as a file.
+    dir_handle: Option<Arc<std::fs::File>>,
     format: FrameFormat,
     masks: bool,
     /// The frames waiting to be encoded.
@@ -578,6 +596,7 @@ struct CheckpointOutcome {
 /// What one checkpoint writes (a snapshot of the recorder's state, so that a thread of its own can write it).
 struct CheckpointJob {
     dir: PathBuf,
+    dir_handle: Option<Arc<std::fs::File>>,
     /// The frames committed: those the labels list and the manifest counts.
     frames: u64,
     /// Files to make durable before the labels that list them.
@@ -597,7 +616,8 @@ impl CheckpointJob {
     fn write_files(&mut self) -> Result<(), (Reached, RecordError)> {
         if let Some((labels, mot)) = &self.texts {
             if !self.unsynced.is_empty() {
-                sync_written(&self.dir, &self.unsynced).map_err(|e| (Reached::Nothing, e))?;
+                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced)
+                    .map_err(|e| (Reached::Nothing, e))?;
                 self.unsynced.clear();
             }
             // labels first: a failure between the two leaves the MOT file behind, never ahead
@@ -633,6 +653,7 @@ impl Recorder {
         let queue = Arc::new(EncodeQueue { spec, jobs: Mutex::new(VecDeque::new()), done: done_tx });
         let mut rec = Self {
             dir: dir.to_path_buf(),
+            dir_handle: std::fs::File::open(dir).ok().map(Arc::new),
             format,
             masks,
             queue,
@@ -854,6 +875,7 @@ impl Recorder {
         self.last_checkpoint = Instant::now();
         CheckpointJob {
             dir: self.dir.clone(),
+            dir_handle: self.dir_handle.clone(),
             frames: self.committed,
             unsynced: if texts { std::mem::take(&mut self.unsynced) } else { Vec::new() },
             texts: texts.then(|| (self.labels_text.clone(), self.mot_text.clone())),
@@ -1002,6 +1024,8 @@ mod tests {
         std::fs::write(&frame, b"frame").unwrap();
         let job = |d: &Path| CheckpointJob {
             dir: d.to_path_buf(),
+            // as the recorder holds it (none where the directory is missing: the sync opens the path, and fails)
+            dir_handle: std::fs::File::open(d).ok().map(Arc::new),
             frames: 1,
             unsynced: vec![frame.clone()],
             texts: Some(("labels\n".into(), "mot\n".into())),
@@ -1062,17 +1086,18 @@ mod tests {
             )
             .unwrap();
             let idle = rec.idle_work();
-            for k in 0..40u64 {
-                let frame = crate::sim::with_workers_awake_and(idle.as_ref(), || {
+            // the workers held awake over the whole loop, as `irsim record` holds them: the recorder waits for
+            // frames (and encodes them itself) while they look for work
+            crate::sim::with_workers_awake_and(idle.as_ref(), || {
+                for k in 0..40u64 {
                     // some parallel work, as a frame's stages have
                     use rayon::prelude::*;
                     let px: Vec<f32> =
                         (0..96 * 64).into_par_iter().map(|i| ((i as u64 * 7919 + k * 104_729) % 4096) as f32).collect();
-                    Frame::from_pixels(96, 64, px)
-                });
-                let mask = (0..96 * 64).map(|i| u8::from(i % 97 == 0)).collect();
-                rec.push(frame, Some(mask), labels(k));
-            }
+                    let mask = (0..96 * 64).map(|i| u8::from(i % 97 == 0)).collect();
+                    rec.push(Frame::from_pixels(96, 64, px), Some(mask), labels(k));
+                }
+            });
             let p = rec.finish(false).unwrap();
             assert_eq!((p.status.as_str(), p.frames_written), ("complete", 40));
             let mut files = Vec::new();
