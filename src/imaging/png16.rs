@@ -219,48 +219,87 @@ fn vbmi() -> bool {
 /// registers for the whole piece (through `w` it went to memory and back at every store).
 #[inline(always)]
 fn code_bytes(data: &[u8], code: &[u64; SYMBOLS], len: &[u32; SYMBOLS], w: &mut BitWriter<'_>) {
-    // every code is at most MAX_CODE_BITS long: the piece ends at most this far on, and each store writes 8
-    // bytes at the position, which stays at or before the end
-    let end = w.pos + (data.len() * MAX_CODE_BITS as usize + w.nbits as usize).div_ceil(8);
-    assert!(end + 8 <= w.out.len(), "room for the piece's codes");
-    let out = w.out.as_mut_ptr();
-    let (mut pos, mut buf, mut nbits) = (w.pos, w.buf, w.nbits);
-    let mut put = |bits: u64, n: u32| {
-        buf |= bits << nbits;
-        nbits += n;
-        // SAFETY: `pos` ≤ `end` (each code's bits are counted in it) and `end + 8` ≤ the buffer's length
-        unsafe { out.add(pos).cast::<[u8; 8]>().write_unaligned(buf.to_le_bytes()) };
-        let whole = nbits & !7;
-        pos += (whole >> 3) as usize;
-        buf >>= whole;
-        nbits -= whole;
-    };
-    let quad = |q: &[u8]| {
-        let (a, b, c, d) = (q[0] as usize, q[1] as usize, q[2] as usize, q[3] as usize);
-        let (la, lb, lc) = (len[a], len[b], len[c]);
-        let bits = code[a] | (code[b] << la) | (code[c] << (la + lb)) | (code[d] << (la + lb + lc));
-        (bits, la + lb + lc + len[d])
-    };
+    let mut chain = Chain::start(w, data.len());
     let mut octets = data.chunks_exact(8);
     for o in &mut octets {
-        let ((low, nl), (high, nh)) = (quad(&o[..4]), quad(&o[4..]));
+        let ((low, nl), (high, nh)) = (quad(&o[..4], code, len), quad(&o[4..], code, len));
         // `nl` ≤ 56, so the shift is defined; the sum is used only where it fits a store (≤ 7 bits wait)
+        // SAFETY (all three loops): the piece's bytes, each coded once, as `start` counted them
         if nl + nh <= 56 {
-            put(low | (high << nl), nl + nh);
+            unsafe { chain.put(low | (high << nl), nl + nh) };
         } else {
-            put(low, nl);
-            put(high, nh);
+            unsafe {
+                chain.put(low, nl);
+                chain.put(high, nh);
+            }
         }
     }
     let mut quads = octets.remainder().chunks_exact(4);
     for q in &mut quads {
-        let (bits, n) = quad(q);
-        put(bits, n);
+        let (bits, n) = quad(q, code, len);
+        unsafe { chain.put(bits, n) };
     }
     for &byte in quads.remainder() {
-        put(code[byte as usize], len[byte as usize]);
+        unsafe { chain.put(code[byte as usize], len[byte as usize]) };
     }
-    (w.pos, w.buf, w.nbits) = (pos, buf, nbits);
+    chain.finish(w);
+}
+
+/// The codes of four bytes, the first lowest, and their length in bits (at most 56).
+#[inline(always)]
+fn quad(q: &[u8], code: &[u64; SYMBOLS], len: &[u32; SYMBOLS]) -> (u64, u32) {
+    let (a, b, c, d) = (q[0] as usize, q[1] as usize, q[2] as usize, q[3] as usize);
+    let (la, lb, lc) = (len[a], len[b], len[c]);
+    let bits = code[a] | (code[b] << la) | (code[c] << (la + lb)) | (code[d] << (la + lb + lc));
+    (bits, la + lb + lc + len[d])
+}
+
+/// A [`BitWriter`]'s state held in registers while a piece is coded: the store is a chain of dependent steps
+/// (the bits waiting, their count, the position), and through the writer it went to memory and back at every
+/// store. Each store writes 8 bytes at the position through a pointer, in bounds for the piece checked once.
+struct Chain {
+    out: *mut u8,
+    pos: usize,
+    buf: u64,
+    nbits: u32,
+}
+
+impl Chain {
+    /// The chain of `w` for a piece of `bytes` bytes. Every code is at most [`MAX_CODE_BITS`] long: the piece
+    /// ends at most this far on, and each store writes 8 bytes at the position, which stays at or before the end.
+    /// `w` must not be used until [`Chain::finish`] hands the state back.
+    ///
+    /// # Panics
+    /// If `w`'s buffer has no room for the piece.
+    #[inline(always)]
+    fn start(w: &mut BitWriter<'_>, bytes: usize) -> Self {
+        let end = w.pos + (bytes * MAX_CODE_BITS as usize + w.nbits as usize).div_ceil(8);
+        assert!(end + 8 <= w.out.len(), "room for the piece's codes");
+        Self { out: w.out.as_mut_ptr(), pos: w.pos, buf: w.buf, nbits: w.nbits }
+    }
+
+    /// Appends the low `n` bits of `bits` (`n` ≤ 56; no bits above them set).
+    ///
+    /// # Safety
+    /// The bits put since [`Chain::start`] must be those of at most its `bytes` bytes' codes (so that the
+    /// position stays at or before the end it checked), and its writer's buffer must not have moved.
+    #[inline(always)]
+    unsafe fn put(&mut self, bits: u64, n: u32) {
+        self.buf |= bits << self.nbits;
+        self.nbits += n;
+        // SAFETY: `pos` ≤ the end `start` checked (each code's bits are counted in it), whose `+ 8` is in bounds
+        unsafe { self.out.add(self.pos).cast::<[u8; 8]>().write_unaligned(self.buf.to_le_bytes()) };
+        let whole = self.nbits & !7;
+        self.pos += (whole >> 3) as usize;
+        self.buf >>= whole;
+        self.nbits -= whole;
+    }
+
+    /// Hands the state back to the writer it started from.
+    #[inline(always)]
+    fn finish(self, w: &mut BitWriter<'_>) {
+        (w.pos, w.buf, w.nbits) = (self.pos, self.buf, self.nbits);
+    }
 }
 
 /// [`code_bytes`] compiled with BMI2's shifts by any register (the same bits; a quarter fewer instructions).
@@ -278,7 +317,7 @@ unsafe fn code_bytes_bmi2(data: &[u8], code: &[u64; SYMBOLS], len: &[u32; SYMBOL
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{BitWriter, MAX_CODE_BITS, SYMBOLS};
+    use super::{BitWriter, Chain, SYMBOLS, quad};
 
     /// The codes' low and high bytes and their lengths as 256-byte tables, for byte lookups in registers.
     #[repr(C, align(64))]
@@ -317,27 +356,7 @@ mod x86 {
     ) {
         let blocks = data.chunks_exact(64);
         let tail = blocks.remainder();
-        // as in `code_bytes`: each store writes 8 bytes at the position, which stays at or before `end`
-        let end = w.pos + (data.len() * MAX_CODE_BITS as usize + w.nbits as usize).div_ceil(8);
-        assert!(end + 8 <= w.out.len(), "room for the piece's codes");
-        let out = w.out.as_mut_ptr();
-        let (mut pos, mut buf, mut nbits) = (w.pos, w.buf, w.nbits);
-        let mut put = |bits: u64, n: u32| {
-            buf |= bits << nbits;
-            nbits += n;
-            // SAFETY: `pos` ≤ `end` (each code's bits are counted in it) and `end + 8` ≤ the buffer's length
-            unsafe { out.add(pos).cast::<[u8; 8]>().write_unaligned(buf.to_le_bytes()) };
-            let whole = nbits & !7;
-            pos += (whole >> 3) as usize;
-            buf >>= whole;
-            nbits -= whole;
-        };
-        let quad = |q: &[u8]| {
-            let (a, b, c, d) = (q[0] as usize, q[1] as usize, q[2] as usize, q[3] as usize);
-            let (la, lb, lc) = (len[a], len[b], len[c]);
-            let bits = code[a] | (code[b] << la) | (code[c] << (la + lb)) | (code[d] << (la + lb + lc));
-            (bits, la + lb + lc + len[d])
-        };
+        let mut chain = Chain::start(w, data.len() - tail.len());
         // SAFETY: each table is 256 bytes, four rows of 64
         let rows = |t: &[u8; 256]| {
             let p = t.as_ptr();
@@ -384,23 +403,26 @@ mod x86 {
                 _mm512_storeu_si512(bits.as_mut_ptr().cast(), c);
                 _mm512_storeu_si512(lens.as_mut_ptr().cast(), l);
             }
+            // SAFETY (both branches): the block's bytes, each coded once, as `start` counted them
             if _mm512_cmpgt_epu64_mask(l, most) == 0 {
                 for e in 0..8 {
-                    put(bits[e], lens[e] as u32);
+                    unsafe { chain.put(bits[e], lens[e] as u32) };
                 }
             } else {
                 for (e, o) in block.chunks_exact(8).enumerate() {
                     if lens[e] <= 56 {
-                        put(bits[e], lens[e] as u32);
+                        unsafe { chain.put(bits[e], lens[e] as u32) };
                     } else {
-                        let ((low, nl), (high, nh)) = (quad(&o[..4]), quad(&o[4..]));
-                        put(low, nl);
-                        put(high, nh);
+                        let ((low, nl), (high, nh)) = (quad(&o[..4], code, len), quad(&o[4..], code, len));
+                        unsafe {
+                            chain.put(low, nl);
+                            chain.put(high, nh);
+                        }
                     }
                 }
             }
         }
-        (w.pos, w.buf, w.nbits) = (pos, buf, nbits);
+        chain.finish(w);
         super::code_bytes(tail, code, len, w);
     }
 }
