@@ -91,11 +91,11 @@ pub fn frame_at(app: &mut App, k: u64) -> Option<FrameReady> {
     drain_frames(app).pop()
 }
 
-/// Runs `f` (one frame) with rayon's other workers kept awake: each takes a job that looks for work in the pool
-/// until `f` returns, so the frame's parallel stages find them ready instead of waking them from sleep (rayon
-/// puts an idle worker to sleep within microseconds; handing each frame to a pool thread and back cost about
-/// 110 µs here, a third of a 256×256 frame). A waiting worker calls the system's yield between looks. Outside a
-/// pool, or in a pool of one, `f` just runs.
+/// Runs `f` (one frame) with rayon's other workers kept awake: each is given a job of its own (a broadcast) that
+/// looks for work in the pool until `f` returns, so the frame's parallel stages find them ready instead of waking
+/// them from sleep (rayon puts an idle worker to sleep within microseconds; handing each frame to a pool thread and
+/// back cost about 110 µs here, a third of a 256×256 frame). A waiting worker calls the system's yield between
+/// looks. Outside a pool, or in a pool of one, `f` just runs.
 pub fn with_workers_awake<R>(f: impl FnOnce() -> R) -> R {
     with_workers_awake_and(None, f)
 }
@@ -128,44 +128,46 @@ pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R)
         return f();
     }
     let done = Arc::new(AtomicBool::new(false));
-    for _ in 0..others {
-        let (done, idle) = (Arc::clone(&done), idle.cloned());
-        rayon::spawn(move || {
-            // the frame's own thread may run this job itself while it waits in a join, and idle work pausing
-            // for the pool may run it: neither must wait here
-            if rayon::current_thread_index() == Some(owner) {
-                return;
+    let (waiting, idle) = (Arc::clone(&done), idle.cloned());
+    // one job on each thread of the pool, which no other thread can take: a job that the frame's own thread ran
+    // (and so dropped) would leave a worker without its waiting loop until `f` returns, for a whole recording
+    // where `f` is the recording's loop
+    rayon::spawn_broadcast(move |ctx| {
+        // the frame's own thread runs its job while it waits in a join, or after `f`; idle work pausing for
+        // the pool may run this thread's: neither must wait here
+        if ctx.index() == owner {
+            return;
+        }
+        let (done, idle) = (Arc::clone(&waiting), idle.clone());
+        if IN_IDLE_WORK.get() {
+            ADOPTED.set(Some(done));
+            return;
+        }
+        let mut done = done;
+        while !done.load(Ordering::Acquire) {
+            if rayon::yield_now() == Some(rayon::Yield::Executed) {
+                continue;
             }
-            if IN_IDLE_WORK.get() {
-                ADOPTED.set(Some(done));
-                return;
-            }
-            let mut done = done;
-            while !done.load(Ordering::Acquire) {
-                if rayon::yield_now() == Some(rayon::Yield::Executed) {
-                    continue;
-                }
-                let worked = idle.as_ref().is_some_and(|work| {
-                    // cleared however `work` ends
-                    struct Idle;
-                    impl Drop for Idle {
-                        fn drop(&mut self) {
-                            IN_IDLE_WORK.set(false);
-                        }
+            let worked = idle.as_ref().is_some_and(|work| {
+                // cleared however `work` ends
+                struct Idle;
+                impl Drop for Idle {
+                    fn drop(&mut self) {
+                        IN_IDLE_WORK.set(false);
                     }
-                    IN_IDLE_WORK.set(true);
-                    let _idle = Idle;
-                    work()
-                });
-                if let Some(later) = ADOPTED.take() {
-                    done = later;
                 }
-                if !worked {
-                    std::thread::yield_now();
-                }
+                IN_IDLE_WORK.set(true);
+                let _idle = Idle;
+                work()
+            });
+            if let Some(later) = ADOPTED.take() {
+                done = later;
             }
-        });
-    }
+            if !worked {
+                std::thread::yield_now();
+            }
+        }
+    });
     // set even if `f` panics, so that the waiting jobs end
     struct Done(Arc<AtomicBool>);
     impl Drop for Done {
