@@ -116,17 +116,8 @@ impl Setup {
     #[inline(always)]
     fn read(&self, electrons: f32, z: f32) -> f32 {
         let s = electrons + (electrons.max(0.0) + self.read_variance).sqrt() * z;
-        round_clamp(self.offset + s.min(self.well) * self.dn_per_e, self.top)
+        crate::physics::noise::quantize_level(self.offset + s.min(self.well) * self.dn_per_e, self.top)
     }
-}
-
-/// `⌊x + ½⌋` clamped to `[0, top]` (the pipeline's rounding, `noise::quantize_row`).
-#[inline(always)]
-fn round_clamp(x: f32, top: f32) -> f32 {
-    const SHIFT: f32 = 8_388_608.0;
-    let y = x.max(0.0).min(top) + 0.5;
-    let t = (y + SHIFT) - SHIFT;
-    if t > y { t - 1.0 } else { t }
 }
 
 /// The bounds.

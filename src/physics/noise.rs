@@ -205,46 +205,35 @@ impl Readout {
             if noisy {
                 fill_normals(&mut normals, z);
             }
-            if !noisy || normal {
-                // noise, saturation, ADC, columns and rounding in one pass (the same operations, in the same
-                // order, as the passes of the per-pixel path below)
-                let shot = if self.shot_noise { 1.0 } else { 0.0 };
-                match (noisy, max_level) {
-                    (true, Some(top)) => self.finish_block::<true, true>(block, z, o, c, shot, top),
-                    (true, None) => self.finish_block::<true, false>(block, z, o, c, shot, 0.0),
-                    (false, Some(top)) => self.finish_block::<false, true>(block, z, o, c, shot, top),
-                    (false, None) => self.finish_block::<false, false>(block, z, o, c, shot, 0.0),
-                }
-                continue;
-            }
-            let sd_read = self.read_variance.sqrt();
-            for (s, &z) in block.iter_mut().zip(z.iter()) {
-                if *s >= threshold {
-                    *s += (s.max(0.0) + self.read_variance).sqrt() * z;
-                } else {
-                    // exact Poisson shot noise, and the pixel's normal deviate for the read noise
-                    let count = poisson(f64::from(s.max(0.0)), f64::from(self.poisson_normal_threshold), &mut uniforms);
-                    *s = count as f32 + sd_read * z;
+            // a block with a pixel below the threshold takes its noise pixel by pixel; every other noisy block
+            // takes it in the pass that finishes the block
+            let per_pixel = noisy && !normal;
+            if per_pixel {
+                let sd_read = self.read_variance.sqrt();
+                for (s, &z) in block.iter_mut().zip(z.iter()) {
+                    if *s >= threshold {
+                        *s += (s.max(0.0) + self.read_variance).sqrt() * z;
+                    } else {
+                        // exact Poisson shot noise, and the pixel's normal deviate for the read noise
+                        let count =
+                            poisson(f64::from(s.max(0.0)), f64::from(self.poisson_normal_threshold), &mut uniforms);
+                        *s = count as f32 + sd_read * z;
+                    }
                 }
             }
-            // saturation, ADC
-            for (p, &o) in block.iter_mut().zip(o) {
-                *p = self.offset_dn + o + p.min(self.full_well) * self.dn_per_signal;
-            }
-            if columns.is_some() {
-                for (p, &c) in block.iter_mut().zip(c) {
-                    *p += c;
-                }
-            }
-            if let Some(top) = max_level {
-                quantize_row(block, top);
+            let shot = if self.shot_noise { 1.0 } else { 0.0 };
+            match (noisy && !per_pixel, max_level) {
+                (true, Some(top)) => self.finish_block::<true, true>(block, z, o, c, shot, top),
+                (true, None) => self.finish_block::<true, false>(block, z, o, c, shot, 0.0),
+                (false, Some(top)) => self.finish_block::<false, true>(block, z, o, c, shot, top),
+                (false, None) => self.finish_block::<false, false>(block, z, o, c, shot, 0.0),
             }
         }
     }
 
-    /// A block of mean signals on the normal path to DN: the deviates `z` scaled by the pixel's noise (if
-    /// `NOISY`), the well, the ADC with the offsets `o` and the column offsets `c`, and the rounding to
-    /// `[0, top]` (if `ROUND`), in one pass.
+    /// A block of signals to DN in one pass: the deviates `z` scaled by the pixel's noise (if `NOISY`: a block
+    /// on the normal path), the well, the ADC with the offsets `o` and the column offsets `c`, and the rounding
+    /// to `[0, top]` (if `ROUND`).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn finish_block<const NOISY: bool, const ROUND: bool>(
@@ -282,7 +271,7 @@ pub fn quantize_row(line: &mut [f32], top: f32) {
 
 /// [`quantize_row`] of one value.
 #[inline(always)]
-fn quantize_level(v: f32, top: f32) -> f32 {
+pub fn quantize_level(v: f32, top: f32) -> f32 {
     const SHIFT: f32 = 8_388_608.0; // 2²³
     // max first: NaN.max(0) is 0
     let y = v.max(0.0).min(top) + 0.5;
