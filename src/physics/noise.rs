@@ -603,6 +603,25 @@ mod tests {
     }
 
     #[test]
+    fn a_block_with_a_pixel_under_the_threshold_draws_exact_counts_there_alone() {
+        // no read noise and 1 DN an electron: an exact Poisson count is a whole number of DN, a normal draw is not
+        let r =
+            Readout { read_variance: 0.0, dn_per_signal: 1.0, offset_dn: 0.0, signal_per_radiance: 1.0, ..readout() };
+        // one row of two blocks: the first with dim pixels (5 e⁻) among bright ones, the second all bright
+        let mut p: Vec<f32> = (0..128).map(|i| if i < 64 && i % 8 == 0 { 5.0 } else { 5000.0 }).collect();
+        r.apply(&mut p, 128, ReadoutMaps::default(), true, 7, 3, None, None);
+        let whole = |v: f32| v == v.round();
+        for (i, &v) in p.iter().enumerate() {
+            if i < 64 && i % 8 == 0 {
+                assert!(whole(v) && (0.0..40.0).contains(&v), "dim pixel {i}: {v}");
+            }
+        }
+        // the bright pixels of both blocks take the normal law: hardly any lands on a whole number
+        let bright_whole = p.iter().enumerate().filter(|&(i, &v)| !(i < 64 && i % 8 == 0) && whole(v)).count();
+        assert!(bright_whole < 10, "{bright_whole} of 120 bright pixels whole");
+    }
+
+    #[test]
     fn maps_and_saturation() {
         let r = Readout { full_well: 1000.0, ..readout() };
         let gain = vec![0.5f32; 8];
