@@ -97,30 +97,76 @@ pub fn frame_at(app: &mut App, k: u64) -> Option<FrameReady> {
 /// back cost about 110 µs here, a third of a 256×256 frame). A waiting worker calls the system's yield between
 /// looks. Outside a pool, or in a pool of one, `f` just runs.
 pub fn with_workers_awake<R>(f: impl FnOnce() -> R) -> R {
-    with_workers_awake_and(None, f)
+    awake_while(None, FRAME_START_WAIT, f)
 }
 
 /// Idle work for [`with_workers_awake_and`]: does one piece of work on the calling thread and says whether there
 /// was any.
 pub type IdleWork = std::sync::Arc<dyn Fn() -> bool + Send + Sync>;
 
+/// How long a waiting loop goes on looking for work after the frames it waits for have ended: a frame run right
+/// after (the next `step`) finds the worker still awake and its waiting job taken up by this loop at once.
+const LINGER: std::time::Duration = std::time::Duration::from_micros(200);
+
+/// How long [`with_workers_awake`] waits for every other worker to take up its waiting job before it runs the
+/// frame anyway. A worker still in its waiting loop from the frame before takes it up within a microsecond or two;
+/// one asleep, or not given a core (a loaded machine), may take far longer, and that frame runs without it kept
+/// awake rather than wait.
+const FRAME_START_WAIT: std::time::Duration = std::time::Duration::from_micros(100);
+
+/// The same wait for [`with_workers_awake_and`], which holds the workers awake over a long `f` (a whole
+/// recording): worth waiting for a sleeping worker to wake.
+const LOOP_START_WAIT: std::time::Duration = std::time::Duration::from_millis(20);
+
 thread_local! {
-    /// Whether this thread is inside a waiting worker's idle work (whose pauses may run another waiting job).
-    static IN_IDLE_WORK: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-    /// A later frame's end flag, left by that frame's waiting job when it ran inside this thread's idle work:
-    /// the waiting loop that did the idle work goes on waiting for that frame instead of ending with its own.
-    static ADOPTED: std::cell::RefCell<Option<std::sync::Arc<std::sync::atomic::AtomicBool>>> =
-        const { std::cell::RefCell::new(None) };
+    /// Whether a waiting loop runs on this thread (further down its stack): a waiting job that starts inside it
+    /// hands its end flag to that loop instead of waiting itself.
+    static WAITING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    /// Whether this thread runs the frame of a [`with_workers_awake_and`] (further down its stack): another
+    /// frame's waiting job that it takes up while that frame waits in a join ends at once.
+    static IN_FRAME: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    /// End flags of frames whose waiting jobs started inside this thread's waiting loop, for that loop to take.
+    static ADOPTED: std::cell::RefCell<Vec<std::sync::Arc<std::sync::atomic::AtomicBool>>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Sets a thread-local flag for its lifetime, and restores it however the scope ends.
+struct FlagScope(&'static std::thread::LocalKey<std::cell::Cell<bool>>, bool);
+
+impl FlagScope {
+    fn set(key: &'static std::thread::LocalKey<std::cell::Cell<bool>>) -> Self {
+        Self(key, key.replace(true))
+    }
+}
+
+impl Drop for FlagScope {
+    fn drop(&mut self) {
+        self.0.set(self.1);
+    }
 }
 
 /// [`with_workers_awake`], the waiting workers doing `idle` (the recorder's frames to encode) when the pool has
 /// nothing for them, in place of the system's yield. Work that `idle` does should pause for the pool's jobs
 /// now and then (`rayon::yield_now`), so that the frame's parallel stages are not kept waiting by it. The
-/// waiting jobs are not scoped to `f`: when `f` returns they stop at their next look, and one in the middle
-/// of idle work finishes that piece without holding up the caller.
+/// waiting jobs are not scoped to `f`: when `f` returns they stop at their next look (after lingering a little
+/// for a next frame), and one in the middle of idle work finishes that piece without holding up the caller.
+///
+/// A waiting job must never wait on top of a part of a frame: the frame would wait for that part, and the job
+/// for the frame's end. A worker that looked for work just before its job arrived can take a part of the frame
+/// first, and then the job while that part waits in a join. So a waiting job loops only where no part of a
+/// frame can be beneath it: one that starts inside a waiting loop hands its flag to that loop, one that starts
+/// on a thread running another frame ends at once, and one that starts after `f` has begun ends at once. `f`
+/// begins once every other worker has taken up its job (or after [`LOOP_START_WAIT`]; [`with_workers_awake`]:
+/// [`FRAME_START_WAIT`]), and a worker's loop lingers after its frames end, so that the next frame's job is taken
+/// up inside it.
 pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R) -> R {
+    awake_while(idle, LOOP_START_WAIT, f)
+}
+
+/// [`with_workers_awake_and`], waiting at most `start_wait` for the workers to take up their jobs.
+fn awake_while<R>(idle: Option<&IdleWork>, start_wait: std::time::Duration, f: impl FnOnce() -> R) -> R {
     use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
     let (Some(owner), others) = (rayon::current_thread_index(), rayon::current_num_threads().saturating_sub(1)) else {
         return f();
     };
@@ -128,45 +174,33 @@ pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R)
         return f();
     }
     let done = Arc::new(AtomicBool::new(false));
-    let (waiting, idle) = (Arc::clone(&done), idle.cloned());
+    let (started, begun) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicBool::new(false)));
+    let (waiting, taken, idle) = (Arc::clone(&done), Arc::clone(&started), idle.cloned());
+    let frame_begun = Arc::clone(&begun);
     // one job on each thread of the pool, which no other thread can take: a job that the frame's own thread ran
     // (and so dropped) would leave a worker without its waiting loop until `f` returns, for a whole recording
     // where `f` is the recording's loop
     rayon::spawn_broadcast(move |ctx| {
-        // the frame's own thread runs its job while it waits in a join, or after `f`; idle work pausing for
-        // the pool may run this thread's: neither must wait here
+        // the frame's own thread runs its job while it waits in a join, or after `f`: it must not wait here
         if ctx.index() == owner {
             return;
         }
-        let (done, idle) = (Arc::clone(&waiting), idle.clone());
-        if IN_IDLE_WORK.get() {
-            ADOPTED.set(Some(done));
+        let done = Arc::clone(&waiting);
+        if IN_FRAME.get() {
+            taken.fetch_add(1, Ordering::Release);
             return;
         }
-        let mut done = done;
-        while !done.load(Ordering::Acquire) {
-            if rayon::yield_now() == Some(rayon::Yield::Executed) {
-                continue;
-            }
-            let worked = idle.as_ref().is_some_and(|work| {
-                // cleared however `work` ends
-                struct Idle;
-                impl Drop for Idle {
-                    fn drop(&mut self) {
-                        IN_IDLE_WORK.set(false);
-                    }
-                }
-                IN_IDLE_WORK.set(true);
-                let _idle = Idle;
-                work()
-            });
-            if let Some(later) = ADOPTED.take() {
-                done = later;
-            }
-            if !worked {
-                std::thread::yield_now();
-            }
+        if WAITING.get() {
+            ADOPTED.with_borrow_mut(|a| a.push(done));
+            taken.fetch_add(1, Ordering::Release);
+            return;
         }
+        taken.fetch_add(1, Ordering::SeqCst);
+        if frame_begun.load(Ordering::SeqCst) {
+            return;
+        }
+        let _waiting = FlagScope::set(&WAITING);
+        wait_for_frames(done, idle.as_ref());
     });
     // set even if `f` panics, so that the waiting jobs end
     struct Done(Arc<AtomicBool>);
@@ -176,7 +210,41 @@ pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R)
         }
     }
     let _done = Done(done);
+    let since = std::time::Instant::now();
+    while started.load(Ordering::Acquire) < others && since.elapsed() < start_wait {
+        // this thread's own waiting job, and another frame's, are taken here
+        if rayon::yield_local() != Some(rayon::Yield::Executed) {
+            std::hint::spin_loop();
+        }
+    }
+    begun.store(true, Ordering::SeqCst);
+    let _in_frame = FlagScope::set(&IN_FRAME);
     f()
+}
+
+/// A worker's waiting loop: looks for the pool's jobs (then `idle`, then the system's yield) until every frame
+/// it waits for has ended (its own, and those whose waiting jobs started inside it), and [`LINGER`] after.
+fn wait_for_frames(done: std::sync::Arc<std::sync::atomic::AtomicBool>, idle: Option<&IdleWork>) {
+    use std::sync::atomic::Ordering;
+    let mut frames = vec![done];
+    let mut ended: Option<std::time::Instant> = None;
+    loop {
+        frames.retain(|d| !d.load(Ordering::Acquire));
+        if frames.is_empty() {
+            let at = *ended.get_or_insert_with(std::time::Instant::now);
+            if at.elapsed() >= LINGER {
+                return;
+            }
+        } else {
+            ended = None;
+        }
+        let executed = rayon::yield_now() == Some(rayon::Yield::Executed);
+        let worked = executed || (!frames.is_empty() && idle.is_some_and(|work| work()));
+        ADOPTED.with_borrow_mut(|a| frames.append(a));
+        if !worked {
+            std::thread::yield_now();
+        }
+    }
 }
 
 /// The frame [`step`] read last (its buffer goes back to the [`FramePool`] when the next one arrives).
@@ -257,5 +325,79 @@ mod tests {
         let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
         assert_eq!(one.install(|| with_workers_awake(|| 7)), 7);
         assert_eq!(with_workers_awake(|| 8), 8);
+    }
+
+    #[test]
+    fn frames_run_back_to_back_with_nested_parallel_work_all_finish() {
+        // frame after frame, each opening with parallel parts that fork again (as the radiometry's targets do):
+        // a worker that looks for work as a frame starts must not take a part of it before its waiting job (which
+        // would then wait on top of that part, for the frame's end)
+        use rayon::prelude::*;
+        let frames = 5000u32;
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+            let total: f64 = pool.install(|| {
+                (0..frames)
+                    .map(|k| {
+                        with_workers_awake(|| {
+                            (0..8u32)
+                                .into_par_iter()
+                                .map(|i| {
+                                    let v: Vec<f64> = (0..256u32)
+                                        .into_par_iter()
+                                        .with_max_len(16)
+                                        .map(|j| f64::from(i * 256 + j + k).sqrt().ln_1p())
+                                        .collect();
+                                    v.iter().sum::<f64>()
+                                })
+                                .sum::<f64>()
+                        })
+                    })
+                    .sum()
+            });
+            let _ = tx.send(total);
+        });
+        let total = rx.recv_timeout(std::time::Duration::from_secs(240)).expect("the frames did not finish");
+        let expected: f64 =
+            (0..frames).map(|k| (0..2048u32).map(|n| f64::from(n + k).sqrt().ln_1p()).sum::<f64>()).sum();
+        assert!((total - expected).abs() <= 1e-9 * expected, "{total} vs {expected}");
+    }
+
+    #[test]
+    fn frames_started_inside_other_frames_parts_all_finish() {
+        // each part of a frame runs frames of its own (as tests running side by side in one pool do): a thread
+        // that runs one frame takes another's waiting job while it waits in a join, which must not wait there
+        use rayon::prelude::*;
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+            let total: u64 = pool.install(|| {
+                (0..200u64)
+                    .map(|k| {
+                        with_workers_awake(|| {
+                            (0..8u32)
+                                .into_par_iter()
+                                .with_max_len(1)
+                                .map(|i| {
+                                    with_workers_awake(|| {
+                                        (0..64u32)
+                                            .into_par_iter()
+                                            .with_max_len(1)
+                                            .map(|j| u64::from(i * j) + k)
+                                            .sum::<u64>()
+                                    })
+                                })
+                                .sum::<u64>()
+                        })
+                    })
+                    .sum()
+            });
+            let _ = tx.send(total);
+        });
+        let total = rx.recv_timeout(std::time::Duration::from_secs(120)).expect("the frames did not finish");
+        // per frame: sum over i < 8, j < 64 of i·j (28 · 2016) plus 512 k
+        let expected: u64 = (0..200u64).map(|k| 28 * 2016 + 512 * k).sum();
+        assert_eq!(total, expected);
     }
 }
