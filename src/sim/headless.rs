@@ -92,8 +92,8 @@ pub fn frame_at(app: &mut App, k: u64) -> Option<FrameReady> {
 }
 
 /// Runs `f` (one frame) with rayon's other workers kept awake: each is given a job of its own (a broadcast) that
-/// looks for work in the pool until `f` returns, so the frame's parallel stages find them ready instead of waking
-/// them from sleep (rayon puts an idle worker to sleep within microseconds; handing each frame to a pool thread and
+/// looks for work in the pool until `f` returns (details, and when a worker is not held: [`with_workers_awake_and`]),
+/// so the frame's parallel stages find them ready instead of waking them from sleep (rayon puts an idle worker to sleep within microseconds; handing each frame to a pool thread and
 /// back cost about 110 µs here, a third of a 256×256 frame). A waiting worker calls the system's yield between
 /// looks. Outside a pool, or in a pool of one, `f` just runs.
 pub fn with_workers_awake<R>(f: impl FnOnce() -> R) -> R {
@@ -122,8 +122,8 @@ thread_local! {
     /// Whether a waiting loop runs on this thread (further down its stack): a waiting job that starts inside it
     /// hands its end flag to that loop instead of waiting itself.
     static WAITING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-    /// Whether this thread runs the frame of a [`with_workers_awake_and`] (further down its stack): another
-    /// frame's waiting job that it takes up while that frame waits in a join ends at once.
+    /// Whether this thread runs the frame of a [`with_workers_awake_and`], or waits for its workers before it
+    /// (further down its stack): another frame's waiting job that it takes up there ends at once.
     static IN_FRAME: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
     /// End flags of frames whose waiting jobs started inside this thread's waiting loop, for that loop to take.
     static ADOPTED: std::cell::RefCell<Vec<std::sync::Arc<std::sync::atomic::AtomicBool>>> =
@@ -151,14 +151,15 @@ impl Drop for FlagScope {
 /// waiting jobs are not scoped to `f`: when `f` returns they stop at their next look (after lingering a little
 /// for a next frame), and one in the middle of idle work finishes that piece without holding up the caller.
 ///
-/// A waiting job must never wait on top of a part of a frame: the frame would wait for that part, and the job
-/// for the frame's end. A worker that looked for work just before its job arrived can take a part of the frame
-/// first, and then the job while that part waits in a join. So a waiting job loops only where no part of a
-/// frame can be beneath it: one that starts inside a waiting loop hands its flag to that loop, one that starts
-/// on a thread running another frame ends at once, and one that starts after `f` has begun ends at once. `f`
-/// begins once every other worker has taken up its job (or after [`LOOP_START_WAIT`]; [`with_workers_awake`]:
-/// [`FRAME_START_WAIT`]), and a worker's loop lingers after its frames end, so that the next frame's job is taken
-/// up inside it.
+/// A waiting loop must never have beneath it a part of a frame it waits for: the frame would wait for that part,
+/// and the loop for the frame's end. A worker that looked for work just before its job arrived can take a part of
+/// the frame first, and then the job while that part waits in a join. So a waiting job loops only where that
+/// cannot be: one that starts inside a waiting loop hands its flag to that loop, one that starts on a thread
+/// running (or about to run) another frame ends at once, and one that starts after `f` has begun ends at once
+/// (that worker is then not held awake for this `f`: for a recording, one that takes its job more than the
+/// start wait late does not encode). `f` begins once every other worker has taken up its job (or after 20 ms;
+/// [`with_workers_awake`]: 100 µs), and a worker's loop lingers 200 µs after its frames end, so that the next
+/// frame's job is taken up inside it. A loop does only the idle work of the job that started it.
 pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R) -> R {
     awake_while(idle, LOOP_START_WAIT, f)
 }
@@ -210,15 +211,18 @@ fn awake_while<R>(idle: Option<&IdleWork>, start_wait: std::time::Duration, f: i
         }
     }
     let _done = Done(done);
+    // set before the wait: another caller's waiting job taken here must end at once (looping on top of this
+    // frame's wait, it would hold the frame until that caller's frames end, or for ever if that caller's frame is
+    // held the same way by this one's)
+    let _in_frame = FlagScope::set(&IN_FRAME);
     let since = std::time::Instant::now();
     while started.load(Ordering::Acquire) < others && since.elapsed() < start_wait {
-        // this thread's own waiting job, and another frame's, are taken here
+        // this thread's own waiting job, and other callers' frames' jobs, are taken here
         if rayon::yield_local() != Some(rayon::Yield::Executed) {
             std::hint::spin_loop();
         }
     }
     begun.store(true, Ordering::SeqCst);
-    let _in_frame = FlagScope::set(&IN_FRAME);
     f()
 }
 
@@ -289,12 +293,20 @@ pub fn current_frame(app: &mut App) -> &Frame {
 mod tests {
     use super::with_workers_awake;
 
+    /// Runs `f` on a thread of its own and returns its value, failing if it has not returned within `seconds`.
+    fn finishes_within<T: Send + 'static>(seconds: u64, f: impl FnOnce() -> T + Send + 'static) -> T {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(f());
+        });
+        rx.recv_timeout(std::time::Duration::from_secs(seconds)).expect("the frames did not finish")
+    }
+
     #[test]
     fn a_panicking_frame_releases_the_waiting_workers() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
         // the panic reaches the caller (the waiting job is not scoped to the frame: it sees the frame's end flag,
-        // set as the panic passes, and stops); the frame waits until the other thread has run part of it, which it can only reach by first taking
-        // the waiting job (pushed before, at the end of the queue that thieves take from)
+        // set as the panic passes, and stops); the frame waits until the other thread has run part of it
         let caught = pool.install(|| {
             std::panic::catch_unwind(|| {
                 with_workers_awake(|| -> u64 {
@@ -327,52 +339,79 @@ mod tests {
         assert_eq!(with_workers_awake(|| 8), 8);
     }
 
+    /// Frame `k` of a test: parallel parts that fork again (as the radiometry's targets do), then `tail_us` of
+    /// work on the frame's own thread; its sum.
+    fn test_frame(k: u32, tail_us: u64) -> f64 {
+        use rayon::prelude::*;
+        let sum = (0..8u32)
+            .into_par_iter()
+            .map(|i| {
+                let v: Vec<f64> = (0..256u32)
+                    .into_par_iter()
+                    .with_max_len(16)
+                    .map(|j| f64::from(i * 256 + j + k).sqrt().ln_1p())
+                    .collect();
+                v.iter().sum::<f64>()
+            })
+            .sum::<f64>();
+        let t = std::time::Instant::now();
+        while t.elapsed() < std::time::Duration::from_micros(tail_us) {
+            std::hint::spin_loop();
+        }
+        sum
+    }
+
+    /// What [`test_frame`]s `0..frames` sum to.
+    fn test_frames_sum(frames: u32) -> f64 {
+        (0..frames).map(|k| (0..2048u32).map(|n| f64::from(n + k).sqrt().ln_1p()).sum::<f64>()).sum()
+    }
+
     #[test]
     fn frames_run_back_to_back_with_nested_parallel_work_all_finish() {
-        // frame after frame, each opening with parallel parts that fork again (as the radiometry's targets do):
         // a worker that looks for work as a frame starts must not take a part of it before its waiting job (which
         // would then wait on top of that part, for the frame's end)
-        use rayon::prelude::*;
-        let frames = 5000u32;
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
+        let frames = 5000;
+        let total = finishes_within(240, move || {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
-            let total: f64 = pool.install(|| {
-                (0..frames)
-                    .map(|k| {
-                        with_workers_awake(|| {
-                            (0..8u32)
-                                .into_par_iter()
-                                .map(|i| {
-                                    let v: Vec<f64> = (0..256u32)
-                                        .into_par_iter()
-                                        .with_max_len(16)
-                                        .map(|j| f64::from(i * 256 + j + k).sqrt().ln_1p())
-                                        .collect();
-                                    v.iter().sum::<f64>()
-                                })
-                                .sum::<f64>()
-                        })
-                    })
-                    .sum()
-            });
-            let _ = tx.send(total);
+            pool.install(|| (0..frames).map(|k| with_workers_awake(|| test_frame(k, 0))).sum::<f64>())
         });
-        let total = rx.recv_timeout(std::time::Duration::from_secs(240)).expect("the frames did not finish");
-        let expected: f64 =
-            (0..frames).map(|k| (0..2048u32).map(|n| f64::from(n + k).sqrt().ln_1p()).sum::<f64>()).sum();
+        let expected = test_frames_sum(frames);
         assert!((total - expected).abs() <= 1e-9 * expected, "{total} vs {expected}");
     }
 
     #[test]
+    fn frames_of_two_callers_on_one_pool_all_finish() {
+        // two threads each run frames back to back in one pool (of 2, then of 4): a thread waiting for its frame's
+        // workers takes the other caller's waiting jobs, which must not wait there
+        for threads in [2, 4] {
+            let frames = 300;
+            let totals = finishes_within(60, move || {
+                let pool = std::sync::Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap());
+                let callers: Vec<_> = (0..2)
+                    .map(|_| {
+                        let pool = std::sync::Arc::clone(&pool);
+                        std::thread::spawn(move || {
+                            pool.install(|| (0..frames).map(|k| with_workers_awake(|| test_frame(k, 50))).sum::<f64>())
+                        })
+                    })
+                    .collect();
+                callers.into_iter().map(|c| c.join().unwrap()).collect::<Vec<f64>>()
+            });
+            let expected = test_frames_sum(frames);
+            for total in totals {
+                assert!((total - expected).abs() <= 1e-9 * expected, "{threads} threads: {total} vs {expected}");
+            }
+        }
+    }
+
+    #[test]
     fn frames_started_inside_other_frames_parts_all_finish() {
-        // each part of a frame runs frames of its own (as tests running side by side in one pool do): a thread
-        // that runs one frame takes another's waiting job while it waits in a join, which must not wait there
+        // each part of a frame runs frames of its own: a thread that runs one frame takes another's waiting job
+        // while it waits in a join, which must not wait there
         use rayon::prelude::*;
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
+        let total = finishes_within(120, || {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
-            let total: u64 = pool.install(|| {
+            pool.install(|| {
                 (0..200u64)
                     .map(|k| {
                         with_workers_awake(|| {
@@ -391,11 +430,9 @@ mod tests {
                                 .sum::<u64>()
                         })
                     })
-                    .sum()
-            });
-            let _ = tx.send(total);
+                    .sum::<u64>()
+            })
         });
-        let total = rx.recv_timeout(std::time::Duration::from_secs(120)).expect("the frames did not finish");
         // per frame: sum over i < 8, j < 64 of i·j (28 · 2016) plus 512 k
         let expected: u64 = (0..200u64).map(|k| 28 * 2016 + 512 * k).sum();
         assert_eq!(total, expected);
