@@ -93,9 +93,10 @@ pub fn frame_at(app: &mut App, k: u64) -> Option<FrameReady> {
 
 /// Runs `f` (one frame) with rayon's other workers kept awake: each is given a job of its own (a broadcast) that
 /// looks for work in the pool until `f` returns (details, and when a worker is not held: [`with_workers_awake_and`]),
-/// so the frame's parallel stages find them ready instead of waking them from sleep (rayon puts an idle worker to sleep within microseconds; handing each frame to a pool thread and
-/// back cost about 110 µs here, a third of a 256×256 frame). A waiting worker calls the system's yield between
-/// looks. Outside a pool, or in a pool of one, `f` just runs.
+/// so the frame's parallel stages find them ready instead of waking them from sleep (rayon puts an idle worker to
+/// sleep within microseconds; handing each frame to a pool thread and back cost about 110 µs here, a third of a
+/// 256×256 frame). A waiting worker calls the system's yield between looks. Outside a pool, or in a pool of one,
+/// `f` just runs.
 pub fn with_workers_awake<R>(f: impl FnOnce() -> R) -> R {
     awake_while(None, FRAME_START_WAIT, f)
 }
@@ -125,8 +126,8 @@ thread_local! {
     /// Whether this thread runs the frame of a [`with_workers_awake_and`], or waits for its workers before it
     /// (further down its stack): another frame's waiting job that it takes up there ends at once.
     static IN_FRAME: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-    /// End flags of frames whose waiting jobs started inside this thread's waiting loop, for that loop to take.
-    static ADOPTED: std::cell::RefCell<Vec<std::sync::Arc<std::sync::atomic::AtomicBool>>> =
+    /// Frames whose waiting jobs started inside this thread's waiting loop, for that loop to wait for.
+    static ADOPTED: std::cell::RefCell<Vec<std::sync::Arc<FrameFlags>>> =
         const { std::cell::RefCell::new(Vec::new()) };
 }
 
@@ -167,17 +168,15 @@ pub fn with_workers_awake_and<R>(idle: Option<&IdleWork>, f: impl FnOnce() -> R)
 /// [`with_workers_awake_and`], waiting at most `start_wait` for the workers to take up their jobs.
 fn awake_while<R>(idle: Option<&IdleWork>, start_wait: std::time::Duration, f: impl FnOnce() -> R) -> R {
     use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    use std::sync::atomic::Ordering;
     let (Some(owner), others) = (rayon::current_thread_index(), rayon::current_num_threads().saturating_sub(1)) else {
         return f();
     };
     if others == 0 {
         return f();
     }
-    let done = Arc::new(AtomicBool::new(false));
-    let (started, begun) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicBool::new(false)));
-    let (waiting, taken, idle) = (Arc::clone(&done), Arc::clone(&started), idle.cloned());
-    let frame_begun = Arc::clone(&begun);
+    let frame = Arc::new(FrameFlags::default());
+    let (job_frame, idle) = (Arc::clone(&frame), idle.cloned());
     // one job on each thread of the pool, which no other thread can take: a job that the frame's own thread ran
     // (and so dropped) would leave a worker without its waiting loop until `f` returns, for a whole recording
     // where `f` is the recording's loop
@@ -186,54 +185,62 @@ fn awake_while<R>(idle: Option<&IdleWork>, start_wait: std::time::Duration, f: i
         if ctx.index() == owner {
             return;
         }
-        let done = Arc::clone(&waiting);
+        job_frame.taken.fetch_add(1, Ordering::SeqCst);
         if IN_FRAME.get() {
-            taken.fetch_add(1, Ordering::Release);
             return;
         }
         if WAITING.get() {
-            ADOPTED.with_borrow_mut(|a| a.push(done));
-            taken.fetch_add(1, Ordering::Release);
+            ADOPTED.with_borrow_mut(|a| a.push(Arc::clone(&job_frame)));
             return;
         }
-        taken.fetch_add(1, Ordering::SeqCst);
-        if frame_begun.load(Ordering::SeqCst) {
+        if job_frame.begun.load(Ordering::SeqCst) {
             return;
         }
         let _waiting = FlagScope::set(&WAITING);
-        wait_for_frames(done, idle.as_ref());
+        wait_for_frames(Arc::clone(&job_frame), idle.as_ref());
     });
     // set even if `f` panics, so that the waiting jobs end
-    struct Done(Arc<AtomicBool>);
+    struct Done(Arc<FrameFlags>);
     impl Drop for Done {
         fn drop(&mut self) {
-            self.0.store(true, Ordering::Release);
+            self.0.done.store(true, Ordering::Release);
         }
     }
-    let _done = Done(done);
+    let _done = Done(Arc::clone(&frame));
     // set before the wait: another caller's waiting job taken here must end at once (looping on top of this
     // frame's wait, it would hold the frame until that caller's frames end, or for ever if that caller's frame is
     // held the same way by this one's)
     let _in_frame = FlagScope::set(&IN_FRAME);
     let since = std::time::Instant::now();
-    while started.load(Ordering::Acquire) < others && since.elapsed() < start_wait {
+    while frame.taken.load(Ordering::SeqCst) < others && since.elapsed() < start_wait {
         // this thread's own waiting job, and other callers' frames' jobs, are taken here
         if rayon::yield_local() != Some(rayon::Yield::Executed) {
             std::hint::spin_loop();
         }
     }
-    begun.store(true, Ordering::SeqCst);
+    frame.begun.store(true, Ordering::SeqCst);
     f()
+}
+
+/// One call's state, shared with its waiting jobs.
+#[derive(Default)]
+struct FrameFlags {
+    /// The other workers that have taken up their jobs (looping, handing the frame to a loop, or ending).
+    taken: std::sync::atomic::AtomicUsize,
+    /// `f` has begun: a job taken up later ends at once.
+    begun: std::sync::atomic::AtomicBool,
+    /// `f` has returned (or panicked).
+    done: std::sync::atomic::AtomicBool,
 }
 
 /// A worker's waiting loop: looks for the pool's jobs (then `idle`, then the system's yield) until every frame
 /// it waits for has ended (its own, and those whose waiting jobs started inside it), and [`LINGER`] after.
-fn wait_for_frames(done: std::sync::Arc<std::sync::atomic::AtomicBool>, idle: Option<&IdleWork>) {
+fn wait_for_frames(frame: std::sync::Arc<FrameFlags>, idle: Option<&IdleWork>) {
     use std::sync::atomic::Ordering;
-    let mut frames = vec![done];
+    let mut frames = vec![frame];
     let mut ended: Option<std::time::Instant> = None;
     loop {
-        frames.retain(|d| !d.load(Ordering::Acquire));
+        frames.retain(|f| !f.done.load(Ordering::Acquire));
         if frames.is_empty() {
             let at = *ended.get_or_insert_with(std::time::Instant::now);
             if at.elapsed() >= LINGER {
