@@ -6,8 +6,9 @@
 //! the rows over the threads.
 //! - `store`: write every pixel once (memory bandwidth; every stage pays it).
 //! - `bilinear`: one bilinear sample per pixel of a 1000 × 1000 f32 texture at coordinates stepped along the
-//!   row (a turned, scaled view, so neighbouring pixels read neighbouring texels, as the sky's ray cast does), and
-//!   the store: the bound of the `render` stage.
+//!   row (a scaled view turned by [`TURN_RAD`], so neighbouring pixels read neighbouring texels, as the sky's
+//!   ray cast does; its texels fetched by windows where they lie close together, else gathered, as the ray
+//!   cast's are), and the store: the bound of the `render` stage.
 //! - `normal`: one standard normal deviate per pixel (Box–Muller on a counter-based hash, 24-bit uniforms, a
 //!   table-free logarithm and sine/cosine polynomials: the `box_muller` sampler's transform, sixteen pairs to
 //!   an AVX-512 register where the CPU has it) and the store.
@@ -32,6 +33,12 @@ use crate::scenario::load::load_for_frames;
 /// Side of the bounds' texture, texels (not a power of two: rows 4 KiB apart would share cache sets).
 const TEXTURE: usize = 1000;
 
+/// How far the bounds' view is turned against the texture, rad. Along a row of a view turned by a few
+/// hundredths of a radian or less, most sixteen pixels' texels lie within a window or two of 32 floats and are
+/// fetched by loads and permutes ([`crate::physics::simd::texel_windows`]); a view turned by 0.3 rad (as this
+/// bound's was) crosses a texel row every five pixels, and its texels are gathered.
+const TURN_RAD: f32 = 0.01;
+
 /// The bounds' parameters: the texture, its view and the detector.
 struct Setup {
     texture: Vec<f32>,
@@ -53,9 +60,10 @@ impl Setup {
     fn new(width: usize, height: usize) -> Self {
         let mut rng = SplitMix64::new(7);
         let texture = (0..TEXTURE * TEXTURE).map(|_| 1000.0 + (rng.next_bits() >> 54) as f32).collect();
-        // a view turned by 0.3 rad, 0.7 texels per pixel, inside the texture
+        // a view turned by 0.01 rad (the shipped scenarios' cameras are about level), 0.7 texels per pixel,
+        // inside the texture
         let scale = 0.7f32;
-        let (s, c) = 0.3f32.sin_cos();
+        let (s, c) = TURN_RAD.sin_cos();
         let step_u = [scale * c, scale * s];
         let step_v = [-scale * s, scale * c];
         let centre = TEXTURE as f32 / 2.0;
@@ -373,7 +381,6 @@ mod x86 {
         let (su, sv) = (_mm512_set1_ps(s.step_u[0]), _mm512_set1_ps(s.step_u[1]));
         let limit = _mm512_set1_ps((TEXTURE - 2) as f32);
         let lanes = _mm512_setr_ps(0., 1., 2., 3., 4., 5., 6., 7., 8., 9., 10., 11., 12., 13., 14., 15.);
-        let t = s.texture.as_ptr();
         let mut i = 0;
         let mut tail = [0f32; 16];
         while i < row.len() {
@@ -384,7 +391,7 @@ mod x86 {
             let (fx, fy) = (_mm512_sub_ps(x, _mm512_cvtepi32_ps(ix)), _mm512_sub_ps(y, _mm512_cvtepi32_ps(iy)));
             let k = _mm512_add_epi32(_mm512_mullo_epi32(iy, _mm512_set1_epi32(TEXTURE as i32)), ix);
             // SAFETY: 0 ≤ ix, iy ≤ TEXTURE − 2 (clamped), so every index is inside the texture
-            let v = unsafe { crate::physics::simd::bilinear16_avx512(t, k, TEXTURE, fx, fy, 0xffff) };
+            let v = unsafe { crate::physics::simd::sample16_avx512(&s.texture, k, TEXTURE, fx, fy, 0xffff, true) };
             let n = (row.len() - i).min(16);
             // SAFETY: 16 floats into `tail`, then n ≤ 16 into the row at i
             unsafe {

@@ -947,19 +947,21 @@ impl RowGeometry {
     }
 }
 
-/// The bilinear span with AVX-512 gathers.
+/// The span with AVX-512 vectors, its texels fetched by windows where they lie close together, else gathered.
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
 
-    use crate::physics::simd::bilinear16_avx512;
+    use crate::physics::simd::sample16_avx512;
 
     /// [`SkyPlane::fast_span`](super::SkyPlane)'s loop (nearest or bilinear), sixteen pixels at a time, the last
     /// block masked. The positions are the scalar recurrence's
     /// (`q(k) = q₀ + k·d₀ + k(k−1)/2·dd` in 24.40 fixed point), stepped sixteen pixels at a time in each lane by
     /// the same identity (`q(k + 16) − q(k) = 16·d₀ + 120·dd + 16k·dd`, exact in wrapping integer arithmetic),
     /// and the mix is the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so every value
-    /// is the same.
+    /// is the same. The texels are read by [`sample16_avx512`]: along a row of a view not turned much against the
+    /// image, sixteen lanes' texels lie within one or two windows of 32 floats, two loads and a permute each; a
+    /// gather of sixteen had been 90 % of this loop's time (`perf annotate`).
     ///
     /// # Safety
     /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel (and, bilinear, its right and lower
@@ -986,7 +988,6 @@ mod x86 {
         let top_bits = _mm512_set1_epi32(0xff_ffff);
         let fraction = _mm512_set1_ps(1.0 / 16_777_216.0);
         let width = _mm512_set1_epi32(w as i32);
-        let base = px.as_ptr();
         // one axis: the sixteen lanes' positions (low lanes, high lanes), the step to the next block's, and the
         // step's own change from block to block
         let axis = |q: i64, d: i64, dd: i64| {
@@ -1026,13 +1027,7 @@ mod x86 {
             let i = _mm512_add_epi32(_mm512_mullo_epi32(iy, width), ix);
             // SAFETY: the caller guarantees every written pixel's index and its neighbours are inside `px`; the
             // lanes past the span's end are masked off
-            let mut v = unsafe {
-                if bilinear {
-                    bilinear16_avx512(base, i, w, fx, fy, mask)
-                } else {
-                    _mm512_mask_i32gather_ps::<4>(_mm512_setzero_ps(), mask, i, base)
-                }
-            };
+            let mut v = unsafe { sample16_avx512(px, i, w, fx, fy, mask, bilinear) };
             let at = out[k..].as_mut_ptr();
             // SAFETY: the masked lanes are inside `out`
             unsafe {
@@ -1099,8 +1094,16 @@ mod tests {
         let px: Vec<f32> = (0..w * 200).map(|i| (i as f32 * 0.37).sin() * 50.0 + 100.0).collect();
         let fixed = |v: f64| (v * 1_099_511_627_776.0) as i64;
         // forwards and backwards, bending either way, over spans of 1 to 100 pixels (whole blocks and tails)
-        let paths =
-            [([10.37, 150.2], [0.731, -0.52], [0.0013, -0.0007]), ([280.9, 20.6], [-1.9, 0.41], [-0.002, 0.003])];
+        // and along rows, where the texels are fetched by windows ([`texel_windows`](crate::physics::simd::texel_windows)): sixteen lanes in one (1.31
+        // texels a pixel), in two of eight (2.7), and by the last rows, where the windows would end past the
+        // image and the lanes are gathered
+        let paths = [
+            ([10.37, 150.2], [0.731, -0.52], [0.0013, -0.0007]),
+            ([280.9, 20.6], [-1.9, 0.41], [-0.002, 0.003]),
+            ([5.2, 10.3], [1.31, 0.0004], [0.0001, 0.0]),
+            ([3.7, 50.5], [2.7, 0.0003], [0.0, 0.0]),
+            ([250.3, 198.4], [0.4, 0.0], [0.0, 0.0]),
+        ];
         for (start, step, bend) in paths {
             for len in 1..=100 {
                 for (bilinear, accumulate) in [(true, false), (true, true), (false, false), (false, true)] {

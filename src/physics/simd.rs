@@ -194,9 +194,119 @@ pub unsafe fn bilinear16_avx512(
             _mm512_mask_i32gather_ps::<4>(zero, mask, index, base.add(width + 1)),
         )
     };
+    bilinear_mix16(tl, tr, bl, br, fx, fy)
+}
+
+/// [`bilinear16_avx512`]'s mix of sixteen lanes' four texels: each row `left + (right − left)·fx`, then
+/// `top + (bottom − top)·fy`, multiplies and adds separate, as the scalar samplers do.
+///
+/// # Safety
+/// Callable only on a CPU with AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub fn bilinear_mix16(
+    tl: std::arch::x86_64::__m512,
+    tr: std::arch::x86_64::__m512,
+    bl: std::arch::x86_64::__m512,
+    br: std::arch::x86_64::__m512,
+    fx: std::arch::x86_64::__m512,
+    fy: std::arch::x86_64::__m512,
+) -> std::arch::x86_64::__m512 {
+    use std::arch::x86_64::*;
     let top = _mm512_add_ps(tl, _mm512_mul_ps(_mm512_sub_ps(tr, tl), fx));
     let bottom = _mm512_add_ps(bl, _mm512_mul_ps(_mm512_sub_ps(br, bl), fx));
     _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy))
+}
+
+/// Whether sixteen lanes' texels at `index` (those in `mask`) in a row-major f32 image `width` wide and `len`
+/// long lie within 32 consecutive floats, or lanes 0–7's within 32 and lanes 8–15's within 32 (and, `bilinear`,
+/// their right neighbours too, and the same floats one row down; every window inside the image): then two
+/// loads and a permute per window and row fetch them, in place of a gather's sixteen loads per texel. Returns
+/// the first float of lanes 0–7's window and of lanes 8–15's (the same where one window holds all sixteen),
+/// and each lane's index relative to its window.
+///
+/// # Safety
+/// Callable only on a CPU with AVX-512 (F, DQ, BW, VL).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+#[inline]
+pub fn texel_windows(
+    index: std::arch::x86_64::__m512i,
+    mask: std::arch::x86_64::__mmask16,
+    bilinear: bool,
+    width: usize,
+    len: usize,
+) -> Option<([usize; 2], std::arch::x86_64::__m512i)> {
+    use std::arch::x86_64::*;
+    // the right neighbour's index is rel + 1, and a permute reaches 32 floats
+    let last = _mm512_set1_epi32(if bilinear { 30 } else { 31 });
+    let rows = if bilinear { width } else { 0 };
+    let inside = |first: i32| first >= 0 && first as usize + rows + 32 <= len;
+    let first = _mm512_mask_reduce_min_epi32(mask, index);
+    let rel = _mm512_sub_epi32(index, _mm512_set1_epi32(first));
+    if _mm512_mask_cmpgt_epu32_mask(mask, rel, last) == 0 {
+        return inside(first).then_some(([first as usize; 2], rel));
+    }
+    let (mask_lo, mask_hi) = (mask & 0x00ff, mask & 0xff00);
+    if mask_lo == 0 || mask_hi == 0 {
+        return None;
+    }
+    let (lo, hi) = (_mm512_mask_reduce_min_epi32(mask_lo, index), _mm512_mask_reduce_min_epi32(mask_hi, index));
+    let rel = _mm512_sub_epi32(index, _mm512_mask_blend_epi32(0xff00, _mm512_set1_epi32(lo), _mm512_set1_epi32(hi)));
+    (_mm512_mask_cmpgt_epu32_mask(mask, rel, last) == 0 && inside(lo) && inside(hi))
+        .then_some(([lo as usize, hi as usize], rel))
+}
+
+/// Sixteen samples of a row-major f32 image `width` wide, bilinear ([`bilinear16_avx512`]'s) or nearest (the
+/// texel at `index`): the texels fetched by [`texel_windows`] where they lie close together, as along a row of
+/// a view that is not turned much against the image, else gathered. The same values either way; the lanes
+/// outside `mask` are unspecified.
+///
+/// # Safety
+/// The CPU must have AVX-512 (F, DQ, BW, VL); for every lane in `mask`, `index` (and, bilinear, `index + 1`,
+/// `index + width` and `index + width + 1`) must lie inside `px`, whose length must fit an `i32`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+#[inline]
+pub unsafe fn sample16_avx512(
+    px: &[f32],
+    index: std::arch::x86_64::__m512i,
+    width: usize,
+    fx: std::arch::x86_64::__m512,
+    fy: std::arch::x86_64::__m512,
+    mask: std::arch::x86_64::__mmask16,
+    bilinear: bool,
+) -> std::arch::x86_64::__m512 {
+    use std::arch::x86_64::*;
+    let base = px.as_ptr();
+    match texel_windows(index, mask, bilinear, width, px.len()) {
+        Some(([lo, hi], rel)) => {
+            // the lanes' texels `offset` floats on from their index (lanes 8–15 from their own window where it is
+            // not lanes 0–7's)
+            let fetch = |offset: usize, at: __m512i| {
+                // SAFETY: `texel_windows` checked that every window (one row down included) ends inside `px`
+                let window = |first: usize| unsafe {
+                    let p = base.add(first + offset);
+                    _mm512_permutex2var_ps(_mm512_loadu_ps(p), at, _mm512_loadu_ps(p.add(16)))
+                };
+                let low = window(lo);
+                if hi == lo { low } else { _mm512_mask_blend_ps(0xff00, low, window(hi)) }
+            };
+            if bilinear {
+                let right = _mm512_add_epi32(rel, _mm512_set1_epi32(1));
+                let (tl, tr) = (fetch(0, rel), fetch(0, right));
+                let (bl, br) = (fetch(width, rel), fetch(width, right));
+                bilinear_mix16(tl, tr, bl, br, fx, fy)
+            } else {
+                fetch(0, rel)
+            }
+        }
+        // SAFETY: the caller guarantees the masked lanes' texels are inside `px`
+        None if bilinear => unsafe { bilinear16_avx512(base, index, width, fx, fy, mask) },
+        // SAFETY: as above
+        None => unsafe { _mm512_mask_i32gather_ps::<4>(_mm512_setzero_ps(), mask, index, base) },
+    }
 }
 
 #[cfg(test)]
@@ -250,5 +360,55 @@ mod tests {
         let vector = widest(|| xs.iter().map(|&x| exp(x)).collect::<Vec<f64>>());
         let scalar: Vec<f64> = xs.iter().map(|&x| std::hint::black_box(exp(std::hint::black_box(x)))).collect();
         assert!(vector.iter().zip(&scalar).all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn texel_windows_are_used_only_where_they_fit() {
+        use std::arch::x86_64::*;
+        if !is_x86_feature_detected!("avx512f") || !is_x86_feature_detected!("avx512dq") {
+            return;
+        }
+        let (w, len) = (300usize, 60_000usize);
+        let near = |lanes: &dyn Fn(i32) -> i32, mask: u16, bilinear: bool, len: usize| {
+            let v: [i32; 16] = std::array::from_fn(|k| lanes(k as i32));
+            // SAFETY: AVX-512 checked above; 64 bytes read from a 16-lane array
+            let (route, rel) = unsafe {
+                let i = _mm512_loadu_si512(v.as_ptr().cast());
+                match texel_windows(i, mask, bilinear, w, len) {
+                    Some((first, rel)) => {
+                        let mut out = [0i32; 16];
+                        _mm512_storeu_si512(out.as_mut_ptr().cast(), rel);
+                        (Some(first), out)
+                    }
+                    None => (None, [0; 16]),
+                }
+            };
+            // each lane's index is its window's first float plus its relative index
+            if let Some([lo, hi]) = route {
+                for k in (0..16).filter(|k| mask >> k & 1 == 1) {
+                    let first = if k < 8 { lo } else { hi };
+                    assert_eq!(first as i32 + rel[k], v[k], "lane {k}");
+                }
+            }
+            route
+        };
+        // 2 texels a pixel: one window (the last lane's right neighbour is its 32nd float)
+        assert_eq!(near(&|k| 100 + 2 * k, 0xffff, true, len), Some([100, 100]));
+        // one float wider: one window for nearest samples, two for bilinear ones
+        let wide = |k: i32| 100 + 2 * k + i32::from(k == 15);
+        assert_eq!(near(&wide, 0xffff, false, len), Some([100, 100]));
+        assert_eq!(near(&wide, 0xffff, true, len), Some([100, 116]));
+        // two windows, each on its own row
+        assert_eq!(near(&|k| if k < 8 { 100 + k } else { 400 + k }, 0xffff, true, len), Some([100, 408]));
+        // 5 texels a pixel, or a row changing inside a half: gathered
+        assert_eq!(near(&|k| 100 + 5 * k, 0xffff, true, len), None);
+        assert_eq!(near(&|k| if k < 4 { 100 + k } else { 400 + k }, 0xffff, true, len), None);
+        // lanes outside the mask do not count
+        assert_eq!(near(&|k| if k < 10 { 100 + k } else { 50_000 }, 0x03ff, true, len), Some([100, 100]));
+        // the windows (one row down, bilinear) must end inside the image
+        assert_eq!(near(&|k| 100 + k, 0xffff, true, 100 + w + 32), Some([100, 100]));
+        assert_eq!(near(&|k| 100 + k, 0xffff, true, 100 + w + 31), None);
+        assert_eq!(near(&|k| 100 + k, 0xffff, false, 100 + 31), None);
     }
 }
