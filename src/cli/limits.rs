@@ -6,7 +6,7 @@
 //! the rows over the threads.
 //! - `store`: write every pixel once (memory bandwidth; every stage pays it).
 //! - `bilinear`: one bilinear sample per pixel of a 1000 × 1000 f32 texture at coordinates stepped along the
-//!   row (a scaled view turned by [`TURN_RAD`], so neighbouring pixels read neighbouring texels, as the sky's
+//!   row (a scaled view turned by 0.01 rad, so neighbouring pixels read neighbouring texels, as the sky's
 //!   ray cast does; its texels fetched by windows where they lie close together, else gathered, as the ray
 //!   cast's are), and the store: the bound of the `render` stage.
 //! - `normal`: one standard normal deviate per pixel (Box–Muller on a counter-based hash, 24-bit uniforms, a
