@@ -5,11 +5,11 @@
 //!
 //! `standard` is what a scenario without `[quality]` gets. `reference` puts every switch at its exact setting,
 //! or where a switch has none (a truncated kernel, a quadrature), at the finest the program offers; `draft` gives
-//! up accuracy for speed: in the committed report its frames are 2.2–4.7× faster than `standard`'s on the
-//! shipped scenarios except paper_vibration (1.39×: a sky image whose standard frame is 0.09 ms, and whose
-//! draft blurs its sky per frame in runs as short as the report's); swarm is the thinnest margin among the
-//! others (2.22×: its ten targets' fusion and labels cost the same in both presets); its whole runs 2.2–3.9×
-//! shorter, and
+//! up accuracy for speed: in the committed report (made on an AMD EPYC) its frames are 2.2–4.2× faster than
+//! `standard`'s on the shipped scenarios except paper_vibration (1.36×: a sky image whose standard frame is
+//! 0.12 ms, and whose draft blurs its sky per frame in runs as short as the report's); crossing_pair (2.16×) and
+//! swarm (2.46×: its ten targets' fusion and labels cost the same in both presets) are the thinnest margins
+//! among the others; its whole runs 2.3–3.6× shorter, and
 //! differ from `reference` by 0.48–18.7 DN rms (the most on paper_cloudy_sky, where the
 //! blurred sky is read nearest, made on a 2 px grid, from a cloud layer of 2 px texels: cloud edges move and
 //! soften; alone, on sense_and_avoid, the 2 px grid costs 10.0 DN rms and its targets' centroids 0.14 px, the
