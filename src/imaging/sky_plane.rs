@@ -1087,26 +1087,36 @@ mod tests {
     #[test]
     #[cfg(target_arch = "x86_64")]
     fn the_vector_span_is_the_scalar_recurrence_bit_for_bit() {
-        if !is_x86_feature_detected!("avx512f") || !is_x86_feature_detected!("avx512dq") {
+        let avx512 = is_x86_feature_detected!("avx512f")
+            && is_x86_feature_detected!("avx512dq")
+            && is_x86_feature_detected!("avx512bw")
+            && is_x86_feature_detected!("avx512vl");
+        if !avx512 {
             return;
         }
         let w = 300usize;
         let px: Vec<f32> = (0..w * 200).map(|i| (i as f32 * 0.37).sin() * 50.0 + 100.0).collect();
         let fixed = |v: f64| (v * 1_099_511_627_776.0) as i64;
-        // forwards and backwards, bending either way, over spans of 1 to 100 pixels (whole blocks and tails)
-        // and along rows, where the texels are fetched by windows ([`texel_windows`](crate::physics::simd::texel_windows)): sixteen lanes in one (1.31
-        // texels a pixel), in two of eight (2.7), and by the last rows, where the windows would end past the
-        // image and the lanes are gathered
-        let paths = [
-            ([10.37, 150.2], [0.731, -0.52], [0.0013, -0.0007]),
-            ([280.9, 20.6], [-1.9, 0.41], [-0.002, 0.003]),
-            ([5.2, 10.3], [1.31, 0.0004], [0.0001, 0.0]),
-            ([3.7, 50.5], [2.7, 0.0003], [0.0, 0.0]),
-            ([250.3, 198.4], [0.4, 0.0], [0.0, 0.0]),
+        // forwards and backwards, bending either way, over spans of 1 to 100 pixels (whole blocks and tails);
+        // and along rows, where the texels are fetched by windows (`physics::simd::texel_windows`): sixteen lanes
+        // in one (1.31 texels a pixel), in two of eight (2.7), either way along the row, and on the last rows,
+        // where the windows of the later blocks would end past the image and those blocks are gathered (the
+        // last path nearest only: its bilinear samples would read the row below the image)
+        let both = [(true, false), (true, true), (false, false), (false, true)];
+        let nearest = [(false, false), (false, true)];
+        let paths: [(_, _, _, &[(bool, bool)]); 8] = [
+            ([10.37, 150.2], [0.731, -0.52], [0.0013, -0.0007], &both),
+            ([280.9, 20.6], [-1.9, 0.41], [-0.002, 0.003], &both),
+            ([5.2, 10.3], [1.31, 0.0004], [0.0001, 0.0], &both),
+            ([3.7, 50.5], [2.7, 0.0003], [0.0, 0.0], &both),
+            ([280.2, 30.6], [-1.31, 0.0004], [-0.0001, 0.0], &both),
+            ([290.1, 60.5], [-2.7, 0.0003], [0.0, 0.0], &both),
+            ([250.3, 198.4], [0.4, 0.0], [0.0, 0.0], &both),
+            ([250.3, 199.4], [0.4, 0.0], [0.0, 0.0], &nearest),
         ];
-        for (start, step, bend) in paths {
+        for (start, step, bend, modes) in paths {
             for len in 1..=100 {
-                for (bilinear, accumulate) in [(true, false), (true, true), (false, false), (false, true)] {
+                for &(bilinear, accumulate) in modes {
                     let (q, d, dd) = (start.map(fixed), step.map(fixed), bend.map(fixed));
                     let before: Vec<f32> = (0..len).map(|k| k as f32 * 0.25).collect();
                     let mut scalar = before.clone();

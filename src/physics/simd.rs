@@ -366,7 +366,7 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     fn texel_windows_are_used_only_where_they_fit() {
         use std::arch::x86_64::*;
-        if !is_x86_feature_detected!("avx512f") || !is_x86_feature_detected!("avx512dq") {
+        if Level::supported() != Level::Avx512 {
             return;
         }
         let (w, len) = (300usize, 60_000usize);
@@ -410,5 +410,11 @@ mod tests {
         assert_eq!(near(&|k| 100 + k, 0xffff, true, 100 + w + 32), Some([100, 100]));
         assert_eq!(near(&|k| 100 + k, 0xffff, true, 100 + w + 31), None);
         assert_eq!(near(&|k| 100 + k, 0xffff, false, 100 + 31), None);
+        // along a row backwards: the window starts at the last lane's texel, or each half's at its own last
+        assert_eq!(near(&|k| 200 - 2 * k, 0xffff, true, len), Some([170, 170]));
+        assert_eq!(near(&|k| 200 - 3 * k, 0xffff, true, len), Some([179, 155]));
+        // one half's window ending past the image is enough to gather
+        assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 100 + 24 + 31), None);
+        assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 100 + 24 + 32), Some([100, 124]));
     }
 }
