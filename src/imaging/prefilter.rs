@@ -170,8 +170,17 @@ fn frobenius2(m: DMat2) -> f64 {
     m.to_cols_array().iter().map(|v| v * v).sum()
 }
 
-/// Largest spacing of a prefiltered texture's grid, sensor pixels: a magnified image is prefiltered onto a grid
-/// at least this fine. Measured against the brute-force blur at sharp-edged clouds (`cargo test --lib
+/// How a [`PrefilterCache`] makes its textures (`[quality] prefilter_tolerance` and `prefilter_spacing_px`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PrefilterSettings {
+    /// Largest relative difference between a tile's Jacobian and its texture's ([`JacobianKey`]).
+    pub tolerance: f64,
+    /// Largest spacing of a texture's grid, px ([`TextureFilter::with_spacing`]).
+    pub spacing_px: f64,
+}
+
+/// Largest spacing of a prefiltered texture's grid, sensor pixels, in the standard preset (`[quality]
+/// prefilter_spacing_px`): a magnified image is prefiltered onto a grid at least this fine. Measured against the brute-force blur at sharp-edged clouds (`cargo test --lib
 /// prefiltered_sky`, image 0.65 texel/px): grids of 0.77 px err up to 0.11 of a cloud's 4-unit step, 0.51 px
 /// 0.016–0.039, 0.38 px 0.021–0.024, the per-frame blur 0.11–0.13; finer grids cost memory bandwidth in the
 /// ray cast and work in the build (both ∝ 1/spacing²).
@@ -315,7 +324,7 @@ pub struct PrefilterCache {
     /// The transforms of the last key's kernels.
     spectra: Option<PhaseSpectra>,
     /// The source image and PSF the entries were made from (their addresses).
-    source: Option<(usize, usize, u64)>,
+    source: Option<(usize, usize, [u64; 2])>,
     convolver: Convolver,
     clock: u64,
     builds: u64,
@@ -347,17 +356,24 @@ impl PrefilterCache {
         source: &SkyPlane,
         psf: &Psf,
         key: JacobianKey,
-        tolerance: f64,
+        settings: PrefilterSettings,
         need: [f64; 4],
     ) -> Option<&SkyPlane> {
-        let slot = self.slot(source, psf, key, tolerance, need, true)?;
+        let slot = self.slot(source, psf, key, settings, need, true)?;
         self.entries[slot].plane.as_ref()
     }
 
     /// What [`PrefilterCache::plane`] would do, without building anything: counts the builds and their work.
     /// Returns false when the texture kernel is too wide. A cache used for planning must not be used to render.
-    pub fn plan(&mut self, source: &SkyPlane, psf: &Psf, key: JacobianKey, tolerance: f64, need: [f64; 4]) -> bool {
-        self.slot(source, psf, key, tolerance, need, false).is_some()
+    pub fn plan(
+        &mut self,
+        source: &SkyPlane,
+        psf: &Psf,
+        key: JacobianKey,
+        settings: PrefilterSettings,
+        need: [f64; 4],
+    ) -> bool {
+        self.slot(source, psf, key, settings, need, false).is_some()
     }
 
     fn slot(
@@ -365,11 +381,16 @@ impl PrefilterCache {
         source: &SkyPlane,
         psf: &Psf,
         key: JacobianKey,
-        tolerance: f64,
+        settings: PrefilterSettings,
         need: [f64; 4],
         build: bool,
     ) -> Option<usize> {
-        let id = (source.image().pixels().as_ptr() as usize, psf as *const Psf as usize, tolerance.to_bits());
+        let PrefilterSettings { tolerance, spacing_px } = settings;
+        let id = (
+            source.image().pixels().as_ptr() as usize,
+            psf as *const Psf as usize,
+            [tolerance.to_bits(), spacing_px.to_bits()],
+        );
         if self.source != Some(id) {
             self.entries.clear();
             self.blocks.clear();
@@ -390,7 +411,7 @@ impl PrefilterCache {
             self.touch_filter(key);
             return Some(i);
         }
-        let filter = self.filter(psf, key, tolerance)?;
+        let filter = self.filter(psf, key, tolerance, spacing_px)?;
         // the block-aligned box around what is needed, one block wider on every side so that a panning view
         // rebuilds it now and then rather than every frame
         let down = |v: usize| (v / BLOCK_TEXELS).saturating_sub(1) * BLOCK_TEXELS;
@@ -421,11 +442,11 @@ impl PrefilterCache {
 
     /// The texture filter of `key`, made or kept from before; the least recently used filters beyond
     /// [`FILTER_CACHE_BYTES`] or [`FILTER_CACHE_ENTRIES`] are dropped.
-    fn filter(&mut self, psf: &Psf, key: JacobianKey, tolerance: f64) -> Option<Arc<TextureFilter>> {
+    fn filter(&mut self, psf: &Psf, key: JacobianKey, tolerance: f64, spacing_px: f64) -> Option<Arc<TextureFilter>> {
         if let Some(kept) = self.touch_filter(key) {
             return kept.filter.clone();
         }
-        let filter = TextureFilter::new(psf, key.jacobian(tolerance)).map(Arc::new);
+        let filter = TextureFilter::with_spacing(psf, key.jacobian(tolerance), spacing_px).map(Arc::new);
         self.filters.push(KeptFilter { key, filter: filter.clone(), last_used: self.clock });
         let bytes = |f: &KeptFilter| f.filter.as_ref().map_or(0, |f| f.bytes());
         let mut total: usize = self.filters.iter().map(bytes).sum();
@@ -885,7 +906,7 @@ mod tests {
         let mut cache = PrefilterCache::new();
         let get = |cache: &mut PrefilterCache, key: JacobianKey| {
             cache.clock += 1;
-            cache.filter(&p, key, tol).expect("a filter")
+            cache.filter(&p, key, tol, TEXTURE_SPACING_PX).expect("a filter")
         };
         let first = get(&mut cache, keys[0]);
         assert_eq!(bits(&first), bits(&TextureFilter::new(&p, keys[0].jacobian(tol)).unwrap()));
@@ -911,7 +932,7 @@ mod tests {
         // a kernel too wide is known as such without sampling the PSF on a grid as fine as the texels
         let wide = JacobianKey::new(DMat2::IDENTITY * 60.0, tol).unwrap();
         cache.clock += 1;
-        assert!(cache.filter(&p, wide, tol).is_none() && kept(&cache, wide));
+        assert!(cache.filter(&p, wide, tol, TEXTURE_SPACING_PX).is_none() && kept(&cache, wide));
     }
 
     #[test]

@@ -31,6 +31,7 @@ use serde::{Deserialize, Serialize};
 use super::{FieldError, fe};
 use crate::imaging::background::SkyBlur;
 use crate::imaging::fusion::{Guidance, Solver};
+use crate::imaging::prefilter::TEXTURE_SPACING_PX;
 use crate::imaging::psf::{ConvolutionMethod, REGION_ENERGY_CUTOFF};
 use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
@@ -104,6 +105,10 @@ pub struct Quality {
     pub sky_blur: SkyBlur,
     /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
     pub prefilter_tolerance: f64,
+    /// Largest spacing of a prefiltered texture's grid, in pixels of the grid the background is made on: an image
+    /// magnified more than this allows is prefiltered onto a grid an integer number of times finer than its
+    /// texels.
+    pub prefilter_spacing_px: f64,
     /// The sky background (image, dome and their blur) is made on a grid this many sensor pixels apart each
     /// way, as a camera with pixels this many times larger but the detector's own photosensitive area would see
     /// it, and interpolated bilinearly between (1: at every pixel; a frame whose width or height is not a
@@ -175,6 +180,7 @@ impl Quality {
             psf_skip_below_dn: 0.1,
             sky_blur: SkyBlur::Prefilter,
             prefilter_tolerance: 0.05,
+            prefilter_spacing_px: TEXTURE_SPACING_PX,
             background_step_px: 1,
             sky_texel_px: 1.0,
             target_method: TargetMethod::Auto,
@@ -206,6 +212,7 @@ impl Quality {
                 psf_energy_cutoff: MIN_ENERGY_CUTOFF,
                 psf_skip_below_dn: 0.0,
                 prefilter_tolerance: REFERENCE_PREFILTER_TOLERANCE,
+                prefilter_spacing_px: REFERENCE_PREFILTER_SPACING_PX,
                 target_method: TargetMethod::Reference,
                 target_node_spacing_px: target_psf::REFERENCE_NODE_SPACING_PX,
                 blob_sampling: BlobSampling::Integrated { n: 16 },
@@ -227,6 +234,7 @@ impl Quality {
                 psf_skip_below_dn: 1.0,
                 sky_blur: SkyBlur::Auto,
                 prefilter_tolerance: 0.2,
+                prefilter_spacing_px: DRAFT_PREFILTER_SPACING_PX,
                 background_step_px: DRAFT_BACKGROUND_STEP_PX,
                 sky_texel_px: DRAFT_SKY_TEXEL_PX,
                 target_node_spacing_px: DRAFT_TARGET_NODE_SPACING_PX,
@@ -289,7 +297,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 28] = [
+pub const SWITCHES: [&str; 29] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -300,6 +308,7 @@ pub const SWITCHES: [&str; 28] = [
     "psf_skip_below_dn",
     "sky_blur",
     "prefilter_tolerance",
+    "prefilter_spacing_px",
     "background_step_px",
     "sky_texel_px",
     "target_method",
@@ -329,6 +338,14 @@ pub const MIN_PREFILTER_TOLERANCE: f64 = 1e-3;
 /// against 0.63 at cloud edges, docs/accuracy.md), and at 0.001 perspective alone sends 94 % of crossing_pair's
 /// frame that way.
 pub const REFERENCE_PREFILTER_TOLERANCE: f64 = 0.01;
+/// The reference preset's `prefilter_spacing_px`. Against it, on the shipped scenarios' generated layers (a
+/// texel a pixel, so grids of 1/m px), a grid of 0.5 px erred 0.41–0.64 DN rms and one of 0.33 px 0.12–0.24
+/// (noise off, 8 frames, docs/accuracy.md).
+pub const REFERENCE_PREFILTER_SPACING_PX: f64 = 0.25;
+/// The draft preset's `prefilter_spacing_px`.
+pub const DRAFT_PREFILTER_SPACING_PX: f64 = 0.75;
+/// Smallest and largest `prefilter_spacing_px`.
+pub const PREFILTER_SPACING_RANGE_PX: (f64, f64) = (0.1, 4.0);
 /// The draft preset's `fusion_skip_below_sigma`: a target whose peak is under the noise σ is not detectable in
 /// one frame.
 pub const DRAFT_FUSION_SKIP_BELOW_SIGMA: f64 = 1.0;
@@ -395,6 +412,9 @@ pub struct QualitySpec {
     /// See [`Quality::prefilter_tolerance`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prefilter_tolerance: Option<f64>,
+    /// See [`Quality::prefilter_spacing_px`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prefilter_spacing_px: Option<f64>,
     /// See [`Quality::background_step_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_step_px: Option<usize>,
@@ -486,6 +506,7 @@ impl QualitySpec {
             psf_skip_below_dn,
             sky_blur,
             prefilter_tolerance,
+            prefilter_spacing_px,
             background_step_px,
             sky_texel_px,
             target_method,
@@ -527,6 +548,8 @@ impl QualitySpec {
         range("psf_skip_below_dn", q.psf_skip_below_dn, 0.0, 1e6, " DN")?;
         range("fusion_skip_below_sigma", q.fusion_skip_below_sigma, 0.0, 100.0, " σ")?;
         range("prefilter_tolerance", q.prefilter_tolerance, MIN_PREFILTER_TOLERANCE, 0.5, "")?;
+        let (lo, hi) = PREFILTER_SPACING_RANGE_PX;
+        range("prefilter_spacing_px", q.prefilter_spacing_px, lo, hi, " px")?;
         if !(1..=MAX_BACKGROUND_STEP_PX).contains(&q.background_step_px) {
             return Err(fe(
                 "quality.background_step_px",
@@ -646,6 +669,9 @@ mod tests {
             ("background_step_px = 9", "quality.background_step_px"),
             ("sky_texel_px = 0.1", "quality.sky_texel_px"),
             ("sky_texel_px = nan", "quality.sky_texel_px"),
+            ("prefilter_spacing_px = 0", "quality.prefilter_spacing_px"),
+            ("prefilter_spacing_px = 5", "quality.prefilter_spacing_px"),
+            ("prefilter_spacing_px = inf", "quality.prefilter_spacing_px"),
             (
                 "fusion_solver = { method = \"jacobi\", tolerance = 0, max_iterations = 10 }",
                 "quality.fusion_solver.tolerance",

@@ -225,6 +225,8 @@ pub struct PsfSettings {
     pub sky_blur: SkyBlur,
     /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
     pub prefilter_tolerance: f64,
+    /// Largest spacing of a prefiltered texture's grid, px of the background's grid.
+    pub prefilter_spacing_px: f64,
 }
 
 /// The target model.
@@ -520,6 +522,7 @@ impl SensorSpec {
                 skip_below_dn: quality.psf_skip_below_dn,
                 sky_blur: quality.sky_blur,
                 prefilter_tolerance: quality.prefilter_tolerance,
+                prefilter_spacing_px: quality.prefilter_spacing_px,
             };
             settings.spec.validate().map_err(|e| {
                 // the cuts come from [quality]
