@@ -180,11 +180,13 @@ pub struct PrefilterSettings {
 }
 
 /// Largest spacing of a prefiltered texture's grid, sensor pixels, in the standard preset (`[quality]
-/// prefilter_spacing_px`): a magnified image is prefiltered onto a grid at least this fine. Measured against the brute-force blur at sharp-edged clouds (`cargo test --lib
-/// prefiltered_sky`, image 0.65 texel/px): grids of 0.77 px err up to 0.11 of a cloud's 4-unit step, 0.51 px
-/// 0.016–0.039, 0.38 px 0.021–0.024, the per-frame blur 0.11–0.13; finer grids cost memory bandwidth in the
-/// ray cast and work in the build (both ∝ 1/spacing²).
-pub const TEXTURE_SPACING_PX: f64 = 0.75;
+/// prefilter_spacing_px`): a magnified image is prefiltered onto a grid at least this fine. Measured against the
+/// brute-force blur at sharp-edged clouds (`cargo test --lib prefiltered_sky`, image 0.65 texel/px): grids of
+/// 0.77 px err up to 0.11 of a cloud's 4-unit step, 0.51 px 0.016–0.039, 0.38 px 0.021–0.024, the per-frame
+/// blur 0.11–0.13. On the shipped scenarios, against the reference preset's 0.25 px (noise off, 8 frames), 0.75
+/// (the 0.5 px grids of their 1 px generated texels) erred up to 0.64 DN rms and 0.45 (0.33 px grids) up to
+/// 0.38. Finer grids cost memory traffic in the ray cast and work in the build (both ∝ 1/spacing²).
+pub const TEXTURE_SPACING_PX: f64 = 0.45;
 
 /// How one texture is prefiltered: onto a grid `per_texel` times finer than the image's, each of the
 /// `per_texel²` sub-texel phases with its own [`texture_kernel`].
@@ -960,7 +962,7 @@ mod tests {
         // kernels wide enough for the transform method
         let p = psf();
         let j = DMat2::from_cols_array(&[1.2, 0.1, -0.05, 0.5]);
-        let filter = TextureFilter::new(&p, j).unwrap();
+        let filter = TextureFilter::with_spacing(&p, j, 0.75).unwrap();
         let m = filter.per_texel;
         assert_eq!(m, 3);
         assert_eq!(filter_method(&filter), ConvolutionMethod::Fft);
