@@ -66,8 +66,7 @@ pub struct SkyBlurPlan {
 pub fn plan_sky_blur(
     plane: &SkyPlane,
     psf: &Psf,
-    tolerance: f64,
-    spacing_px: f64,
+    settings: PrefilterSettings,
     (width, height): (usize, usize),
     cameras: impl IntoIterator<Item = Camera>,
 ) -> SkyBlurPlan {
@@ -76,8 +75,9 @@ pub fn plan_sky_blur(
     let (mut views, mut views_prefiltered) = (0, 0);
     for camera in cameras {
         views += 1;
-        if let Some((key, need)) = classify(plane, &camera, psf.radius_px(), tolerance, (width, height), &mut clean)
-            && cache.plan(plane, psf, key, PrefilterSettings { tolerance, spacing_px }, need)
+        if let Some((key, need)) =
+            classify(plane, &camera, psf.radius_px(), settings.tolerance, (width, height), &mut clean)
+            && cache.plan(plane, psf, key, settings, need)
         {
             views_prefiltered += 1;
         }
@@ -115,10 +115,9 @@ pub struct BackgroundBlur<'a> {
     pub skip_below: f32,
     /// Prefiltered texture or per-frame blur.
     pub sky_blur: SkyBlur,
-    /// Largest relative (Frobenius) difference between a tile's Jacobian and its prefiltered texture's.
-    pub tolerance: f64,
-    /// Largest spacing of a prefiltered texture's grid, px ([`super::prefilter::TextureFilter::with_spacing`]).
-    pub spacing_px: f64,
+    /// How the prefiltered textures are made: the largest relative (Frobenius) difference between a tile's
+    /// Jacobian and its texture's, and the largest spacing of a texture's grid.
+    pub prefilter: PrefilterSettings,
     /// Whether a frame that sees only the dome is blurred (false when the dome's largest curvature keeps the
     /// blur's change under `skip_below`).
     pub dome: bool,
@@ -206,7 +205,7 @@ impl BackgroundRenderer {
         let texture_sampling = if sky.sampling == Sampling::Nearest { Sampling::Nearest } else { Sampling::Bilinear };
         let prefiltered = if b.sky_blur != SkyBlur::Frame {
             let size = (frame.width(), frame.height());
-            classify(plane, camera, b.psf.radius_px(), b.tolerance, size, &mut self.clean)
+            classify(plane, camera, b.psf.radius_px(), b.prefilter.tolerance, size, &mut self.clean)
         } else {
             None
         };
@@ -215,13 +214,7 @@ impl BackgroundRenderer {
             stats.blur = self.convolver.apply_where_needed(kernel, frame, b.method, b.skip_below);
             return stats;
         };
-        let Some(texture) = self.cache.plane(
-            plane,
-            b.psf,
-            key,
-            PrefilterSettings { tolerance: b.tolerance, spacing_px: b.spacing_px },
-            need,
-        ) else {
+        let Some(texture) = self.cache.plane(plane, b.psf, key, b.prefilter, need) else {
             render_raw(plane, sky, camera, frame);
             stats.blur = self.convolver.apply_where_needed(kernel, frame, b.method, b.skip_below);
             return stats;
@@ -453,8 +446,7 @@ mod tests {
             skip_below: 0.0,
             dome: true,
             sky_blur: how,
-            tolerance: 0.05,
-            spacing_px,
+            prefilter: PrefilterSettings { tolerance: 0.05, spacing_px },
         };
         let mut f = Frame::new(128, 96);
         r.render(&sky, cam, Some(&blur), &mut f);

@@ -325,7 +325,7 @@ pub struct PrefilterCache {
     filters: Vec<KeptFilter>,
     /// The transforms of the last key's kernels.
     spectra: Option<PhaseSpectra>,
-    /// The source image and PSF the entries were made from (their addresses).
+    /// The source image and PSF the entries were made from (their addresses), and the settings (their bits).
     source: Option<(usize, usize, [u64; 2])>,
     convolver: Convolver,
     clock: u64,
@@ -413,7 +413,7 @@ impl PrefilterCache {
             self.touch_filter(key);
             return Some(i);
         }
-        let filter = self.filter(psf, key, tolerance, spacing_px)?;
+        let filter = self.filter(psf, key, settings)?;
         // the block-aligned box around what is needed, one block wider on every side so that a panning view
         // rebuilds it now and then rather than every frame
         let down = |v: usize| (v / BLOCK_TEXELS).saturating_sub(1) * BLOCK_TEXELS;
@@ -444,11 +444,12 @@ impl PrefilterCache {
 
     /// The texture filter of `key`, made or kept from before; the least recently used filters beyond
     /// [`FILTER_CACHE_BYTES`] or [`FILTER_CACHE_ENTRIES`] are dropped.
-    fn filter(&mut self, psf: &Psf, key: JacobianKey, tolerance: f64, spacing_px: f64) -> Option<Arc<TextureFilter>> {
+    fn filter(&mut self, psf: &Psf, key: JacobianKey, settings: PrefilterSettings) -> Option<Arc<TextureFilter>> {
         if let Some(kept) = self.touch_filter(key) {
             return kept.filter.clone();
         }
-        let filter = TextureFilter::with_spacing(psf, key.jacobian(tolerance), spacing_px).map(Arc::new);
+        let filter =
+            TextureFilter::with_spacing(psf, key.jacobian(settings.tolerance), settings.spacing_px).map(Arc::new);
         self.filters.push(KeptFilter { key, filter: filter.clone(), last_used: self.clock });
         let bytes = |f: &KeptFilter| f.filter.as_ref().map_or(0, |f| f.bytes());
         let mut total: usize = self.filters.iter().map(bytes).sum();
@@ -908,7 +909,9 @@ mod tests {
         let mut cache = PrefilterCache::new();
         let get = |cache: &mut PrefilterCache, key: JacobianKey| {
             cache.clock += 1;
-            cache.filter(&p, key, tol, TEXTURE_SPACING_PX).expect("a filter")
+            cache
+                .filter(&p, key, PrefilterSettings { tolerance: tol, spacing_px: TEXTURE_SPACING_PX })
+                .expect("a filter")
         };
         let first = get(&mut cache, keys[0]);
         assert_eq!(bits(&first), bits(&TextureFilter::new(&p, keys[0].jacobian(tol)).unwrap()));
@@ -934,7 +937,10 @@ mod tests {
         // a kernel too wide is known as such without sampling the PSF on a grid as fine as the texels
         let wide = JacobianKey::new(DMat2::IDENTITY * 60.0, tol).unwrap();
         cache.clock += 1;
-        assert!(cache.filter(&p, wide, tol, TEXTURE_SPACING_PX).is_none() && kept(&cache, wide));
+        assert!(
+            cache.filter(&p, wide, PrefilterSettings { tolerance: tol, spacing_px: TEXTURE_SPACING_PX }).is_none()
+                && kept(&cache, wide)
+        );
     }
 
     #[test]

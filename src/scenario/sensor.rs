@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::{FieldError, Quality, fe};
 use crate::imaging::background::SkyBlur;
 use crate::imaging::camera::Intrinsics;
+use crate::imaging::prefilter::PrefilterSettings;
 use crate::imaging::psf::{ConvolutionMethod, PsfSpec};
 use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::target_psf::{TargetMethod, TargetPsfSpec};
@@ -223,10 +224,9 @@ pub struct PsfSettings {
     pub skip_below_dn: f64,
     /// How the blur reaches a sky image.
     pub sky_blur: SkyBlur,
-    /// Largest relative difference between a tile's plane-to-sensor Jacobian and its prefiltered texture's.
-    pub prefilter_tolerance: f64,
-    /// Largest spacing of a prefiltered texture's grid, px of the background's grid.
-    pub prefilter_spacing_px: f64,
+    /// How the prefiltered textures are made: the largest relative difference between a tile's plane-to-sensor
+    /// Jacobian and its texture's, and the largest spacing of a texture's grid (px of the background's grid).
+    pub prefilter: PrefilterSettings,
 }
 
 /// The target model.
@@ -521,8 +521,10 @@ impl SensorSpec {
                 method: quality.psf_method,
                 skip_below_dn: quality.psf_skip_below_dn,
                 sky_blur: quality.sky_blur,
-                prefilter_tolerance: quality.prefilter_tolerance,
-                prefilter_spacing_px: quality.prefilter_spacing_px,
+                prefilter: PrefilterSettings {
+                    tolerance: quality.prefilter_tolerance,
+                    spacing_px: quality.prefilter_spacing_px,
+                },
             };
             settings.spec.validate().map_err(|e| {
                 // the cuts come from [quality]

@@ -73,8 +73,7 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
             // tiles where the blur changes no pixel by more than the set DN keep their values
             skip_below: (cfg.skip_below_dn / sensor.dn_per_radiance) as f32,
             sky_blur: sensor.sky_blur,
-            tolerance: cfg.prefilter_tolerance,
-            spacing_px: cfg.prefilter_spacing_px,
+            prefilter: cfg.prefilter,
             dome: sensor.blur_dome,
         }),
         _ => None,
