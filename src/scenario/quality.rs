@@ -673,6 +673,7 @@ mod tests {
             ("prefilter_spacing_px = 0", "quality.prefilter_spacing_px"),
             ("prefilter_spacing_px = 5", "quality.prefilter_spacing_px"),
             ("prefilter_spacing_px = inf", "quality.prefilter_spacing_px"),
+            ("prefilter_spacing_px = nan", "quality.prefilter_spacing_px"),
             (
                 "fusion_solver = { method = \"jacobi\", tolerance = 0, max_iterations = 10 }",
                 "quality.fusion_solver.tolerance",
