@@ -446,7 +446,7 @@ mod tests {
             skip_below: 0.0,
             dome: true,
             sky_blur: how,
-            prefilter: PrefilterSettings { tolerance: 0.05, spacing_px },
+            prefilter: PrefilterSettings { tolerance: 0.05, spacing_px, grid_error: 0.0 },
         };
         let mut f = Frame::new(128, 96);
         r.render(&sky, cam, Some(&blur), &mut f);

@@ -12,7 +12,9 @@
 //! the tent's weights. Read at texel spacing, a magnified image (texels larger than pixels) would interpolate
 //! the blurred field more coarsely than the frame's own pixels do, so the blurred image is computed on a grid
 //! `m` times finer ([`TextureFilter`]): each of the `m²` sub-texel phases is the same integral with the tent
-//! shifted, exact at its nodes, and the grid spacing is at most [`TEXTURE_SPACING_PX`].
+//! shifted, exact at its nodes, and the grid spacing is at most [`TEXTURE_SPACING_PX`] (or the spacing set). Where
+//! a budget is set ([`PrefilterSettings::grid_error`]), `m` is the smallest whose error [`BlockSpectra`] estimates
+//! within it from the image's own content: a smooth sky needs fewer nodes than clouds' edges.
 //!
 //! Limits, and what keeps them in check:
 //! - `J` varies over the frame (perspective) and from frame to frame (motion, pointing). A prefiltered texture
@@ -177,6 +179,10 @@ pub struct PrefilterSettings {
     pub tolerance: f64,
     /// Largest spacing of a texture's grid, px ([`TextureFilter::with_spacing`]).
     pub spacing_px: f64,
+    /// Largest error a coarser grid may add, in the image's units (radiance): a texture's grid is the
+    /// coarsest whose bilinear reads of the blurred image [`BlockSpectra::grid_errors`] estimates within this,
+    /// in every block of the image, and never coarser than `spacing_px`; 0 takes `spacing_px`'s grid.
+    pub grid_error: f64,
 }
 
 /// Largest spacing of a prefiltered texture's grid, sensor pixels, in the standard preset (`[quality]
@@ -187,6 +193,137 @@ pub struct PrefilterSettings {
 /// (the 0.5 px grids of their 1 px generated texels) erred up to 0.64 DN rms and 0.45 (0.33 px grids) up to
 /// 0.38. Finer grids cost memory traffic in the ray cast and work in the build (both ∝ 1/spacing²).
 pub const TEXTURE_SPACING_PX: f64 = 0.45;
+
+/// Side of the image blocks whose spectra estimate a texture grid's error ([`BlockSpectra`]), texels.
+const SPECTRUM_BLOCK: usize = 64;
+/// A block's spectrum is summed into this many cells of frequency a side.
+const SPECTRUM_CELLS: usize = 16;
+
+/// How an image's variance is spread over frequency, block by block, for estimating how fine a prefiltered
+/// texture's grid must be. Each 64-texel square block of the image (edges replicated past its end) is
+/// Hann-windowed about its windowed mean and transformed; the power of its frequencies is summed into
+/// 16 × 16 cells over `[−½, ½)²` cycles/texel, scaled so that a block's cells add up to its
+/// variance (for a stationary field).
+#[derive(Debug)]
+pub struct BlockSpectra {
+    /// `SPECTRUM_CELLS²` values per block, row-major by cell (cell `c` along an axis holds the frequencies
+    /// `(j − S/2)/S`, `j ∈ [c·S/C, (c + 1)·S/C)`).
+    cells: Vec<f32>,
+}
+
+impl BlockSpectra {
+    /// The spectra of `image`'s blocks.
+    pub fn new(image: &SkyImage) -> Self {
+        let s = SPECTRUM_BLOCK;
+        let c = SPECTRUM_CELLS;
+        let (bw, bh) = (image.width().div_ceil(s), image.height().div_ceil(s));
+        let hann: Vec<f64> =
+            (0..s).map(|x| (std::f64::consts::PI * (x as f64 + 0.5) / s as f64).sin().powi(2)).collect();
+        let (w_sum, w2_sum) = (hann.iter().sum::<f64>().powi(2), hann.iter().map(|h| h * h).sum::<f64>().powi(2));
+        let plan = rustfft::FftPlanner::<f64>::new().plan_fft_forward(s);
+        let per_cell = s / c;
+        let cells: Vec<f32> = (0..bw * bh)
+            .into_par_iter()
+            .flat_map_iter(|b| {
+                let (bx, by) = (b % bw, b / bw);
+                let region = image.region_clamped((bx * s) as isize, (by * s) as isize, s, s);
+                let weight = |i: usize| hann[i % s] * hann[i / s];
+                let mean = region.iter().enumerate().map(|(i, &v)| weight(i) * f64::from(v)).sum::<f64>() / w_sum;
+                let mut data: Vec<Complex<f64>> = region
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| Complex::new((f64::from(v) - mean) * weight(i), 0.0))
+                    .collect();
+                data.chunks_exact_mut(s).for_each(|row| plan.process(row));
+                let mut column = vec![Complex::new(0.0, 0.0); s];
+                let mut out = vec![0.0f32; c * c];
+                for kx in 0..s {
+                    column.iter_mut().enumerate().for_each(|(ky, v)| *v = data[ky * s + kx]);
+                    plan.process(&mut column);
+                    let cx = ((kx + s / 2) % s) / per_cell;
+                    for (ky, v) in column.iter().enumerate() {
+                        let cy = ((ky + s / 2) % s) / per_cell;
+                        out[cy * c + cx] += (v.norm_sqr() / (w2_sum * (s * s) as f64)) as f32;
+                    }
+                }
+                out
+            })
+            .collect();
+        Self { cells }
+    }
+
+    /// For grids `m = 1 … m_max` times finer than the image's texels: the largest over the image's blocks of
+    /// the rms error of bilinear reads of the image blurred by `psf` mapped through `jacobian` (texels per px)
+    /// from the grid's nodes, against the blurred image itself.
+    ///
+    /// The blurred field is the bilinear image convolved with the mapped PSF, so its spectrum at `ν`
+    /// (cycles/texel) is the image's (periodic, period 1) times `MTF(Jᵀν)·sinc²(νx)·sinc²(νy)`. Reading it
+    /// bilinearly from nodes `h = 1/m` apart at a random offset errs, per unit power at `ν`, by
+    /// `(1 − T(ν))² + A(x)·A(y) − T(ν)²` with `T = sinc²(x)·sinc²(y)`, `(x, y) = h·ν` and `A(x) = Σₖ sinc⁴(x + k)
+    /// = 1 − ⅔·sin²(πx)`: the passband's loss plus the aliases. The sum runs over the image's periods while
+    /// the MTF and the tent pass anything.
+    pub fn grid_errors(&self, psf: &Psf, jacobian: DMat2, m_max: usize) -> Vec<f64> {
+        let c = SPECTRUM_CELLS;
+        let mtf = psf.mtf();
+        // frequencies that reach the MTF's cut-off, cycles/texel, and the periods that can hold them (the tent
+        // passes under 10⁻⁵ of the power past the third)
+        let smallest = smallest_stretch(jacobian);
+        if !(smallest > 0.0) || m_max == 0 {
+            return vec![f64::INFINITY; m_max];
+        }
+        let periods = ((mtf.cutoff() / smallest).ceil() as i64 + 1).min(3);
+        let sinc =
+            |x: f64| if x.abs() < 1e-9 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) };
+        let alias = |x: f64| 1.0 - 2.0 / 3.0 * (std::f64::consts::PI * x).sin().powi(2);
+        // each cell's mean weight per grid, from 2 × 2 frequencies in it
+        let sub = 2;
+        let mut weights = vec![0.0f64; m_max * c * c];
+        for cy in 0..c {
+            for cx in 0..c {
+                for (sy, sx) in (0..sub).flat_map(|sy| (0..sub).map(move |sx| (sy, sx))) {
+                    let at = |cell: usize, k: usize| -0.5 + (cell as f64 + (k as f64 + 0.5) / sub as f64) / c as f64;
+                    let nu = DVec2::new(at(cx, sx), at(cy, sy));
+                    for ny in -periods..=periods {
+                        for nx in -periods..=periods {
+                            let f = nu + DVec2::new(nx as f64, ny as f64);
+                            // frequency in cycles/px: ν·u with u = J·x is (Jᵀν)·x
+                            let f_px = jacobian.transpose() * f;
+                            let gain = mtf.at(f_px.x, f_px.y) * (sinc(f.x) * sinc(f.y)).powi(2);
+                            let power = gain * gain;
+                            if power < 1e-12 {
+                                continue;
+                            }
+                            for m in 1..=m_max {
+                                let (x, y) = (f.x / m as f64, f.y / m as f64);
+                                let t = (sinc(x) * sinc(y)).powi(2);
+                                let e = (1.0 - t).powi(2) + alias(x) * alias(y) - t * t;
+                                weights[(m - 1) * c * c + cy * c + cx] += power * e.max(0.0) / (sub * sub) as f64;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        (1..=m_max)
+            .map(|m| {
+                let w = &weights[(m - 1) * c * c..m * c * c];
+                self.cells
+                    .chunks_exact(c * c)
+                    .map(|block| block.iter().zip(w).map(|(&p, &w)| f64::from(p) * w).sum::<f64>())
+                    .fold(0.0, f64::max)
+                    .sqrt()
+            })
+            .collect()
+    }
+}
+
+/// The smallest stretch of `jacobian` (its smallest singular value): the largest texel step in sensor pixels
+/// is its inverse.
+fn smallest_stretch(jacobian: DMat2) -> f64 {
+    let (a, b, c, d) = (jacobian.x_axis.x, jacobian.y_axis.x, jacobian.x_axis.y, jacobian.y_axis.y);
+    let (p, q) = (a * a + b * b + c * c + d * d, (a * d - b * c).abs());
+    (0.5 * (p - (p * p - 4.0 * q * q).max(0.0).sqrt())).max(0.0).sqrt()
+}
 
 /// How one texture is prefiltered: onto a grid `per_texel` times finer than the image's, each of the
 /// `per_texel²` sub-texel phases with its own [`texture_kernel`].
@@ -205,14 +342,12 @@ impl TextureFilter {
 
     /// As [`TextureFilter::new`] with a grid no coarser than `spacing_px` sensor pixels.
     pub fn with_spacing(psf: &Psf, jacobian: DMat2, spacing_px: f64) -> Option<Self> {
-        // the smallest stretch of J: the largest texel step in sensor pixels is its inverse
-        let (a, b, c, d) = (jacobian.x_axis.x, jacobian.y_axis.x, jacobian.x_axis.y, jacobian.y_axis.y);
-        let (p, q) = (a * a + b * b + c * c + d * d, (a * d - b * c).abs());
-        let smallest = (0.5 * (p - (p * p - 4.0 * q * q).max(0.0).sqrt())).max(0.0).sqrt();
-        if !(smallest > 0.0) {
-            return None;
-        }
-        let per_texel = (1.0 / (smallest * spacing_px) - 1e-9).ceil().clamp(1.0, 64.0) as usize;
+        Self::with_per_texel(psf, jacobian, finest_per_texel(jacobian, spacing_px)?)
+    }
+
+    /// As [`TextureFilter::new`] on a grid `per_texel` times finer than the image's texels.
+    pub fn with_per_texel(psf: &Psf, jacobian: DMat2, per_texel: usize) -> Option<Self> {
+        let per_texel = per_texel.clamp(1, MAX_PER_TEXEL);
         let m = per_texel as f64;
         let samples = PsfSamples::new(psf, jacobian)?;
         // the phases side by side, in order
@@ -242,6 +377,19 @@ impl TextureFilter {
     fn bytes(&self) -> usize {
         self.phases.iter().map(|k| size_of_val(k.values())).sum()
     }
+}
+
+/// Most grid nodes per texel along an axis.
+const MAX_PER_TEXEL: usize = 64;
+
+/// Grid nodes per texel along each axis for a grid no coarser than `spacing_px` sensor pixels through
+/// `jacobian`; `None` where it is not finite and invertible.
+pub fn finest_per_texel(jacobian: DMat2, spacing_px: f64) -> Option<usize> {
+    let smallest = smallest_stretch(jacobian);
+    if !(smallest > 0.0) {
+        return None;
+    }
+    Some((1.0 / (smallest * spacing_px) - 1e-9).ceil().clamp(1.0, MAX_PER_TEXEL as f64) as usize)
 }
 
 /// A Jacobian rounded to a lattice: its scale (the RMS of its entries) to steps of `ln(1 + tolerance/2)`, the
@@ -325,8 +473,10 @@ pub struct PrefilterCache {
     filters: Vec<KeptFilter>,
     /// The transforms of the last key's kernels.
     spectra: Option<PhaseSpectra>,
+    /// The source image's block spectra, made when a grid is first chosen by its error.
+    image_spectra: Option<BlockSpectra>,
     /// The source image and PSF the entries were made from (their addresses), and the settings (their bits).
-    source: Option<(usize, usize, [u64; 2])>,
+    source: Option<(usize, usize, [u64; 3])>,
     convolver: Convolver,
     clock: u64,
     builds: u64,
@@ -387,16 +537,17 @@ impl PrefilterCache {
         need: [f64; 4],
         build: bool,
     ) -> Option<usize> {
-        let PrefilterSettings { tolerance, spacing_px } = settings;
+        let PrefilterSettings { tolerance, spacing_px, .. } = settings;
         let id = (
             source.image().pixels().as_ptr() as usize,
             psf as *const Psf as usize,
-            [tolerance.to_bits(), spacing_px.to_bits()],
+            [tolerance.to_bits(), spacing_px.to_bits(), settings.grid_error.to_bits()],
         );
         if self.source != Some(id) {
             self.entries.clear();
             self.blocks.clear();
             self.filters.clear();
+            self.image_spectra = None;
             self.source = Some(id);
         }
         self.clock += 1;
@@ -413,7 +564,7 @@ impl PrefilterCache {
             self.touch_filter(key);
             return Some(i);
         }
-        let filter = self.filter(psf, key, settings)?;
+        let filter = self.filter(image, psf, key, settings)?;
         // the block-aligned box around what is needed, one block wider on every side so that a panning view
         // rebuilds it now and then rather than every frame
         let down = |v: usize| (v / BLOCK_TEXELS).saturating_sub(1) * BLOCK_TEXELS;
@@ -444,12 +595,29 @@ impl PrefilterCache {
 
     /// The texture filter of `key`, made or kept from before; the least recently used filters beyond
     /// [`FILTER_CACHE_BYTES`] or [`FILTER_CACHE_ENTRIES`] are dropped.
-    fn filter(&mut self, psf: &Psf, key: JacobianKey, settings: PrefilterSettings) -> Option<Arc<TextureFilter>> {
+    fn filter(
+        &mut self,
+        image: &SkyImage,
+        psf: &Psf,
+        key: JacobianKey,
+        settings: PrefilterSettings,
+    ) -> Option<Arc<TextureFilter>> {
         if let Some(kept) = self.touch_filter(key) {
             return kept.filter.clone();
         }
-        let filter =
-            TextureFilter::with_spacing(psf, key.jacobian(settings.tolerance), settings.spacing_px).map(Arc::new);
+        let jacobian = key.jacobian(settings.tolerance);
+        let filter = finest_per_texel(jacobian, settings.spacing_px)
+            .map(|finest| {
+                if settings.grid_error > 0.0 && finest > 1 {
+                    let spectra = self.image_spectra.get_or_insert_with(|| BlockSpectra::new(image));
+                    let errors = spectra.grid_errors(psf, jacobian, finest);
+                    errors.iter().position(|&e| e <= settings.grid_error).map_or(finest, |k| k + 1)
+                } else {
+                    finest
+                }
+            })
+            .and_then(|per_texel| TextureFilter::with_per_texel(psf, jacobian, per_texel))
+            .map(Arc::new);
         self.filters.push(KeptFilter { key, filter: filter.clone(), last_used: self.clock });
         let bytes = |f: &KeptFilter| f.filter.as_ref().map_or(0, |f| f.bytes());
         let mut total: usize = self.filters.iter().map(bytes).sum();
@@ -778,6 +946,112 @@ mod tests {
         Psf::new(&PsfSpec::default(), &optics).unwrap()
     }
 
+    /// A field with detail down to the texel: white noise (a fixed xorshift) smoothed by two passes of a 3-texel
+    /// box along each axis, 256 texels a side, placed as the paper's Fig. 8 plane.
+    fn noise_plane() -> SkyPlane {
+        let n = 256;
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut px: Vec<f64> = (0..n * n)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+            })
+            .collect();
+        for _ in 0..2 {
+            let at = |v: &[f64], x: usize, y: usize| v[y.min(n - 1) * n + x.min(n - 1)];
+            let blurred: Vec<f64> = (0..n * n)
+                .map(|i| {
+                    let (x, y) = (i % n, i / n);
+                    let mut sum = 0.0;
+                    for dy in 0..3 {
+                        for dx in 0..3 {
+                            sum += at(&px, (x + dx).saturating_sub(1), (y + dy).saturating_sub(1));
+                        }
+                    }
+                    sum / 9.0
+                })
+                .collect();
+            px = blurred;
+        }
+        let image = SkyImage::from_f32(n, n, px.iter().map(|&v| (20.0 + 10.0 * v) as f32).collect()).unwrap();
+        SkyPlane::new(image, &crate::imaging::sky_plane::SkyPlacement::paper_fig8(), glam::DVec3::new(0.0, 0.0, 8000.0))
+            .unwrap()
+    }
+
+    /// The texture of `plane` prefiltered for `key` on a grid `m` nodes a texel, read at image coordinates `u`.
+    fn texture_reads(plane: &SkyPlane, p: &Psf, key: JacobianKey, tol: f64, m: usize, us: &[DVec2]) -> Vec<f64> {
+        let smallest = smallest_stretch(key.jacobian(tol));
+        let settings = PrefilterSettings { tolerance: tol, spacing_px: 1.0 / (smallest * m as f64), grid_error: 0.0 };
+        let mut cache = PrefilterCache::new();
+        let slot = cache.slot(plane, p, key, settings, [40.0, 40.0, 216.0, 216.0], true).expect("a texture");
+        let entry = &cache.entries[slot];
+        let crop = entry.plane.as_ref().expect("built");
+        let origin = DVec2::new(entry.rect[0] as f64, entry.rect[1] as f64);
+        assert_eq!(crop.image().width(), (entry.rect[2] - entry.rect[0]) * m, "{m} nodes a texel");
+        // fine node m·q + a has its centre at texel coordinate q + (a + ½)/m: a texel coordinate u is m·u on the
+        // fine grid
+        us.iter().map(|&u| f64::from(crop.value_at((u - origin) * m as f64))).collect()
+    }
+
+    #[test]
+    fn the_grid_error_estimate_follows_the_error_of_coarser_grids() {
+        let plane = noise_plane();
+        let p = psf();
+        let tol = 0.01;
+        // texels 2 px wide (the image magnified twice), turned: grids of 1 and 2 nodes a texel are 2 and 1 px
+        let key = JacobianKey::new(DMat2::from_angle(0.3) * 0.5, tol).unwrap();
+        let estimate = BlockSpectra::new(plane.image()).grid_errors(&p, key.jacobian(tol), 4);
+        // reads at scattered points against a grid of 8 nodes a texel (0.25 px)
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let us: Vec<DVec2> = (0..4000).map(|_| DVec2::new(48.0 + 160.0 * next(), 48.0 + 160.0 * next())).collect();
+        let fine = texture_reads(&plane, &p, key, tol, 8, &us);
+        for m in [1, 2, 4] {
+            let reads = texture_reads(&plane, &p, key, tol, m, &us);
+            let rms = (reads.iter().zip(&fine).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / us.len() as f64).sqrt();
+            let ratio = estimate[m - 1] / rms;
+            eprintln!("{m} nodes a texel: measured {rms:.5}, estimated {:.5} ({ratio:.2}x)", estimate[m - 1]);
+            assert!((0.8..2.0).contains(&ratio), "{m} nodes a texel: {ratio}");
+        }
+        // a finer grid errs less
+        assert!(estimate.windows(2).all(|w| w[1] < w[0]), "{estimate:?}");
+    }
+
+    #[test]
+    fn a_smooth_image_gets_a_coarser_grid_than_a_detailed_one() {
+        let (p, tol) = (psf(), 0.01);
+        // texels 2 px wide, a spacing that allows up to 4 nodes a texel
+        let key = JacobianKey::new(DMat2::IDENTITY * 0.5, tol).unwrap();
+        let spacing_px = 1.0 / (4.0 * smallest_stretch(key.jacobian(tol)));
+        let detailed = noise_plane();
+        let n = 256;
+        let smooth: Vec<f32> =
+            (0..n * n).map(|i| (20.0 + (i % n) as f64 / 40.0 + ((i / n) as f64 / 30.0).sin()) as f32).collect();
+        let smooth = SkyImage::from_f32(n, n, smooth).unwrap();
+        let per_texel = |image: &SkyImage, grid_error: f64| {
+            let mut cache = PrefilterCache::new();
+            cache.clock += 1;
+            let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error };
+            cache.filter(image, &p, key, settings).expect("a filter").per_texel()
+        };
+        // no budget: the finest grid the spacing allows, whatever the image
+        assert_eq!(per_texel(detailed.image(), 0.0), 4);
+        assert_eq!(per_texel(&smooth, 0.0), 4);
+        // a budget between the detailed image's estimates for 2 and 3 nodes a texel gives it 3, and the smooth
+        // image 1
+        let estimate = BlockSpectra::new(detailed.image()).grid_errors(&p, key.jacobian(tol), 4);
+        let budget = 0.5 * (estimate[1] + estimate[2]);
+        assert_eq!(per_texel(detailed.image(), budget), 3, "{estimate:?}");
+        assert_eq!(per_texel(&smooth, budget), 1);
+        // a budget under every estimate keeps the finest grid
+        assert_eq!(per_texel(detailed.image(), 0.5 * estimate[3]), 4);
+    }
+
     #[test]
     fn identity_jacobian_gives_the_point_kernel() {
         // at one texel per pixel the texture kernel is the PSF ⊗ tent at integer offsets: the point kernel
@@ -907,10 +1181,16 @@ mod tests {
         let distinct: std::collections::HashSet<_> = keys.iter().collect();
         assert_eq!(distinct.len(), keys.len());
         let mut cache = PrefilterCache::new();
+        let img = SkyImage::from_finite(1, 1, vec![0.0]);
         let get = |cache: &mut PrefilterCache, key: JacobianKey| {
             cache.clock += 1;
             cache
-                .filter(&p, key, PrefilterSettings { tolerance: tol, spacing_px: TEXTURE_SPACING_PX })
+                .filter(
+                    &img,
+                    &p,
+                    key,
+                    PrefilterSettings { tolerance: tol, spacing_px: TEXTURE_SPACING_PX, grid_error: 0.0 },
+                )
                 .expect("a filter")
         };
         let first = get(&mut cache, keys[0]);
@@ -938,7 +1218,14 @@ mod tests {
         let wide = JacobianKey::new(DMat2::IDENTITY * 60.0, tol).unwrap();
         cache.clock += 1;
         assert!(
-            cache.filter(&p, wide, PrefilterSettings { tolerance: tol, spacing_px: TEXTURE_SPACING_PX }).is_none()
+            cache
+                .filter(
+                    &img,
+                    &p,
+                    wide,
+                    PrefilterSettings { tolerance: tol, spacing_px: TEXTURE_SPACING_PX, grid_error: 0.0 }
+                )
+                .is_none()
                 && kept(&cache, wide)
         );
     }

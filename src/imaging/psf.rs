@@ -161,6 +161,59 @@ pub struct Psf {
     area: Kernel,
     fwhm_px: f64,
     region_radius: usize,
+    mtf: Mtf,
+}
+
+/// Samples of the radial part of the MTF (the Gaussian blurs times the band's diffraction) over `[0, cutoff]`.
+const MTF_SAMPLES: usize = 1024;
+/// Where the MTF is taken as 0 without diffraction, cycles/px: the pixel aperture's `sinc²` is below 1/(π·4)²
+/// there (0.6 %), and a Gaussian of at least a fine sample's σ lower still.
+const MTF_CUTOFF_NO_DIFFRACTION: f64 = 4.0;
+
+/// The PSF's modulation transfer function: the magnitude of its OTF (the optics and the pixel aperture, no
+/// interpolation), tabulated along the radius, for estimates of how much of an image's detail the PSF passes.
+#[derive(Debug, Clone)]
+pub struct Mtf {
+    /// The radial part at `f = k·cutoff/(MTF_SAMPLES − 1)`.
+    radial: Vec<f64>,
+    /// Frequency past which the MTF is taken as 0, cycles/px.
+    cutoff: f64,
+    /// Side of the pixel aperture, px; 0 without it.
+    aperture_px: f64,
+}
+
+impl Mtf {
+    fn new(otf: &Otf) -> Self {
+        let cutoff = otf
+            .diffraction
+            .iter()
+            .map(|&(_, scale)| 1.0 / scale)
+            .fold(f64::NAN, f64::max)
+            .min(MTF_CUTOFF_NO_DIFFRACTION);
+        let cutoff = if cutoff.is_finite() && cutoff > 0.0 { cutoff } else { MTF_CUTOFF_NO_DIFFRACTION };
+        let step = cutoff / (MTF_SAMPLES - 1) as f64;
+        let radial = (0..MTF_SAMPLES).map(|k| otf.radial(k as f64 * step, 0.0)).collect();
+        Self { radial, cutoff, aperture_px: otf.aperture_px }
+    }
+
+    /// Frequency past which the MTF is taken as 0, cycles/px.
+    pub fn cutoff(&self) -> f64 {
+        self.cutoff
+    }
+
+    /// `|OTF|` at `(fx, fy)`, cycles/px (the radial part interpolated linearly between its samples).
+    pub fn at(&self, fx: f64, fy: f64) -> f64 {
+        let u = fx.hypot(fy) / self.cutoff * (MTF_SAMPLES - 1) as f64;
+        if !(u < (MTF_SAMPLES - 1) as f64) {
+            return 0.0;
+        }
+        let k = u as usize;
+        let t = u - k as f64;
+        let radial = self.radial[k] + t * (self.radial[k + 1] - self.radial[k]);
+        let aperture =
+            if self.aperture_px > 0.0 { sinc(self.aperture_px * fx) * sinc(self.aperture_px * fy) } else { 1.0 };
+        (radial * aperture).abs()
+    }
 }
 
 impl Psf {
@@ -228,7 +281,13 @@ impl Psf {
         }
         let fwhm_px = fwhm(&fine, side, FINE_PER_PX);
         let fine = PhaseTable::new(&fine, side);
-        Ok(Self { radius, fine, fine_side: side, point, area, fwhm_px, region_radius })
+        let mtf = Mtf::new(&otf);
+        Ok(Self { radius, fine, fine_side: side, point, area, fwhm_px, region_radius, mtf })
+    }
+
+    /// The modulation transfer function of the PSF the fine table holds (optics and pixel aperture).
+    pub fn mtf(&self) -> &Mtf {
+        &self.mtf
     }
 
     /// Kernel radius `R`, px: the PSF is taken as 0 beyond `R + ½` px on either axis.

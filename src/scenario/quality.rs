@@ -110,6 +110,11 @@ pub struct Quality {
     /// magnified more than this allows is prefiltered onto a grid an integer number of times finer than its
     /// texels.
     pub prefilter_spacing_px: f64,
+    /// Largest error, DN rms in any 64-texel block of a sky image, that a prefiltered texture's grid coarser
+    /// than `prefilter_spacing_px` may add: the grid is the coarsest that an estimate from the image's own
+    /// spectrum, the PSF and the view's Jacobian keeps within it (a smooth sky needs fewer nodes than clouds'
+    /// edges); 0 keeps `prefilter_spacing_px`'s grid.
+    pub prefilter_grid_error_dn: f64,
     /// The sky background (image, dome and their blur) is made on a grid this many sensor pixels apart each
     /// way, as a camera with pixels this many times larger but the detector's own photosensitive area would see
     /// it, and interpolated bilinearly between (1: at every pixel; a frame whose width or height is not a
@@ -182,6 +187,7 @@ impl Quality {
             sky_blur: SkyBlur::Prefilter,
             prefilter_tolerance: 0.05,
             prefilter_spacing_px: TEXTURE_SPACING_PX,
+            prefilter_grid_error_dn: STANDARD_PREFILTER_GRID_ERROR_DN,
             background_step_px: 1,
             sky_texel_px: 1.0,
             target_method: TargetMethod::Auto,
@@ -214,6 +220,7 @@ impl Quality {
                 psf_skip_below_dn: 0.0,
                 prefilter_tolerance: REFERENCE_PREFILTER_TOLERANCE,
                 prefilter_spacing_px: REFERENCE_PREFILTER_SPACING_PX,
+                prefilter_grid_error_dn: 0.0,
                 target_method: TargetMethod::Reference,
                 target_node_spacing_px: target_psf::REFERENCE_NODE_SPACING_PX,
                 blob_sampling: BlobSampling::Integrated { n: 16 },
@@ -236,6 +243,7 @@ impl Quality {
                 sky_blur: SkyBlur::Auto,
                 prefilter_tolerance: 0.2,
                 prefilter_spacing_px: DRAFT_PREFILTER_SPACING_PX,
+                prefilter_grid_error_dn: DRAFT_PREFILTER_GRID_ERROR_DN,
                 background_step_px: DRAFT_BACKGROUND_STEP_PX,
                 sky_texel_px: DRAFT_SKY_TEXEL_PX,
                 target_node_spacing_px: DRAFT_TARGET_NODE_SPACING_PX,
@@ -298,7 +306,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 29] = [
+pub const SWITCHES: [&str; 30] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -310,6 +318,7 @@ pub const SWITCHES: [&str; 29] = [
     "sky_blur",
     "prefilter_tolerance",
     "prefilter_spacing_px",
+    "prefilter_grid_error_dn",
     "background_step_px",
     "sky_texel_px",
     "target_method",
@@ -345,6 +354,14 @@ pub const REFERENCE_PREFILTER_TOLERANCE: f64 = 0.01;
 pub const REFERENCE_PREFILTER_SPACING_PX: f64 = 0.25;
 /// The draft preset's `prefilter_spacing_px`.
 pub const DRAFT_PREFILTER_SPACING_PX: f64 = 0.75;
+/// The standard preset's `prefilter_grid_error_dn`.
+pub const STANDARD_PREFILTER_GRID_ERROR_DN: f64 = 0.0;
+/// The draft preset's `prefilter_grid_error_dn`: on the shipped scenarios' smooth skies it takes grids of one
+/// node a texel (head_on) where the estimate is under 1 DN; cloud edges keep the finest grid
+/// `prefilter_spacing_px` allows.
+pub const DRAFT_PREFILTER_GRID_ERROR_DN: f64 = 1.0;
+/// Largest `prefilter_grid_error_dn`.
+pub const MAX_PREFILTER_GRID_ERROR_DN: f64 = 100.0;
 /// Smallest and largest `prefilter_spacing_px`.
 pub const PREFILTER_SPACING_RANGE_PX: (f64, f64) = (0.1, 4.0);
 /// The draft preset's `fusion_skip_below_sigma`: a target whose peak is under the noise σ is not detectable in
@@ -416,6 +433,9 @@ pub struct QualitySpec {
     /// See [`Quality::prefilter_spacing_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prefilter_spacing_px: Option<f64>,
+    /// See [`Quality::prefilter_grid_error_dn`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prefilter_grid_error_dn: Option<f64>,
     /// See [`Quality::background_step_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_step_px: Option<usize>,
@@ -508,6 +528,7 @@ impl QualitySpec {
             sky_blur,
             prefilter_tolerance,
             prefilter_spacing_px,
+            prefilter_grid_error_dn,
             background_step_px,
             sky_texel_px,
             target_method,
@@ -551,6 +572,7 @@ impl QualitySpec {
         range("prefilter_tolerance", q.prefilter_tolerance, MIN_PREFILTER_TOLERANCE, 0.5, "")?;
         let (lo, hi) = PREFILTER_SPACING_RANGE_PX;
         range("prefilter_spacing_px", q.prefilter_spacing_px, lo, hi, " px")?;
+        range("prefilter_grid_error_dn", q.prefilter_grid_error_dn, 0.0, MAX_PREFILTER_GRID_ERROR_DN, " DN")?;
         if !(1..=MAX_BACKGROUND_STEP_PX).contains(&q.background_step_px) {
             return Err(fe(
                 "quality.background_step_px",
@@ -674,6 +696,9 @@ mod tests {
             ("prefilter_spacing_px = 5", "quality.prefilter_spacing_px"),
             ("prefilter_spacing_px = inf", "quality.prefilter_spacing_px"),
             ("prefilter_spacing_px = nan", "quality.prefilter_spacing_px"),
+            ("prefilter_grid_error_dn = -1", "quality.prefilter_grid_error_dn"),
+            ("prefilter_grid_error_dn = nan", "quality.prefilter_grid_error_dn"),
+            ("prefilter_grid_error_dn = inf", "quality.prefilter_grid_error_dn"),
             (
                 "fusion_solver = { method = \"jacobi\", tolerance = 0, max_iterations = 10 }",
                 "quality.fusion_solver.tolerance",

@@ -226,7 +226,21 @@ pub struct PsfSettings {
     pub sky_blur: SkyBlur,
     /// How the prefiltered textures are made: the largest relative difference between a tile's plane-to-sensor
     /// Jacobian and its texture's, and the largest spacing of a texture's grid (px of the background's grid).
-    pub prefilter: PrefilterSettings,
+    /// Its `grid_error` is in DN here; [`PsfSettings::prefilter`] gives it in radiance.
+    pub prefilter_dn: PrefilterSettings,
+}
+
+impl PsfSettings {
+    /// How the prefiltered textures are made, the largest error a coarser grid may add in radiance: the
+    /// settings' DN divided by `dn_per_radiance`.
+    pub fn prefilter(&self, dn_per_radiance: f64) -> PrefilterSettings {
+        let grid_error = if self.prefilter_dn.grid_error > 0.0 && dn_per_radiance > 0.0 {
+            self.prefilter_dn.grid_error / dn_per_radiance
+        } else {
+            0.0
+        };
+        PrefilterSettings { grid_error, ..self.prefilter_dn }
+    }
 }
 
 /// The target model.
@@ -521,9 +535,10 @@ impl SensorSpec {
                 method: quality.psf_method,
                 skip_below_dn: quality.psf_skip_below_dn,
                 sky_blur: quality.sky_blur,
-                prefilter: PrefilterSettings {
+                prefilter_dn: PrefilterSettings {
                     tolerance: quality.prefilter_tolerance,
                     spacing_px: quality.prefilter_spacing_px,
+                    grid_error: quality.prefilter_grid_error_dn,
                 },
             };
             settings.spec.validate().map_err(|e| {

@@ -73,7 +73,7 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
             // tiles where the blur changes no pixel by more than the set DN keep their values
             skip_below: (cfg.skip_below_dn / sensor.dn_per_radiance) as f32,
             sky_blur: sensor.sky_blur,
-            prefilter: cfg.prefilter,
+            prefilter: cfg.prefilter(sensor.dn_per_radiance),
             dome: sensor.blur_dome,
         }),
         _ => None,

@@ -145,7 +145,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         // planned for what is rendered: on a coarse grid, its cameras with its PSF
         let step = sensor.background_step;
         let views = planned_views(scenario).map(|c| coarse_camera(&c, step));
-        let plan = plan_sky_blur(plane, psf, cfg.prefilter, (w / step, h / step), views);
+        let plan = plan_sky_blur(plane, psf, cfg.prefilter(sensor.dn_per_radiance), (w / step, h / step), views);
         sensor.sky_blur = plan.choice;
         sensor.sky_blur_plan = Some(plan);
     }
