@@ -738,18 +738,32 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             // its own frames, replayed until `frames` are timed; loaded for a run of that many frames, so that
             // what is planned for the run (the sky's blur: a texture made once, or a blur every frame) is planned
             // for that many renders, as for a recording of that length
-            let own = load_for_frames(path, None).map_err(|e| CliError::Invalid(e.to_string()))?.spec.run.frames;
-            let scenario =
-                load_for_frames(path, Some(frames.max(own))).map_err(|e| CliError::Invalid(e.to_string()))?;
+            let as_written = load_for_frames(path, None).map_err(|e| CliError::Invalid(e.to_string()))?;
+            let own = as_written.spec.run.frames;
+            // a scene that cannot run past its own end (a target leaving the atmosphere's tables) is still timed,
+            // its own frames replayed, with what is planned for its own length
+            let mut planned_short = None;
+            let scenario = match load_for_frames(path, Some(frames.max(own))) {
+                Ok(s) => s,
+                Err(e) if frames > own => {
+                    planned_short = Some(e.message);
+                    as_written
+                }
+                Err(e) => return Err(CliError::Invalid(e.to_string())),
+            };
             let scenario = with_quality(scenario, a.quality)?;
+            let planned = scenario.spec.run.frames;
             let (fps, mut details) = time_headless(&scenario, frames, own)?;
+            if let Some(why) = planned_short {
+                details.insert(0, format!("  not planned for {frames}: a run that long would fail ({why})"));
+            }
             super::say(&format!("{:<40} {fps:>9.1} frames/s", path.display()))?;
             if own < frames + 10 {
                 details.insert(
                     0,
                     format!(
                         "  {frames} frames timed after 10 warm-up frames: the scenario's {own} frames, run again \
-                         from the first after the last, in a run planned for {frames}"
+                         from the first after the last, in a run planned for {planned}"
                     ),
                 );
             }
