@@ -465,7 +465,8 @@ fn bench_replays_a_scenario_that_could_not_run_as_long() {
         err.contains("the scenario's 90 frames, run again from the first after the last, in a run planned for 90"),
         "{err}"
     );
-    assert!(err.contains("not planned for 3200: a run that long would fail (at frame 3169"), "{err}");
+    assert!(err.contains("not planned for 3200: a run that long would fail ("), "{err}");
+    assert!(err.contains("field `targets[0].trajectory`: at frame 3169"), "{err}");
 }
 
 #[test]

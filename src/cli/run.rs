@@ -746,7 +746,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             let scenario = match load_for_frames(path, Some(frames.max(own))) {
                 Ok(s) => s,
                 Err(e) if frames > own => {
-                    planned_short = Some(e.message);
+                    planned_short = Some(e.to_string());
                     as_written
                 }
                 Err(e) => return Err(CliError::Invalid(e.to_string())),

@@ -172,16 +172,18 @@ fn frobenius2(m: DMat2) -> f64 {
     m.to_cols_array().iter().map(|v| v * v).sum()
 }
 
-/// How a [`PrefilterCache`] makes its textures (`[quality] prefilter_tolerance` and `prefilter_spacing_px`).
+/// How a [`PrefilterCache`] makes its textures (`[quality] prefilter_tolerance`, `prefilter_spacing_px` and
+/// `prefilter_grid_error_dn`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PrefilterSettings {
     /// Largest relative difference between a tile's Jacobian and its texture's ([`JacobianKey`]).
     pub tolerance: f64,
     /// Largest spacing of a texture's grid, px ([`TextureFilter::with_spacing`]).
     pub spacing_px: f64,
-    /// Largest error a coarser grid may add, in the image's units (radiance): a texture's grid is the
-    /// coarsest whose bilinear reads of the blurred image [`BlockSpectra::grid_errors`] estimates within this,
-    /// in every block of the image, and never coarser than `spacing_px`; 0 takes `spacing_px`'s grid.
+    /// Largest estimated error of a texture's grid, in the image's units (radiance): the grid is the coarsest
+    /// whose bilinear reads [`BlockSpectra::grid_errors`] estimates within this of the exact blurred image, in
+    /// every block of the image, and never finer than `spacing_px` allows; 0 takes `spacing_px`'s grid
+    /// (`[quality] prefilter_grid_error_dn`, in DN there).
     pub grid_error: f64,
 }
 
@@ -200,14 +202,15 @@ const SPECTRUM_BLOCK: usize = 64;
 const SPECTRUM_CELLS: usize = 16;
 
 /// How an image's variance is spread over frequency, block by block, for estimating how fine a prefiltered
-/// texture's grid must be. Each 64-texel square block of the image (edges replicated past its end) is
-/// Hann-windowed about its windowed mean and transformed; the power of its frequencies is summed into
+/// texture's grid must be. Each 64-texel square block of the image (the last of a row or column ending at the
+/// image's edge, overlapping the one before) is Hann-windowed about its windowed mean and transformed; the power of its frequencies is summed into
 /// 16 × 16 cells over `[−½, ½)²` cycles/texel, scaled so that a block's cells add up to its
 /// variance (for a stationary field).
 #[derive(Debug)]
 pub struct BlockSpectra {
     /// `SPECTRUM_CELLS²` values per block, row-major by cell (cell `c` along an axis holds the frequencies
-    /// `(j − S/2)/S`, `j ∈ [c·S/C, (c + 1)·S/C)`).
+    /// `(j − S/2)/S`, `j ∈ [c·S/C, (c + 1)·S/C)`); empty for an image narrower or shorter than a block, whose
+    /// estimates are then infinite (no grid coarser than the finest is chosen for it).
     cells: Vec<f32>,
 }
 
@@ -216,7 +219,12 @@ impl BlockSpectra {
     pub fn new(image: &SkyImage) -> Self {
         let s = SPECTRUM_BLOCK;
         let c = SPECTRUM_CELLS;
-        let (bw, bh) = (image.width().div_ceil(s), image.height().div_ceil(s));
+        let (w, h) = (image.width(), image.height());
+        if w < s || h < s {
+            return Self { cells: Vec::new() };
+        }
+        let (bw, bh) = (w.div_ceil(s), h.div_ceil(s));
+        // block k starts at k·S, the last S before the edge, so that every block is the image's own texels
         let hann: Vec<f64> =
             (0..s).map(|x| (std::f64::consts::PI * (x as f64 + 0.5) / s as f64).sin().powi(2)).collect();
         let (w_sum, w2_sum) = (hann.iter().sum::<f64>().powi(2), hann.iter().map(|h| h * h).sum::<f64>().powi(2));
@@ -226,7 +234,8 @@ impl BlockSpectra {
             .into_par_iter()
             .flat_map_iter(|b| {
                 let (bx, by) = (b % bw, b / bw);
-                let region = image.region_clamped((bx * s) as isize, (by * s) as isize, s, s);
+                let (x0, y0) = ((bx * s).min(w - s), (by * s).min(h - s));
+                let region = image.region_clamped(x0 as isize, y0 as isize, s, s);
                 let weight = |i: usize| hann[i % s] * hann[i / s];
                 let mean = region.iter().enumerate().map(|(i, &v)| weight(i) * f64::from(v)).sum::<f64>() / w_sum;
                 let mut data: Vec<Complex<f64>> = region
@@ -265,48 +274,61 @@ impl BlockSpectra {
     pub fn grid_errors(&self, psf: &Psf, jacobian: DMat2, m_max: usize) -> Vec<f64> {
         let c = SPECTRUM_CELLS;
         let mtf = psf.mtf();
-        // frequencies that reach the MTF's cut-off, cycles/texel, and the periods that can hold them (the tent
-        // passes under 10⁻⁵ of the power past the third)
         let smallest = smallest_stretch(jacobian);
-        if !(smallest > 0.0) || m_max == 0 {
+        if !(smallest > 0.0) || self.cells.is_empty() {
             return vec![f64::INFINITY; m_max];
         }
-        let periods = ((mtf.cutoff() / smallest).ceil() as i64 + 1).min(3);
-        let sinc =
-            |x: f64| if x.abs() < 1e-9 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) };
+        // the periods whose frequencies can reach the MTF's cut-off, cycles/texel (the tent passes about 10⁻⁴
+        // of a flat spectrum's power past the third)
+        let periods = ((mtf.cutoff() / smallest).ceil() + 1.0).min(3.0) as i64;
+        let sinc = |x: f64| {
+            if x.abs() < 1e-9 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) }
+        };
         let alias = |x: f64| 1.0 - 2.0 / 3.0 * (std::f64::consts::PI * x).sin().powi(2);
-        // each cell's mean weight per grid, from 2 × 2 frequencies in it
+        // each cell's mean weight per grid, from 2 × 2 frequencies in it (bins 1 and 3 of its 4 along an axis: in
+        // the cells next to 0, where the error grows as ν⁴, the mean is overstated, which errs toward finer grids)
         let sub = 2;
+        // the frequencies along one axis (cycles/texel: a cell's sample plus a period), and at each the tent's
+        // factor and, per grid, sinc² and the alias sum of the grid's own tent: the error's factors are per axis
+        let axis: Vec<f64> = (0..c)
+            .flat_map(|cell| (0..sub).map(move |k| -0.5 + (cell as f64 + (k as f64 + 0.5) / sub as f64) / c as f64))
+            .flat_map(|nu| (-periods..=periods).map(move |n| nu + n as f64))
+            .collect();
+        let tent: Vec<f64> = axis.iter().map(|&f| sinc(f).powi(2)).collect();
+        let grid: Vec<(f64, f64)> = (1..=m_max)
+            .flat_map(|m| axis.iter().map(move |&f| f / m as f64))
+            .map(|x| (sinc(x).powi(2), alias(x)))
+            .collect();
+        let per_sample = (2 * periods + 1) as usize;
         let mut weights = vec![0.0f64; m_max * c * c];
         for cy in 0..c {
             for cx in 0..c {
                 for (sy, sx) in (0..sub).flat_map(|sy| (0..sub).map(move |sx| (sy, sx))) {
-                    let at = |cell: usize, k: usize| -0.5 + (cell as f64 + (k as f64 + 0.5) / sub as f64) / c as f64;
-                    let nu = DVec2::new(at(cx, sx), at(cy, sy));
-                    for ny in -periods..=periods {
-                        for nx in -periods..=periods {
-                            let f = nu + DVec2::new(nx as f64, ny as f64);
+                    let (iy0, ix0) = (((cy * sub) + sy) * per_sample, ((cx * sub) + sx) * per_sample);
+                    for iy in iy0..iy0 + per_sample {
+                        for ix in ix0..ix0 + per_sample {
+                            let f = DVec2::new(axis[ix], axis[iy]);
                             // frequency in cycles/px: ν·u with u = J·x is (Jᵀν)·x
                             let f_px = jacobian.transpose() * f;
-                            let gain = mtf.at(f_px.x, f_px.y) * (sinc(f.x) * sinc(f.y)).powi(2);
+                            let gain = mtf.at(f_px.x, f_px.y) * tent[ix] * tent[iy];
                             let power = gain * gain;
                             if power < 1e-12 {
                                 continue;
                             }
-                            for m in 1..=m_max {
-                                let (x, y) = (f.x / m as f64, f.y / m as f64);
-                                let t = (sinc(x) * sinc(y)).powi(2);
-                                let e = (1.0 - t).powi(2) + alias(x) * alias(y) - t * t;
-                                weights[(m - 1) * c * c + cy * c + cx] += power * e.max(0.0) / (sub * sub) as f64;
+                            for m in 0..m_max {
+                                let ((sx_, ax), (sy_, ay)) = (grid[m * axis.len() + ix], grid[m * axis.len() + iy]);
+                                let t = sx_ * sy_;
+                                let e = (1.0 - t).powi(2) + ax * ay - t * t;
+                                weights[m * c * c + cy * c + cx] += power * e.max(0.0) / (sub * sub) as f64;
                             }
                         }
                     }
                 }
             }
         }
-        (1..=m_max)
+        (0..m_max)
             .map(|m| {
-                let w = &weights[(m - 1) * c * c..m * c * c];
+                let w = &weights[m * c * c..(m + 1) * c * c];
                 self.cells
                     .chunks_exact(c * c)
                     .map(|block| block.iter().zip(w).map(|(&p, &w)| f64::from(p) * w).sum::<f64>())
@@ -1000,26 +1022,59 @@ mod tests {
         let plane = noise_plane();
         let p = psf();
         let tol = 0.01;
-        // texels 2 px wide (the image magnified twice), turned: grids of 1 and 2 nodes a texel are 2 and 1 px
-        let key = JacobianKey::new(DMat2::from_angle(0.3) * 0.5, tol).unwrap();
-        let estimate = BlockSpectra::new(plane.image()).grid_errors(&p, key.jacobian(tol), 4);
-        // reads at scattered points against a grid of 8 nodes a texel (0.25 px)
+        let spectra = BlockSpectra::new(plane.image());
+        // reads at scattered points against a grid of 8 nodes a texel
         let mut state = 12345u64;
         let mut next = || {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             (state >> 11) as f64 / (1u64 << 53) as f64
         };
         let us: Vec<DVec2> = (0..4000).map(|_| DVec2::new(48.0 + 160.0 * next(), 48.0 + 160.0 * next())).collect();
-        let fine = texture_reads(&plane, &p, key, tol, 8, &us);
-        for m in [1, 2, 4] {
-            let reads = texture_reads(&plane, &p, key, tol, m, &us);
-            let rms = (reads.iter().zip(&fine).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / us.len() as f64).sqrt();
-            let ratio = estimate[m - 1] / rms;
-            eprintln!("{m} nodes a texel: measured {rms:.5}, estimated {:.5} ({ratio:.2}x)", estimate[m - 1]);
-            assert!((0.8..2.0).contains(&ratio), "{m} nodes a texel: {ratio}");
+        // texels 2 px wide (the image magnified twice), turned; and a sheared view, its texels 0.45 and 0.9 of a
+        // pixel along the axes (J and its transpose differ)
+        let views = [DMat2::from_angle(0.3) * 0.5, DMat2::from_cols_array(&[0.45, 0.1, 0.3, 0.9])];
+        for (v, j) in views.into_iter().enumerate() {
+            let key = JacobianKey::new(j, tol).unwrap();
+            let started = std::time::Instant::now();
+            let estimate = spectra.grid_errors(&p, key.jacobian(tol), 4);
+            let took = started.elapsed();
+            let fine = texture_reads(&plane, &p, key, tol, 8, &us);
+            for m in [1, 2, 4] {
+                let reads = texture_reads(&plane, &p, key, tol, m, &us);
+                let rms = (reads.iter().zip(&fine).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / us.len() as f64).sqrt();
+                let ratio = estimate[m - 1] / rms;
+                eprintln!(
+                    "view {v}, {m} nodes a texel: measured {rms:.5}, estimated {:.5} ({ratio:.2}x; estimate {took:?})",
+                    estimate[m - 1]
+                );
+                assert!((0.8..2.0).contains(&ratio), "view {v}, {m} nodes a texel: {ratio}");
+            }
+            // a finer grid errs less
+            assert!(estimate.windows(2).all(|w| w[1] < w[0]), "{estimate:?}");
         }
-        // a finer grid errs less
-        assert!(estimate.windows(2).all(|w| w[1] < w[0]), "{estimate:?}");
+    }
+
+    #[test]
+    fn a_new_grid_budget_makes_new_textures() {
+        // the same cache asked for the same key with another budget: the grid of a fresh cache, never the one
+        // kept from before
+        let (plane, p, tol) = (noise_plane(), psf(), 0.01);
+        let key = JacobianKey::new(DMat2::IDENTITY * 0.5, tol).unwrap();
+        let spacing_px = 1.0 / (4.0 * smallest_stretch(key.jacobian(tol)));
+        let estimate = BlockSpectra::new(plane.image()).grid_errors(&p, key.jacobian(tol), 4);
+        let mut cache = PrefilterCache::new();
+        let need = [60.0, 60.0, 190.0, 190.0];
+        let per_texel = |cache: &mut PrefilterCache, grid_error: f64| {
+            let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error };
+            let slot = cache.slot(&plane, &p, key, settings, need, true).expect("a texture");
+            let e = &cache.entries[slot];
+            e.plane.as_ref().unwrap().image().width() / (e.rect[2] - e.rect[0])
+        };
+        assert_eq!(per_texel(&mut cache, 0.0), 4);
+        let budget = 0.5 * (estimate[0] + estimate[1]);
+        assert_eq!(per_texel(&mut cache, budget), 2);
+        assert_eq!(per_texel(&mut PrefilterCache::new(), budget), 2);
+        assert_eq!(per_texel(&mut cache, 0.0), 4);
     }
 
     #[test]

@@ -167,7 +167,9 @@ pub struct Psf {
 /// Samples of the radial part of the MTF (the Gaussian blurs times the band's diffraction) over `[0, cutoff]`.
 const MTF_SAMPLES: usize = 1024;
 /// Where the MTF is taken as 0 without diffraction, cycles/px: the pixel aperture's `sinc²` is below 1/(π·4)²
-/// there (0.6 %), and a Gaussian of at least a fine sample's σ lower still.
+/// there (0.6 %). Without the aperture a Gaussian of a fine sample's σ alone still passes 0.73 there; the
+/// estimates that read the MTF ([`crate::imaging::prefilter::BlockSpectra`]) also weigh by the bilinear tent of
+/// the image's texels, which passes little that far out for texels of half a pixel and more.
 const MTF_CUTOFF_NO_DIFFRACTION: f64 = 4.0;
 
 /// The PSF's modulation transfer function: the magnitude of its OTF (the optics and the pixel aperture, no
@@ -176,10 +178,11 @@ const MTF_CUTOFF_NO_DIFFRACTION: f64 = 4.0;
 pub struct Mtf {
     /// The radial part at `f = k·cutoff/(MTF_SAMPLES − 1)`.
     radial: Vec<f64>,
+    /// The pixel aperture's factor along one axis, `sinc(aperture·f)`, at the same frequencies (all 1 without
+    /// the aperture).
+    aperture: Vec<f64>,
     /// Frequency past which the MTF is taken as 0, cycles/px.
     cutoff: f64,
-    /// Side of the pixel aperture, px; 0 without it.
-    aperture_px: f64,
 }
 
 impl Mtf {
@@ -193,7 +196,20 @@ impl Mtf {
         let cutoff = if cutoff.is_finite() && cutoff > 0.0 { cutoff } else { MTF_CUTOFF_NO_DIFFRACTION };
         let step = cutoff / (MTF_SAMPLES - 1) as f64;
         let radial = (0..MTF_SAMPLES).map(|k| otf.radial(k as f64 * step, 0.0)).collect();
-        Self { radial, cutoff, aperture_px: otf.aperture_px }
+        let aperture = (0..MTF_SAMPLES)
+            .map(|k| if otf.aperture_px > 0.0 { sinc(otf.aperture_px * k as f64 * step) } else { 1.0 })
+            .collect();
+        Self { radial, aperture, cutoff }
+    }
+
+    /// `table` at `u` samples from 0, linearly between its samples; `None` past the last.
+    #[inline]
+    fn lerp(table: &[f64], u: f64) -> Option<f64> {
+        if !(u < (MTF_SAMPLES - 1) as f64) {
+            return None;
+        }
+        let k = u as usize;
+        Some(table[k] + (u - k as f64) * (table[k + 1] - table[k]))
     }
 
     /// Frequency past which the MTF is taken as 0, cycles/px.
@@ -201,18 +217,17 @@ impl Mtf {
         self.cutoff
     }
 
-    /// `|OTF|` at `(fx, fy)`, cycles/px (the radial part interpolated linearly between its samples).
+    /// `|OTF|` at `(fx, fy)`, cycles/px (each factor interpolated linearly between its samples).
     pub fn at(&self, fx: f64, fy: f64) -> f64 {
-        let u = fx.hypot(fy) / self.cutoff * (MTF_SAMPLES - 1) as f64;
-        if !(u < (MTF_SAMPLES - 1) as f64) {
+        let per = (MTF_SAMPLES - 1) as f64 / self.cutoff;
+        let (Some(radial), Some(ax), Some(ay)) = (
+            Self::lerp(&self.radial, (fx * fx + fy * fy).sqrt() * per),
+            Self::lerp(&self.aperture, fx.abs() * per),
+            Self::lerp(&self.aperture, fy.abs() * per),
+        ) else {
             return 0.0;
-        }
-        let k = u as usize;
-        let t = u - k as f64;
-        let radial = self.radial[k] + t * (self.radial[k + 1] - self.radial[k]);
-        let aperture =
-            if self.aperture_px > 0.0 { sinc(self.aperture_px * fx) * sinc(self.aperture_px * fy) } else { 1.0 };
-        (radial * aperture).abs()
+        };
+        (radial * ax * ay).abs()
     }
 }
 

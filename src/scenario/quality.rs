@@ -23,7 +23,7 @@
 //! --no-noise --format npy --quality P`; in the committed report at most 0.375 DN rms, on swarm, and 0.0070
 //! px). The switches that mattered: the prefiltered sky texture's grid (0.5 px grids erred up to 0.64 DN rms
 //! against the reference's 0.25 px, 0.33 px grids up to 0.38; clear skies take coarser grids within an estimated
-//! 0.35 DN, which moved paper_clear_sky from 0.115 to 0.122 DN rms), the sun's reflection (the paper's facet overstates a glint by up to 3300 DN against the ellipsoid average),
+//! 0.35 DN, which moved paper_clear_sky from 0.115 to 0.122 DN rms in the report), the sun's reflection (the paper's facet overstates a glint by up to 3300 DN against the ellipsoid average),
 //! the sky blur route (the per-frame blur errs at sub-pixel cloud edges) and the PSF's cut (3 % of the energy
 //! left out gave 1.2 DN rms on paper_cloudy_sky, 1 % gives 0.29).
 //!
@@ -112,10 +112,11 @@ pub struct Quality {
     /// magnified more than this allows is prefiltered onto a grid an integer number of times finer than its
     /// texels.
     pub prefilter_spacing_px: f64,
-    /// Largest error, DN rms in any 64-texel block of a sky image, that a prefiltered texture's grid coarser
-    /// than `prefilter_spacing_px` may add: the grid is the coarsest that an estimate from the image's own
-    /// spectrum, the PSF and the view's Jacobian keeps within it (a smooth sky needs fewer nodes than clouds'
-    /// edges); 0 keeps `prefilter_spacing_px`'s grid.
+    /// Largest estimated error of a prefiltered texture's grid, DN rms in any 64-texel block of a sky image
+    /// (its bilinear reads against the exact blurred image): the grid is the coarsest, never finer than
+    /// `prefilter_spacing_px` allows, that an estimate from the image's own spectrum, the PSF and the view's
+    /// Jacobian keeps within it (a smooth sky needs fewer nodes than clouds' edges); 0 keeps
+    /// `prefilter_spacing_px`'s grid.
     pub prefilter_grid_error_dn: f64,
     /// The sky background (image, dome and their blur) is made on a grid this many sensor pixels apart each
     /// way, as a camera with pixels this many times larger but the detector's own photosensitive area would see
@@ -358,12 +359,12 @@ pub const REFERENCE_PREFILTER_SPACING_PX: f64 = 0.25;
 pub const DRAFT_PREFILTER_SPACING_PX: f64 = 0.75;
 /// The standard preset's `prefilter_grid_error_dn`: clear skies take coarser grids (paper_clear_sky two nodes a
 /// texel, estimated 0.30 DN; head_on one, 0.14 DN), cumulus keeps three (estimated 0.9–1.2 DN at three).
-/// Against the reference preset (noise off, 8 frames) paper_clear_sky moved from 0.115 to 0.123 DN rms and
-/// head_on from 0.019 to 0.042 (docs/accuracy.md).
+/// Against the reference preset (`irsim record S --frames 8 --no-noise --format npy`) paper_clear_sky moved
+/// from 0.115 to 0.123 DN rms and head_on from 0.019 to 0.042 (docs/accuracy.md; the report's own 8 frames give
+/// 0.122 and 0.042).
 pub const STANDARD_PREFILTER_GRID_ERROR_DN: f64 = 0.35;
-/// The draft preset's `prefilter_grid_error_dn`: on the shipped scenarios' smooth skies it takes grids of one
-/// node a texel (head_on) where the estimate is under 1 DN; cloud edges keep the finest grid
-/// `prefilter_spacing_px` allows.
+/// The draft preset's `prefilter_grid_error_dn`: a clear sky whose estimate at one node a texel is under 1 DN
+/// (head_on's, 0.14 DN at the standard spacing) is read from one node a texel.
 pub const DRAFT_PREFILTER_GRID_ERROR_DN: f64 = 1.0;
 /// Largest `prefilter_grid_error_dn`.
 pub const MAX_PREFILTER_GRID_ERROR_DN: f64 = 100.0;
