@@ -47,7 +47,7 @@ use super::frame::Frame;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 
-use super::psf::{ConvolutionMethod, Convolver, Kernel, Psf, fast_len};
+use super::psf::{ConvolutionMethod, Convolver, Kernel, Psf, fast_len, sinc};
 use super::sky_plane::{SkyImage, SkyPlane};
 
 /// Largest radius of a texture kernel, texels; a sky minified more than this allows is blurred per frame.
@@ -281,9 +281,6 @@ impl BlockSpectra {
         // the periods whose frequencies can reach the MTF's cut-off, cycles/texel (the tent passes about 10⁻⁴
         // of a flat spectrum's power past the third)
         let periods = ((mtf.cutoff() / smallest).ceil() + 1.0).min(3.0) as i64;
-        let sinc = |x: f64| {
-            if x.abs() < 1e-9 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) }
-        };
         let alias = |x: f64| 1.0 - 2.0 / 3.0 * (std::f64::consts::PI * x).sin().powi(2);
         // each cell's mean weight per grid, from 2 × 2 frequencies in it (bins 1 and 3 of its 4 along an axis: in
         // the cells next to 0, where the error grows as ν⁴, the mean is overstated, which errs toward finer grids)

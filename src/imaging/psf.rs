@@ -771,7 +771,8 @@ impl Otf {
     }
 }
 
-fn sinc(x: f64) -> f64 {
+/// `sin(πx)/(πx)`, 1 at 0.
+pub(crate) fn sinc(x: f64) -> f64 {
     if x.abs() < 1e-8 {
         1.0
     } else {

@@ -231,8 +231,8 @@ pub struct PsfSettings {
 }
 
 impl PsfSettings {
-    /// How the prefiltered textures are made, the largest error a coarser grid may add in radiance: the
-    /// settings' DN divided by `dn_per_radiance`.
+    /// How the prefiltered textures are made, with the grid's error budget in radiance: the settings' DN
+    /// divided by `dn_per_radiance` (0, the finest grid, where either is not positive).
     pub fn prefilter(&self, dn_per_radiance: f64) -> PrefilterSettings {
         let grid_error = if self.prefilter_dn.grid_error > 0.0 && dn_per_radiance > 0.0 {
             self.prefilter_dn.grid_error / dn_per_radiance
