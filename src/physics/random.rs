@@ -19,10 +19,10 @@
 //!   table or a rejection step its fill vectorizes (64-bit multiplies for the draws, square roots and
 //!   polynomials for the transform), where the ziggurat's table lookups and rare second tries keep it scalar.
 //! - [`Quantiles`]: a deviate is a quantile of the normal law picked by 16 random bits, four deviates per 64-bit
-//!   draw: the `draft` preset's sampler ([`NormalSampler::Table`]). A draw and four table reads per four
-//!   deviates, with no branch, against the ziggurat's two deviates per draw with a comparison each; the price
-//!   is that the deviates take 7936 values (each of the 2¹⁶ quantiles beyond 1.86 σ, cells of 16 nearer the
-//!   middle, none wider than 0.0035 σ) and none lies beyond 4.32 σ (the law puts 1.5·10⁻⁵ of its mass there).
+//!   draw: the `draft` preset's sampler ([`NormalSampler::Table`]). A draw and four short polynomials per four
+//!   deviates, with no branch and no memory read, against the ziggurat's two deviates per draw with a
+//!   comparison each; the price is that the deviates take the 2¹⁶ quantiles' values (each within 8e-5 σ) and
+//!   none lies beyond 4.32 σ (the law puts 1.5·10⁻⁵ of its mass there).
 
 use std::convert::Infallible;
 use std::sync::LazyLock;
@@ -37,7 +37,8 @@ pub enum NormalSampler {
     /// The ziggurat: exact to f32, the tail included.
     #[default]
     Ziggurat,
-    /// A quantile per deviate, picked by 16 bits ([`Quantiles`]): cheaper, the tail cut at 4.32 σ.
+    /// A quantile per deviate, picked by 16 bits ([`Quantiles`]: a polynomial per octave of the bits'
+    /// distance from the nearer end): cheaper, the tail cut at 4.32 σ.
     Table,
     /// Box–Muller on two 24-bit uniforms per draw ([`box_muller`]): no table and no rejection, so the fill
     /// vectorizes; deviates within 1e-6 of the exact transform, none beyond 5.77 σ (the law puts 8·10⁻⁹ of its
@@ -232,80 +233,112 @@ const LAYERS: usize = 256;
 const MAGNITUDE_SCALE: f64 = (1u32 << 23) as f64;
 /// Right edge of the base layer (Marsaglia & Tsang, 256 layers).
 const R: f64 = 3.654_152_885_361_009;
-/// Largest difference between an entry of [`Quantiles`] and the exact quantile, in σ
-/// (`quantiles_match_the_exact_inverse`).
-pub const QUANTILE_MAX_ERROR: f64 = 1e-6;
+/// Largest difference between a deviate of [`Quantiles`] and the exact quantile it stands for, in σ
+/// (`quantiles_match_the_exact_inverse`; measured 6.4e-5, under the gap between neighbouring quantiles, 3.8e-5 σ at
+/// the middle, twice over, so the deviates keep the quantiles' order).
+pub const QUANTILE_MAX_ERROR: f64 = 8e-5;
 
 /// Random bits per deviate of [`Quantiles`].
 const QUANTILE_BITS: u32 = 16;
-/// Deviates of [`Quantiles`] within this many of either end of the 2¹⁶ (`|z|` > 1.86) are their own quantile.
-const FINE: u16 = 2048;
-/// Nearer the middle, [`Quantiles`] gives the same deviate to this many neighbours.
-const CELL: u16 = 16;
-/// Entries of [`Quantiles`]'s table: the fine quantiles of the lower end, then the lower half's cells.
-const QUANTILE_ENTRIES: usize = FINE as usize + (0x8000 - FINE as usize) / CELL as usize;
+/// Coefficients of [`Quantiles`]'s polynomials, constant term first.
+const QUANTILE_TERMS: usize = 5;
+/// Octaves of [`Quantiles`]: `d + 1` in `[2^e, 2^(e+1))` for `e` in 0 … 15 (`d` below 2¹⁵).
+const OCTAVES: usize = 16;
 
 /// The deviates of [`NormalSampler::Table`]. For 16 random bits `i` in the lower half (`i < 2¹⁵`), the deviate
-/// is `i`'s quantile `Φ⁻¹((i + ½)/2¹⁶)` of the standard normal law for the 2048 lowest, and nearer the middle
-/// the quantile at the middle of `i`'s cell of 16 (`Φ⁻¹((2048 + 16c + 8)/2¹⁶)` for cell `c`); the upper half is
-/// the mirror image (`i` gives minus the deviate of `2¹⁶ − 1 − i`). So the tails are those of all 2¹⁶ quantiles,
-/// out to 4.32 σ, and a cell is at most 0.0035 σ wide (0.0006 σ in the middle). The table holds the lower
-/// half's 3968 values (16 KiB) and stays in the first-level cache; one of all 2¹⁶ quantiles (256 KiB) made each
-/// deviate a read from the second level, and the `draft` preset's readout 22 % slower (one thread,
-/// paper_vibration).
+/// is `i`'s quantile `Φ⁻¹((i + ½)/2¹⁶)` of the standard normal law; the upper half is the mirror image (`i`
+/// gives minus the deviate of `2¹⁶ − 1 − i`). So the deviates take the 2¹⁶ values of the 2¹⁶ quantiles, out to
+/// 4.32 σ in the tails.
+///
+/// The quantiles are not read from a table: `n = d + 1` (`d` the distance from the nearer end, 1 … 2¹⁵) is
+/// written as `2^e·m` with `m` in [1, 2) (the exponent and mantissa of `n` as an f32), and the quantile is a
+/// polynomial of degree 4 in `m − 1.5` whose five coefficients are those of octave `e`, fitted by least squares
+/// to that octave's exact quantiles (octaves of five points or fewer are interpolated). Sixteen octaves make each
+/// coefficient a row of sixteen floats, one vector register with AVX-512, so a vector of sixteen deviates takes
+/// five in-register permutes and eight multiplies and adds, where a table of the quantiles took a gather from
+/// memory (the gathers were 45 % of the `draft` preset's readout on paper_vibration). Each deviate is within
+/// [`QUANTILE_MAX_ERROR`] of its exact quantile; degree 5 came within 9e-6 σ and degree 3 within 4e-4 σ (out of
+/// order at the middle), the readout 1–3 µs a frame slower and faster on paper_vibration.
 #[derive(Debug)]
 pub struct Quantiles {
-    table: Box<[f32; QUANTILE_ENTRIES]>,
+    /// `coefficients[k][e]`: the coefficient of `(m − 1.5)^k` in octave `e`.
+    coefficients: [[f32; OCTAVES]; QUANTILE_TERMS],
 }
 
-static QUANTILES: LazyLock<Quantiles> = LazyLock::new(|| {
-    let n = (1usize << QUANTILE_BITS) as f64;
-    let (fine, cell) = (usize::from(FINE), usize::from(CELL));
-    let table: Box<[f32]> = (0..QUANTILE_ENTRIES)
-        .map(|k| {
-            let u = if k < fine { k as f64 + 0.5 } else { (fine + (k - fine) * cell + cell / 2) as f64 };
-            inverse_normal_cdf(u / n) as f32
-        })
-        .collect();
-    Quantiles { table: table.try_into().expect("the table's entries") }
-});
+static QUANTILES: LazyLock<Quantiles> = LazyLock::new(Quantiles::fit);
 
 impl Quantiles {
-    /// The shared table.
+    /// The shared polynomials.
     pub fn get() -> &'static Self {
         &QUANTILES
     }
 
-    /// The deviate of the 16 random bits `i`. Branch-free, so that a loop of it is vector code.
+    /// Fits each octave's polynomial to its quantiles (in f64; rounded to f32 once fitted).
+    fn fit() -> Self {
+        let half = 1u32 << (QUANTILE_BITS - 1);
+        let octaves: Vec<Vec<f64>> = (0..OCTAVES as u32)
+            .map(|e| {
+                let first = 1u32 << e;
+                let points: Vec<(f64, f64)> = (first..(2 * first).min(half + 1))
+                    .map(|n| {
+                        let x = f64::from(n) / f64::from(first) - 1.5;
+                        (x, inverse_normal_cdf((f64::from(n) - 0.5) / f64::from(2 * half)))
+                    })
+                    .collect();
+                least_squares(&points, points.len().min(QUANTILE_TERMS))
+            })
+            .collect();
+        let coefficients =
+            std::array::from_fn(|k| std::array::from_fn(|e| octaves[e].get(k).map_or(0.0, |&c| c as f32)));
+        Self { coefficients }
+    }
+
+    /// The deviate of the 16 random bits `i`: the same f32 operations, in the same order, as the vector code
+    /// (so the same bits).
     #[inline(always)]
     pub fn value(&self, i: u16) -> f32 {
-        let lower = i < 0x8000;
-        let d = if lower { i } else { !i };
-        let k = if d < FINE { d } else { FINE + (d - FINE) / CELL };
-        let z = self.table[usize::from(k)];
-        if lower { z } else { -z }
+        let upper = i >= 0x8000;
+        let d = if upper { i ^ 0xffff } else { i };
+        let bits = (u32::from(d) + 1) as f32;
+        let bits = bits.to_bits();
+        let e = ((bits >> 23) - 127) as usize & (OCTAVES - 1);
+        let x = f32::from_bits((bits & 0x7f_ffff) | 0x3f80_0000) - 1.5;
+        let c = &self.coefficients;
+        let mut z = c[QUANTILE_TERMS - 1][e];
+        for k in (0..QUANTILE_TERMS - 1).rev() {
+            z = z * x + c[k][e];
+        }
+        if upper { -z } else { z }
     }
 
     /// Fills `out` with standard normal deviates, four per 64-bit draw: `out[k]` is the deviate of bits
     /// `16·(k mod 4)` to `16·(k mod 4) + 15` of draw `⌊k/4⌋` ([`Quantiles::value`]).
     ///
     /// Runs of 64 deviates take their 16 draws in closed form (draw `i` after state `s` is `mix64(s + i·γ)`), so
-    /// the draws have no carried dependence and the table reads are one gather per vector of indices; the bits
-    /// and the deviates are those of drawing one after another.
+    /// the draws have no carried dependence: with AVX-512 a run is four vectors of sixteen deviates, else a
+    /// loop of [`Quantiles::value`].
     #[inline(always)]
     pub fn fill(&self, rng: &mut SplitMix64, out: &mut [f32]) {
         const RUN: usize = 64;
         const DRAWS: usize = RUN / 4;
         let mut runs = out.chunks_exact_mut(RUN);
+        #[cfg(target_arch = "x86_64")]
+        let wide = crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512;
         for run in &mut runs {
             let start = rng.state;
+            rng.state = start.wrapping_add((DRAWS as u64).wrapping_mul(SplitMix64::GAMMA));
+            #[cfg(target_arch = "x86_64")]
+            if wide {
+                // SAFETY: the CPU has AVX-512
+                unsafe { x86::quantile_run_512(&self.coefficients, start, run) };
+                continue;
+            }
             let mut draws = [0u64; DRAWS];
             for (i, d) in draws.iter_mut().enumerate() {
                 // little-endian in memory whatever the target, so that index k below is bits 16·(k mod 4) up of
                 // draw ⌊k/4⌋
                 *d = mix64(start.wrapping_add((i as u64 + 1).wrapping_mul(SplitMix64::GAMMA))).to_le();
             }
-            rng.state = start.wrapping_add((DRAWS as u64).wrapping_mul(SplitMix64::GAMMA));
             let index: [u16; RUN] = bytemuck::cast(draws);
             for (o, &i) in run.iter_mut().zip(&index) {
                 *o = self.value(i);
@@ -321,7 +354,41 @@ impl Quantiles {
     }
 }
 
-/// `Φ⁻¹(u)` for `u` in (0, 1), within [`QUANTILE_MAX_ERROR`]: `√2·erf⁻¹(2u − 1)` with Giles's approximation of
+/// The least-squares polynomial with `terms` coefficients (constant first) through the points `(x, y)`: the
+/// normal equations solved by Gaussian elimination with partial pivoting (`x` within ±½ here, so they are well
+/// conditioned in f64 at six terms).
+fn least_squares(points: &[(f64, f64)], terms: usize) -> Vec<f64> {
+    let mut a = vec![vec![0.0; terms + 1]; terms];
+    for &(x, y) in points {
+        let powers: Vec<f64> = (0..terms).scan(1.0, |p, _| Some(std::mem::replace(p, *p * x))).collect();
+        for (r, row) in a.iter_mut().enumerate() {
+            for c in 0..terms {
+                row[c] += powers[r] * powers[c];
+            }
+            row[terms] += powers[r] * y;
+        }
+    }
+    for col in 0..terms {
+        let pivot = (col..terms).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs())).unwrap_or(col);
+        a.swap(col, pivot);
+        let (upper, lower) = a.split_at_mut(col + 1);
+        let pivot_row = &upper[col];
+        for row in lower {
+            let f = row[col] / pivot_row[col];
+            for (v, &p) in row[col..].iter_mut().zip(&pivot_row[col..]) {
+                *v -= f * p;
+            }
+        }
+    }
+    let mut solution = vec![0.0; terms];
+    for r in (0..terms).rev() {
+        let rest: f64 = (r + 1..terms).map(|c| a[r][c] * solution[c]).sum();
+        solution[r] = (a[r][terms] - rest) / a[r][r];
+    }
+    solution
+}
+
+/// `Φ⁻¹(u)` for `u` in (0, 1), within 1e-6 (the fit's points): `√2·erf⁻¹(2u − 1)` with Giles's approximation of
 /// `erf⁻¹` ("Approximating the erfinv function", GPU Computing Gems Jade, 2011), a polynomial in
 /// `w = −ln(1 − x²)` (one for `w < 5`, one in `√w` beyond); `1 − x² = 4u(1 − u)` is computed from `u`, so it
 /// keeps its precision however close `u` is to 0 or 1.
@@ -471,12 +538,66 @@ impl Ziggurat {
     }
 }
 
-/// Box–Muller with AVX-512.
+/// Box–Muller and the quantile polynomials with AVX-512.
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{SplitMix64, U24};
+    use super::{OCTAVES, QUANTILE_TERMS, SplitMix64, U24};
+
+    /// One run of 64 deviates of [`Quantiles::fill`](super::Quantiles::fill) into `out` (64 long): the 16 draws
+    /// `mix64(start + (i + 1)·GAMMA)` in two vectors, their 64 16-bit fields in memory order as four vectors of
+    /// sixteen, and [`Quantiles::value`](super::Quantiles::value)'s f32 operations in its order (the octave's
+    /// coefficients permuted out of one register each, no fused multiply–add), so every deviate has the
+    /// scalar's bits.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, DQ, BW, VL).
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    pub unsafe fn quantile_run_512(coefficients: &[[f32; OCTAVES]; QUANTILE_TERMS], start: u64, out: &mut [f32]) {
+        assert_eq!(out.len(), 64, "a run of 64");
+        let g = SplitMix64::GAMMA as i64;
+        let at = |first: i64| {
+            let lanes =
+                _mm512_setr_epi64(first, first + 1, first + 2, first + 3, first + 4, first + 5, first + 6, first + 7);
+            _mm512_add_epi64(_mm512_set1_epi64(start as i64), _mm512_mullo_epi64(lanes, _mm512_set1_epi64(g)))
+        };
+        let (m1, m2) =
+            (_mm512_set1_epi64(0xBF58_476D_1CE4_E5B9u64 as i64), _mm512_set1_epi64(0x94D0_49BB_1331_11EBu64 as i64));
+        let mix = |z: __m512i| {
+            let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<30>(z)), m1);
+            let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<27>(z)), m2);
+            _mm512_xor_si512(z, _mm512_srli_epi64::<31>(z))
+        };
+        let (low, high) = (mix(at(1)), mix(at(9)));
+        // SAFETY: each row is sixteen floats
+        let c: [__m512; QUANTILE_TERMS] =
+            std::array::from_fn(|k| unsafe { _mm512_loadu_ps(coefficients[k].as_ptr()) });
+        let epi = _mm512_set1_epi32;
+        let sign = _mm512_set1_ps(-0.0);
+        let quarters = [
+            _mm512_castsi512_si256(low),
+            _mm512_extracti64x4_epi64::<1>(low),
+            _mm512_castsi512_si256(high),
+            _mm512_extracti64x4_epi64::<1>(high),
+        ];
+        for (q, fields) in quarters.into_iter().enumerate() {
+            let i = _mm512_cvtepu16_epi32(fields);
+            let upper = _mm512_cmpge_epi32_mask(i, epi(0x8000));
+            let d = _mm512_mask_xor_epi32(i, upper, i, epi(0xffff));
+            let bits = _mm512_castps_si512(_mm512_cvtepi32_ps(_mm512_add_epi32(d, epi(1))));
+            let e = _mm512_sub_epi32(_mm512_srli_epi32::<23>(bits), epi(127));
+            let m = _mm512_castsi512_ps(_mm512_or_si512(_mm512_and_si512(bits, epi(0x7f_ffff)), epi(0x3f80_0000)));
+            let x = _mm512_sub_ps(m, _mm512_set1_ps(1.5));
+            let mut z = _mm512_permutexvar_ps(e, c[QUANTILE_TERMS - 1]);
+            for k in (0..QUANTILE_TERMS - 1).rev() {
+                z = _mm512_add_ps(_mm512_mul_ps(z, x), _mm512_permutexvar_ps(e, c[k]));
+            }
+            let z = _mm512_mask_xor_ps(z, upper, z, sign);
+            // SAFETY: sixteen floats at 16·q, inside `out` (64 long)
+            unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(16 * q), z) };
+        }
+    }
 
     /// [`box_muller_fill`](super::box_muller_fill) for the whole blocks of sixteen pairs in `out`; returns how
     /// many pairs it wrote. Every lane does [`mix64`](super::mix64), then
@@ -632,30 +753,21 @@ mod tests {
     fn quantiles_match_the_exact_inverse() {
         let q = Quantiles::get();
         let n = 65_536.0;
-        // each value against the exact quantile it stands for (its own, or its cell's middle), and within half
-        // a cell of its own
+        // each deviate against the exact quantile it stands for: every third, and the ends of each octave
+        let octave_ends = (0..16u32).flat_map(|e| [(1 << e) - 1, ((2 << e) - 2).min(0x7fff)]).map(|d: u32| d as u16);
         let mut worst = (0.0, 0);
-        for i in (0..=u16::MAX).step_by(7).chain([0, 1, 2047, 2048, 2049, 32_767, 32_768, 63_487, 63_488, 65_535]) {
-            let d = i.min(!i);
-            let own = (f64::from(i) + 0.5) / n;
-            let meant = if d < FINE {
-                own
-            } else {
-                let middle = f64::from(FINE + (d - FINE) / CELL * CELL) + 8.0;
-                if i < 0x8000 { middle / n } else { 1.0 - middle / n }
-            };
-            let z = f64::from(q.value(i));
-            let error = (z - exact_inverse(meant)).abs();
+        for i in (0..=u16::MAX).step_by(3).chain(octave_ends.flat_map(|d| [d, !d])) {
+            let error = (f64::from(q.value(i)) - exact_inverse((f64::from(i) + 0.5) / n)).abs();
             if error > worst.0 {
                 worst = (error, i);
             }
-            assert!((z - exact_inverse(own)).abs() < 0.0018, "entry {i}: {z} is over half a cell from its quantile");
         }
-        assert!(worst.0 < QUANTILE_MAX_ERROR, "largest error {} σ at entry {}", worst.0, worst.1);
-        // symmetric, cut at 4.32 σ, and the finest cells' values are all different
+        eprintln!("largest error {:.2e} σ at {}", worst.0, worst.1);
+        assert!(worst.0 < QUANTILE_MAX_ERROR, "largest error {} σ at {}", worst.0, worst.1);
+        // symmetric, cut at 4.32 σ, and increasing: all 2¹⁶ values different, in order
         assert!((0..=u16::MAX).all(|i| q.value(i) == -q.value(!i)));
-        assert!((f64::from(q.value(0)) + 4.325).abs() < 0.005, "{}", q.value(0));
-        assert!((0..FINE).all(|i| q.value(i) < q.value(i + 1)));
+        assert!((f64::from(q.value(0)) + 4.3249).abs() < 1e-4, "{}", q.value(0));
+        assert!((0..u16::MAX).all(|i| q.value(i) < q.value(i + 1)));
     }
 
     #[test]
