@@ -571,8 +571,7 @@ mod x86 {
         };
         let (low, high) = (mix(at(1)), mix(at(9)));
         // SAFETY: each row is sixteen floats
-        let c: [__m512; QUANTILE_TERMS] =
-            std::array::from_fn(|k| unsafe { _mm512_loadu_ps(coefficients[k].as_ptr()) });
+        let c: [__m512; QUANTILE_TERMS] = std::array::from_fn(|k| unsafe { _mm512_loadu_ps(coefficients[k].as_ptr()) });
         let epi = _mm512_set1_epi32;
         let sign = _mm512_set1_ps(-0.0);
         let quarters = [
