@@ -193,7 +193,7 @@ impl Quality {
             prefilter_grid_error_dn: STANDARD_PREFILTER_GRID_ERROR_DN,
             background_step_px: 1,
             sky_texel_px: 1.0,
-            target_method: TargetMethod::Rings,
+            target_method: TargetMethod::Auto,
             target_node_spacing_px: target_psf::NODE_SPACING_PX,
             blob_sampling: BlobSampling::Auto,
             blob_roi_fraction: 1e-3,
