@@ -31,7 +31,7 @@ use super::target_blob::{ImageEllipse, PixelRect};
 #[serde(rename_all = "snake_case")]
 pub enum TargetMethod {
     /// Seven points for small ellipses, rings for larger round ones, columns for elongated ones
-    /// ([`column_nodes`]).
+    /// (`column_nodes` in this module).
     #[default]
     Auto,
     /// Seven points for small ellipses, rings for every larger one.
