@@ -11,13 +11,16 @@
 //!   Radon's seven-point rule for the disk mapped onto it (the centre with weight ¼, six points at radius
 //!   √(2/3) with ⅛ each; exact for polynomials to degree 5), or its centre alone when it is under a hundredth
 //!   of a pixel.
-//! - A larger one takes rings of equal width, points `node_spacing_px` apart on each; pixels deeper inside
-//!   than the PSF's reach get the full value directly and the rings that reach only them are skipped, so the
-//!   cost grows with the perimeter, not the area.
+//! - A larger round one takes rings of equal width, points `node_spacing_px` apart on each; an elongated one
+//!   (longer than [`COLUMNS_MIN_ELONGATION`] times its width) columns across its major axis, nodes about
+//!   `node_spacing_px` apart each way (rings that far apart along the major axis crowd the minor one). Pixels
+//!   deeper inside than the PSF's reach get the full value directly and the nodes that reach only them are
+//!   skipped, so the cost grows with the perimeter, not the area.
 //!
 //! [`TargetMethod::Reference`] uses rings for every size (the reference preset: at 0.05 px), against which the
-//! errors of the default are measured (test `auto_is_close_to_the_reference`, `docs/accuracy.md`; the draft
-//! preset's 0.6 px spacing in `draft_spacing_error`). The image's intensity
+//! errors of the default are measured (tests `auto_is_close_to_the_reference` and
+//! `columns_are_as_close_to_the_reference_as_rings`, `docs/accuracy.md`; the draft preset's 0.6 px spacing in
+//! `draft_spacing_error`). The image's intensity
 //! centroid is not the ellipse centre exactly: sampling a blurred point at pixel centres biases it toward the
 //! nearest pixel centre, as in a real camera; the labels give the true centre.
 
@@ -46,7 +49,7 @@ pub enum TargetMethod {
 pub struct TargetPsfSpec {
     /// The quadrature.
     pub method: TargetMethod,
-    /// Spacing of the ring nodes, px.
+    /// Spacing of the quadrature's nodes (rings, or columns and the nodes along them), px.
     pub node_spacing_px: f64,
     /// Largest semi-major axis given the seven-point rule, px.
     pub seven_point_max_px: f64,
@@ -233,70 +236,90 @@ fn column_nodes(
     if e.a <= seven_point_max || e.a < 0.01 || e.a < COLUMNS_MIN_ELONGATION * e.b {
         return quadrature_nodes(e, psf, spacing, seven_point_max, node);
     }
+    let reach = psf.radius_px() as f64 + 1.0;
+    // the spacing grows, as the rings' does, until the nodes kept fit the cap
+    let mut spacing = spacing;
+    loop {
+        let mut count = 0;
+        columns(e, reach, spacing, &mut |_, _, _| count += 1);
+        if count <= MAX_NODES {
+            break;
+        }
+        spacing *= 1.5;
+    }
+    columns(e, reach, spacing, &mut node);
+    true
+}
+
+/// The nodes of [`column_nodes`] at `spacing`, those deeper than `2·reach + ½` inside the ellipse left out
+/// (whole runs of them in a column's middle are never visited, so a large ellipse costs its rim alone).
+fn columns(e: &ImageEllipse, reach: f64, spacing: f64, node: &mut impl FnMut(f64, f64, f32)) {
     let (s, c) = e.angle_rad.sin_cos();
     let at = |u: f64, v: f64| (e.center.x + u * c - v * s, e.center.y + u * s + v * c);
-    let reach = psf.radius_px() as f64 + 1.0;
-    // a spacing whose nodes (about the area over its square) stay within the cap
-    let spacing = spacing.max((e.area_px2() / MAX_NODES as f64).sqrt() * 1.1);
-    let columns = (2.0 * e.a / spacing).ceil().max(1.0) as usize;
+    let depth = 2.0 * reach + 0.5;
+    let kept = |u: f64, v: f64| (1.0 - ((u / e.a).powi(2) + (v / e.b).powi(2)).sqrt()) * e.b <= depth;
+    let count = (2.0 * e.a / spacing).ceil().max(1.0) as usize;
     // ∫ 2·√(1 − t²) dt from −1 to t: the slice's area in units of a·b
     let area_to = |t: f64| t * (1.0 - t * t).max(0.0).sqrt() + t.clamp(-1.0, 1.0).asin();
-    let mut cells: Vec<(f64, f64, f64)> = Vec::new();
-    for k in 0..columns {
-        let (t0, t1) = (-1.0 + 2.0 * k as f64 / columns as f64, -1.0 + 2.0 * (k + 1) as f64 / columns as f64);
+    let chord = |u: f64| e.b * (1.0 - (u / e.a).powi(2)).max(0.0).sqrt();
+    let g = 0.5 / 3f64.sqrt();
+    let mut thin_cells: Vec<(f64, f64, f64)> = Vec::new();
+    for k in 0..count {
+        let (t0, t1) = (-1.0 + 2.0 * k as f64 / count as f64, -1.0 + 2.0 * (k + 1) as f64 / count as f64);
         let area = e.a * e.b * (area_to(t1) - area_to(t0));
         if !(area > 0.0) {
             continue;
         }
         let (u0, u1) = (t0 * e.a, t1 * e.a);
-        let chord = |u: f64| e.b * (1.0 - (u / e.a).powi(2)).max(0.0).sqrt();
+        let middle_u = 0.5 * (u0 + u1);
         // the part of the slice as wide as the column (|v| under the chord at its outer edge), and the two thin
         // parts above and below it, where the ellipse's edge crosses the column
         let (outer, inner) = (chord(u0).min(chord(u1)), chord(0f64.clamp(u0, u1)));
         let full = (u1 - u0) * 2.0 * outer;
-        cells.clear();
-        // two-point Gauss–Legendre on segments of the chord two spacings long at most
+        // two-point Gauss–Legendre on segments of the chord two spacings long at most; the segments between
+        // ±`deep` hold deep nodes alone (the range visited is one segment wider each way than that, and each node
+        // is tested, so rounding at the bounds leaves out no node that is kept)
         let segments = (outer / spacing).ceil() as usize;
-        let g = 0.5 / 3f64.sqrt();
-        for j in 0..segments {
-            let length = 2.0 * outer / segments as f64;
+        let length = 2.0 * outer / segments.max(1) as f64;
+        let shrunk = 1.0 - depth / e.b;
+        let deep = if shrunk > 0.0 { e.b * (shrunk * shrunk - (middle_u / e.a).powi(2)).max(0.0).sqrt() } else { 0.0 };
+        let below = (((outer - deep) / length).ceil() as usize + 1).min(segments);
+        let above = (((outer + deep) / length).floor() as usize).saturating_sub(1).clamp(below, segments);
+        for j in (0..below).chain(above..segments) {
             let middle = -outer + (j as f64 + 0.5) * length;
             for side in [-g, g] {
-                cells.push((0.5 * (u0 + u1), middle + side * length, 0.5 * full / segments as f64));
+                let v = middle + side * length;
+                if kept(middle_u, v) {
+                    let (x, y) = at(middle_u, v);
+                    node(x, y, (0.5 * full / segments as f64) as f32);
+                }
             }
         }
         let thin = (area - full).max(0.0);
         if thin > 0.0 && inner > outer {
             let rows = ((inner - outer) / spacing).ceil().max(1.0) as usize;
-            let first = cells.len();
+            thin_cells.clear();
             for j in 0..rows {
                 let v = outer + (j as f64 + 0.5) * (inner - outer) / rows as f64;
                 let width = e.a * (1.0 - (v / e.b).powi(2)).max(0.0).sqrt();
                 let (lo, hi) = (u0.max(-width), u1.min(width));
                 if hi > lo {
-                    cells.push((0.5 * (lo + hi), v, hi - lo));
+                    thin_cells.push((0.5 * (lo + hi), v, hi - lo));
                 }
             }
             // the upper thin part's cells take half the thin area in proportion to their widths; the lower are
             // their mirror images
-            let widths: f64 = cells[first..].iter().map(|c| c.2).sum();
-            for k in first..cells.len() {
-                let (u, v, width) = cells[k];
-                let w = 0.5 * thin * width / widths;
-                cells[k] = (u, v, w);
-                cells.push((u, -v, w));
+            let widths: f64 = thin_cells.iter().map(|c| c.2).sum();
+            for sign in [1.0, -1.0] {
+                for &(u, v, width) in &thin_cells {
+                    if kept(u, sign * v) {
+                        let (x, y) = at(u, sign * v);
+                        node(x, y, (0.5 * thin * width / widths) as f32);
+                    }
+                }
             }
-        }
-        for &(u, v, weight) in &cells {
-            let rho = ((u / e.a).powi(2) + (v / e.b).powi(2)).sqrt();
-            if (1.0 - rho) * e.b > 2.0 * reach + 0.5 {
-                continue;
-            }
-            let (x, y) = at(u, v);
-            node(x, y, weight as f32);
         }
     }
-    true
 }
 
 /// Sets the pixels of `rect` deeper inside the ellipse than the PSF's reach to 1: the whole (unit-integral)
@@ -330,9 +353,10 @@ const BAND_ROWS: usize = 32;
 /// Fewest nodes worth splitting a patch for.
 const BAND_MIN_NODES: usize = 2_000;
 /// Fewest nodes worth splitting a patch drawn alone across the pool's threads (each band goes through every
-/// node that reaches it, so a band of few rows repeats most nodes' set-up): supersonic_climb's 1233-node target
-/// went from 331–332 to 251–257 µs a frame on two threads, while two targets of 800–1200 nodes drawn side by
-/// side (crossing_pair) lost 278–304 → 336–347 µs when split as well.
+/// node that reaches it, so a band of few rows repeats most nodes' set-up): measured with rings, supersonic_climb's
+/// 1233-node target went from 331–332 to 251–257 µs a frame on two threads, while two targets of 800–1200 nodes
+/// drawn side by side (crossing_pair) lost 278–304 → 336–347 µs when split as well. Columns give the first 368
+/// nodes, still split.
 const SPREAD_MIN_NODES: usize = 300;
 /// Fewest rows of a band of a patch split across the threads.
 const SPREAD_MIN_ROWS: usize = 8;
@@ -471,7 +495,8 @@ mod tests {
 
     #[test]
     fn draft_spacing_error() {
-        // rings 0.6 px apart (the draft preset's) against the reference, on ellipses large enough to have rings
+        // the auto quadrature 0.6 px apart (the draft preset's: rings or columns) against the reference, on
+        // ellipses large enough to have more than seven points
         let psf = psf();
         let mut worst: f64 = 0.0;
         for (a, b) in [(0.61, 0.6), (1.2, 0.6), (2.0, 2.0), (5.8, 1.25), (6.0, 3.0), (15.0, 9.0)] {
@@ -488,10 +513,10 @@ mod tests {
             assert!(((flux - e.area_px2()) / e.area_px2()).abs() < 2e-3, "a={a} b={b}: flux {flux}");
             assert!(err < DRAFT_SPACING_MAX_ERROR, "a={a} b={b}: max error {err} of the peak");
         }
-        eprintln!("worst error of 0.6 px rings against the reference: {worst:.4} of the peak");
+        eprintln!("worst error of the auto quadrature at 0.6 px against the reference: {worst:.4} of the peak");
     }
 
-    /// Largest error of rings 0.6 px apart against the reference, as a fraction of the target's peak.
+    /// Largest error of the auto quadrature 0.6 px apart against the reference, as a fraction of the target's peak.
     const DRAFT_SPACING_MAX_ERROR: f32 = 0.03;
 
     #[test]
@@ -600,6 +625,44 @@ mod tests {
         }
         // measured: columns 0.0051 of the peak at worst, rings at the same spacing 0.0044
         assert!(worst[0] < 0.006 && worst[0] < 1.5 * worst[1], "columns {} against rings {}", worst[0], worst[1]);
+    }
+
+    #[test]
+    fn columns_leave_out_only_deep_nodes_and_keep_to_the_cap() {
+        let psf = psf();
+        let reach = psf.radius_px() as f64 + 1.0;
+        // a target deep enough for many of its nodes to be left out: the same image as rings within 1 % of its
+        // peak (measured 0.72 %; each differs from drawing every node by about 0.5 %: the deep pixels' whole PSF
+        // is 1, the sum of its table a little less), and the same flux
+        let e = ImageEllipse { center: DVec2::new(100.37, 100.81), a: 60.0, b: 40.0, angle_rad: 0.5 };
+        let rect = psf_region(&e, &psf, 200, 200);
+        let draw = |method: TargetMethod| {
+            let mut out = vec![0.0; rect.width() * rect.height()];
+            let spec = TargetPsfSpec { method, ..TargetPsfSpec::default() };
+            render_target(&e, 1.0, &psf, &spec, rect, &mut out, false);
+            out
+        };
+        let (by_columns, by_rings) = (draw(TargetMethod::Auto), draw(TargetMethod::Rings));
+        let error = by_columns.iter().zip(&by_rings).map(|(c, r)| (c - r).abs()).fold(0.0, f32::max);
+        let flux: f64 = by_columns.iter().map(|&v| f64::from(v)).sum();
+        assert!(error < 0.01, "columns against rings: {error} of the peak (1)");
+        assert!(((flux - e.area_px2()) / e.area_px2()).abs() < 1e-3, "flux {flux}");
+        let (mut kept, mut all) = (0, 0);
+        columns(&e, reach, NODE_SPACING_PX, &mut |_, _, _| kept += 1);
+        columns(&e, 1e9, NODE_SPACING_PX, &mut |_, _, _| all += 1);
+        assert!(kept < all * 9 / 10, "{kept} of {all} nodes kept");
+        // the cap counts the nodes kept: a large target keeps its spacing while they fit, a long thin one
+        // grows it until they do
+        for (a, b) in [(200.0, 100.0), (1000.0, 1.0), (3000.0, 1.0)] {
+            let e = ImageEllipse { center: DVec2::new(0.0, 0.0), a, b, angle_rad: 0.2 };
+            let (mut got, mut at_spacing) = (0, 0);
+            column_nodes(&e, &psf, NODE_SPACING_PX, 0.6, |_, _, _| got += 1);
+            columns(&e, reach, NODE_SPACING_PX, &mut |_, _, _| at_spacing += 1);
+            assert!(got <= MAX_NODES, "{a} × {b}: {got} nodes");
+            if at_spacing <= MAX_NODES {
+                assert_eq!(got, at_spacing, "{a} × {b}: the spacing grew though the nodes fitted");
+            }
+        }
     }
 
     #[test]

@@ -130,8 +130,8 @@ pub struct Quality {
     pub sky_texel_px: f64,
     /// Quadrature of a target's ellipse ⊗ PSF.
     pub target_method: TargetMethod,
-    /// Spacing of the quadrature's ring nodes in a target's ellipse, px (both methods; `auto` takes seven
-    /// points instead for ellipses smaller than the PSF).
+    /// Spacing of the quadrature's nodes in a target's ellipse (rings, or columns and the nodes along them), px
+    /// (every method; `auto` and `rings` take seven points instead for ellipses smaller than the PSF).
     pub target_node_spacing_px: f64,
     /// Pixel sampling of the paper's blob model.
     pub blob_sampling: BlobSampling,
@@ -140,8 +140,8 @@ pub struct Quality {
     /// Shot noise is an exact Poisson count below this mean, electrons, and normal above.
     pub poisson_normal_threshold_e: f64,
     /// How the noise's normal deviates are drawn: the ziggurat (exact), Box–Muller with polynomial functions
-    /// (vectorized, within 1e-6 of the exact transform, the tail cut at 5.77 σ) or a table of quantiles
-    /// picked by 16 bits (cheaper, the tail cut at 4.32 σ).
+    /// (vectorized, within 1e-6 of the exact transform, the tail cut at 5.77 σ) or the quantile picked by 16
+    /// bits, from a polynomial per octave (`table`: cheaper, within 6.4e-5 σ, the tail cut at 4.32 σ).
     pub normal_sampler: NormalSampler,
     /// How the Poisson fusion equation is solved.
     pub fusion_solver: Solver,
