@@ -12,7 +12,7 @@
 //!   √(2/3) with ⅛ each; exact for polynomials to degree 5), or its centre alone when it is under a hundredth
 //!   of a pixel.
 //! - A larger round one takes rings of equal width, points `node_spacing_px` apart on each; an elongated one
-//!   (longer than [`COLUMNS_MIN_ELONGATION`] times its width) columns across its major axis, nodes about
+//!   (longer than 1.25 times its width) columns across its major axis, nodes about
 //!   `node_spacing_px` apart each way (rings that far apart along the major axis crowd the minor one). Pixels
 //!   deeper inside than the PSF's reach get the full value directly and the nodes that reach only them are
 //!   skipped, so the cost grows with the perimeter, not the area.
