@@ -546,6 +546,27 @@ mod x86 {
 
     use super::{OCTAVES, QUANTILE_TERMS, SplitMix64, U24};
 
+    /// The eight SplitMix64 states `state + (first + k)·GAMMA`, `k` = 0 … 7.
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    #[inline]
+    fn states_512(state: u64, first: i64) -> __m512i {
+        let lanes =
+            _mm512_setr_epi64(first, first + 1, first + 2, first + 3, first + 4, first + 5, first + 6, first + 7);
+        let gamma = _mm512_set1_epi64(SplitMix64::GAMMA as i64);
+        _mm512_add_epi64(_mm512_set1_epi64(state as i64), _mm512_mullo_epi64(lanes, gamma))
+    }
+
+    /// [`mix64`](super::mix64) in each of eight 64-bit lanes.
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    #[inline]
+    fn mix64_512(z: __m512i) -> __m512i {
+        let (m1, m2) =
+            (_mm512_set1_epi64(0xBF58_476D_1CE4_E5B9u64 as i64), _mm512_set1_epi64(0x94D0_49BB_1331_11EBu64 as i64));
+        let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<30>(z)), m1);
+        let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<27>(z)), m2);
+        _mm512_xor_si512(z, _mm512_srli_epi64::<31>(z))
+    }
+
     /// One run of 64 deviates of [`Quantiles::fill`](super::Quantiles::fill) into `out` (64 long): the 16 draws
     /// `mix64(start + (i + 1)·GAMMA)` in two vectors, their 64 16-bit fields in memory order as four vectors of
     /// sixteen, and [`Quantiles::value`](super::Quantiles::value)'s f32 operations in its order (the octave's
@@ -557,20 +578,7 @@ mod x86 {
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
     pub unsafe fn quantile_run_512(coefficients: &[[f32; OCTAVES]; QUANTILE_TERMS], start: u64, out: &mut [f32]) {
         assert_eq!(out.len(), 64, "a run of 64");
-        let g = SplitMix64::GAMMA as i64;
-        let at = |first: i64| {
-            let lanes =
-                _mm512_setr_epi64(first, first + 1, first + 2, first + 3, first + 4, first + 5, first + 6, first + 7);
-            _mm512_add_epi64(_mm512_set1_epi64(start as i64), _mm512_mullo_epi64(lanes, _mm512_set1_epi64(g)))
-        };
-        let (m1, m2) =
-            (_mm512_set1_epi64(0xBF58_476D_1CE4_E5B9u64 as i64), _mm512_set1_epi64(0x94D0_49BB_1331_11EBu64 as i64));
-        let mix = |z: __m512i| {
-            let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<30>(z)), m1);
-            let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<27>(z)), m2);
-            _mm512_xor_si512(z, _mm512_srli_epi64::<31>(z))
-        };
-        let (low, high) = (mix(at(1)), mix(at(9)));
+        let (low, high) = (mix64_512(states_512(start, 1)), mix64_512(states_512(start, 9)));
         // SAFETY: each row is sixteen floats
         let c: [__m512; QUANTILE_TERMS] = std::array::from_fn(|k| unsafe { _mm512_loadu_ps(coefficients[k].as_ptr()) });
         let epi = _mm512_set1_epi32;
@@ -610,22 +618,9 @@ mod x86 {
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
     pub unsafe fn box_muller_512(state: u64, out: &mut [f32]) -> usize {
         let blocks = out.len() / 32;
-        let g = SplitMix64::GAMMA;
         // the states of pairs 0–7 and 8–15 of the block: state + (p + 1)·GAMMA
-        let at = |first: i64| {
-            let lanes =
-                _mm512_setr_epi64(first, first + 1, first + 2, first + 3, first + 4, first + 5, first + 6, first + 7);
-            _mm512_add_epi64(_mm512_set1_epi64(state as i64), _mm512_mullo_epi64(lanes, _mm512_set1_epi64(g as i64)))
-        };
-        let (mut lo, mut hi) = (at(1), at(9));
-        let step = _mm512_set1_epi64(g.wrapping_mul(16) as i64);
-        let (m1, m2) =
-            (_mm512_set1_epi64(0xBF58_476D_1CE4_E5B9u64 as i64), _mm512_set1_epi64(0x94D0_49BB_1331_11EBu64 as i64));
-        let mix = |z: __m512i| {
-            let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<30>(z)), m1);
-            let z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64::<27>(z)), m2);
-            _mm512_xor_si512(z, _mm512_srli_epi64::<31>(z))
-        };
+        let (mut lo, mut hi) = (states_512(state, 1), states_512(state, 9));
+        let step = _mm512_set1_epi64(SplitMix64::GAMMA.wrapping_mul(16) as i64);
         // sixteen 64-bit lanes' low 32 bits as sixteen i32 lanes, in order
         let join = |a: __m512i, b: __m512i| {
             _mm512_inserti64x4::<1>(_mm512_castsi256_si512(_mm512_cvtepi64_epi32(a)), _mm512_cvtepi64_epi32(b))
@@ -638,7 +633,7 @@ mod x86 {
         let first = _mm512_setr_epi32(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
         let second = _mm512_setr_epi32(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
         for b in 0..blocks {
-            let (zl, zh) = (mix(lo), mix(hi));
+            let (zl, zh) = (mix64_512(lo), mix64_512(hi));
             lo = _mm512_add_epi64(lo, step);
             hi = _mm512_add_epi64(hi, step);
             // u₁ from bits 40–63 (+ 1), u₂ from bits 0–23
