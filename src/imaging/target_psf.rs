@@ -356,7 +356,9 @@ const BAND_MIN_NODES: usize = 2_000;
 /// node that reaches it, so a band of few rows repeats most nodes' set-up): measured with rings, supersonic_climb's
 /// 1233-node target went from 331–332 to 251–257 µs a frame on two threads, while two targets of 800–1200 nodes
 /// drawn side by side (crossing_pair) lost 278–304 → 336–347 µs when split as well. Columns give the first 368
-/// nodes, still split.
+/// nodes, and the split still pays: targets stage 121–123 µs split against 138–144 not split (`irsim bench
+/// --frames 1000`, three interleaved rounds, one of them too noisy to count; paper_clear_sky's target the same
+/// either way).
 const SPREAD_MIN_NODES: usize = 300;
 /// Fewest rows of a band of a patch split across the threads.
 const SPREAD_MIN_ROWS: usize = 8;
