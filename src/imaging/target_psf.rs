@@ -86,6 +86,11 @@ const COLUMNS_MIN_ELONGATION: f64 = 1.25;
 /// Most quadrature nodes of one target; beyond it the spacing grows (a very near target).
 const MAX_NODES: usize = 40_000;
 
+/// How far a node's point source reaches, px: the PSF's radius and a pixel.
+fn reach_px(psf: &Psf) -> f64 {
+    psf.radius_px() as f64 + 1.0
+}
+
 /// The pixels the target's image covers: the ellipse's box grown by the PSF's region radius
 /// ([`Psf::region_radius_px`]) and a pixel, clipped to the frame, plus a one-pixel margin for the fusion
 /// boundary; empty if off-frame.
@@ -181,7 +186,7 @@ fn quadrature_nodes(
         (2.0 / 3.0 * (r1.powi(3) - r0.powi(3)) / (r1 * r1 - r0 * r0), r1 * r1 - r0 * r0, r0)
     };
     // a pixel deeper than `reach` inside receives the whole PSF; nodes deeper than 2·reach reach only such pixels
-    let reach = psf.radius_px() as f64 + 1.0;
+    let reach = reach_px(psf);
     let needed = |r0: f64| (1.0 - r0) * e.b <= 2.0 * reach + 0.5;
     let count = |h: f64| -> (usize, usize) {
         let rings = (e.a / h).ceil().max(1.0) as usize;
@@ -236,10 +241,16 @@ fn column_nodes(
     if e.a <= seven_point_max || e.a < 0.01 || e.a < COLUMNS_MIN_ELONGATION * e.b {
         return quadrature_nodes(e, psf, spacing, seven_point_max, node);
     }
-    let reach = psf.radius_px() as f64 + 1.0;
-    // the spacing grows, as the rings' does, until the nodes kept fit the cap
+    let reach = reach_px(psf);
+    // the spacing grows, as the rings' does, until the nodes kept fit the cap; they are counted only where a
+    // bound on them does not fit already (a column holds at most 2·⌈b/spacing⌉ nodes on its full part and as many
+    // on its thin parts)
     let mut spacing = spacing;
     loop {
+        let columns_at = (2.0 * e.a / spacing).ceil().max(1.0);
+        if columns_at * 4.0 * ((e.b / spacing).ceil() + 1.0) <= MAX_NODES as f64 {
+            break;
+        }
         let mut count = 0;
         columns(e, reach, spacing, &mut |_, _, _| count += 1);
         if count <= MAX_NODES {
@@ -263,7 +274,6 @@ fn columns(e: &ImageEllipse, reach: f64, spacing: f64, node: &mut impl FnMut(f64
     let area_to = |t: f64| t * (1.0 - t * t).max(0.0).sqrt() + t.clamp(-1.0, 1.0).asin();
     let chord = |u: f64| e.b * (1.0 - (u / e.a).powi(2)).max(0.0).sqrt();
     let g = 0.5 / 3f64.sqrt();
-    let mut thin_cells: Vec<(f64, f64, f64)> = Vec::new();
     for k in 0..count {
         let (t0, t1) = (-1.0 + 2.0 * k as f64 / count as f64, -1.0 + 2.0 * (k + 1) as f64 / count as f64);
         let area = e.a * e.b * (area_to(t1) - area_to(t0));
@@ -298,20 +308,18 @@ fn columns(e: &ImageEllipse, reach: f64, spacing: f64, node: &mut impl FnMut(f64
         let thin = (area - full).max(0.0);
         if thin > 0.0 && inner > outer {
             let rows = ((inner - outer) / spacing).ceil().max(1.0) as usize;
-            thin_cells.clear();
-            for j in 0..rows {
+            // row j's cell: the middle of the column's width at its height, the height, and that width
+            let cell = |j: usize| {
                 let v = outer + (j as f64 + 0.5) * (inner - outer) / rows as f64;
                 let width = e.a * (1.0 - (v / e.b).powi(2)).max(0.0).sqrt();
                 let (lo, hi) = (u0.max(-width), u1.min(width));
-                if hi > lo {
-                    thin_cells.push((0.5 * (lo + hi), v, hi - lo));
-                }
-            }
+                (hi > lo).then_some((0.5 * (lo + hi), v, hi - lo))
+            };
             // the upper thin part's cells take half the thin area in proportion to their widths; the lower are
             // their mirror images
-            let widths: f64 = thin_cells.iter().map(|c| c.2).sum();
+            let widths: f64 = (0..rows).filter_map(cell).map(|c| c.2).sum();
             for sign in [1.0, -1.0] {
-                for &(u, v, width) in &thin_cells {
+                for (u, v, width) in (0..rows).filter_map(cell) {
                     if kept(u, sign * v) {
                         let (x, y) = at(u, sign * v);
                         node(x, y, (0.5 * thin * width / widths) as f32);
@@ -325,7 +333,7 @@ fn columns(e: &ImageEllipse, reach: f64, spacing: f64, node: &mut impl FnMut(f64
 /// Sets the pixels of `rect` deeper inside the ellipse than the PSF's reach to 1: the whole (unit-integral)
 /// PSF lies inside it there (the ring nodes that would reach only such pixels are left out).
 fn fill_deep_pixels(e: &ImageEllipse, psf: &Psf, rect: PixelRect, out: &mut [f32]) {
-    let reach = psf.radius_px() as f64 + 1.0;
+    let reach = reach_px(psf);
     if (e.b - reach) <= 0.0 {
         return;
     }
@@ -387,7 +395,7 @@ fn scatter_nodes(psf: &Psf, nodes: &[(f64, f64, f32)], rect: PixelRect, out: &mu
     out[..rows * w].par_chunks_mut(band_rows * w).enumerate().for_each(|(b, band)| {
         let (y0, y1) = (rect.y0 + b * band_rows, (rect.y0 + (b + 1) * band_rows).min(rect.y1));
         // a node reaches the rows within the PSF's reach of it (as scatter clips them)
-        let reach = psf.radius_px() as f64 + 1.0;
+        let reach = reach_px(psf);
         for &(x, y, weight) in nodes {
             if y + reach > y0 as f64 - 1.0 && y - reach < y1 as f64 + 1.0 {
                 scatter(psf, x, y, weight, rect, y0..y1, band);
@@ -400,7 +408,7 @@ fn scatter_nodes(psf: &Psf, nodes: &[(f64, f64, f32)], rect: PixelRect, out: &mu
 /// `rows` of the patch alone, into `out`, whose first element is pixel `(rect.x0, rows.start)`.
 #[inline]
 fn scatter(psf: &Psf, x: f64, y: f64, weight: f32, rect: PixelRect, rows: std::ops::Range<usize>, out: &mut [f32]) {
-    let reach = psf.radius_px() as f64 + 1.0;
+    let reach = reach_px(psf);
     let lo = |v: f64, min: usize| ((v - reach).floor().max(min as f64)) as usize;
     let hi = |v: f64, max: usize| ((v + reach).ceil().max(0.0) as usize).min(max);
     let (px0, px1) = (lo(x, rect.x0), hi(x, rect.x1));
@@ -632,7 +640,7 @@ mod tests {
     #[test]
     fn columns_leave_out_only_deep_nodes_and_keep_to_the_cap() {
         let psf = psf();
-        let reach = psf.radius_px() as f64 + 1.0;
+        let reach = reach_px(&psf);
         // a target deep enough for many of its nodes to be left out: the same image as rings within 1 % of its
         // peak (measured 0.72 %; each differs from drawing every node by about 0.5 %: the deep pixels' whole PSF
         // is 1, the sum of its table a little less), and the same flux

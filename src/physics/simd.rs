@@ -258,6 +258,30 @@ pub fn texel_windows(
         .then_some(([lo as usize, hi as usize], rel))
 }
 
+/// The floats at `windows[0] + at[k]` (lanes 0–7) and `windows[1] + at[k]` (lanes 8–15) from `base`: two loads
+/// and a permute per window ([`texel_windows`]'s windows, `at` its lanes' indices relative to them, each in
+/// 0 … 31), one window where both are the same.
+///
+/// # Safety
+/// The CPU must have AVX-512F; the 32 floats from `base + windows[i]` must lie inside one buffer, for both `i`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+#[inline]
+pub unsafe fn window_fetch16(
+    base: *const f32,
+    windows: [usize; 2],
+    at: std::arch::x86_64::__m512i,
+) -> std::arch::x86_64::__m512 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees both windows' 32 floats are inside the buffer
+    let window = |first: usize| unsafe {
+        let p = base.add(first);
+        _mm512_permutex2var_ps(_mm512_loadu_ps(p), at, _mm512_loadu_ps(p.add(16)))
+    };
+    let low = window(windows[0]);
+    if windows[1] == windows[0] { low } else { _mm512_mask_blend_ps(0xff00, low, window(windows[1])) }
+}
+
 /// Sixteen samples of a row-major f32 image `width` wide, bilinear ([`bilinear16_avx512`]'s) or nearest (the
 /// texel at `index`): the texels fetched by [`texel_windows`] where they lie close together, as along a row of
 /// a view that is not turned much against the image, else gathered. The same values either way; the lanes
@@ -284,15 +308,8 @@ pub unsafe fn sample16_avx512(
         Some(([lo, hi], rel)) => {
             // the lanes' texels `offset` floats on from their index (lanes 8–15 from their own window where it is
             // not lanes 0–7's)
-            let fetch = |offset: usize, at: __m512i| {
-                // SAFETY: `texel_windows` checked that every window (one row down included) ends inside `px`
-                let window = |first: usize| unsafe {
-                    let p = base.add(first + offset);
-                    _mm512_permutex2var_ps(_mm512_loadu_ps(p), at, _mm512_loadu_ps(p.add(16)))
-                };
-                let low = window(lo);
-                if hi == lo { low } else { _mm512_mask_blend_ps(0xff00, low, window(hi)) }
-            };
+            // SAFETY: `texel_windows` checked that every window (one row down included) ends inside `px`
+            let fetch = |offset: usize, at: __m512i| unsafe { window_fetch16(base.add(offset), [lo, hi], at) };
             if bilinear {
                 let right = _mm512_add_epi32(rel, _mm512_set1_epi32(1));
                 let (tl, tr) = (fetch(0, rel), fetch(0, right));

@@ -428,18 +428,14 @@ mod x86 {
             // the samples by loads and permutes where the sixteen rays' lie close together (along a row that is
             // about level, as a camera's rows mostly are), else gathered: the same values either way
             let (lo, hi) = match crate::physics::simd::texel_windows(i, 0xffff, true, 0, table.len()) {
-                Some(([first, second], rel)) => {
+                Some((windows, rel)) => {
+                    use crate::physics::simd::window_fetch16;
                     // SAFETY: `texel_windows` checked that both 32-float windows end inside the table (and that
                     // every lane's index + 1 is inside its window)
-                    let fetch = |at: __m512i| unsafe {
-                        let window = |from: usize| {
-                            let p = t.add(from);
-                            _mm512_permutex2var_ps(_mm512_loadu_ps(p), at, _mm512_loadu_ps(p.add(16)))
-                        };
-                        let low = window(first);
-                        if second == first { low } else { _mm512_mask_blend_ps(0xff00, low, window(second)) }
-                    };
-                    (fetch(rel), fetch(_mm512_add_epi32(rel, _mm512_set1_epi32(1))))
+                    unsafe {
+                        let next = _mm512_add_epi32(rel, _mm512_set1_epi32(1));
+                        (window_fetch16(t, windows, rel), window_fetch16(t, windows, next))
+                    }
                 }
                 // SAFETY: 0 ≤ i ≤ TABLE_SAMPLES − 2, so i and i + 1 are inside the table
                 None => unsafe { (_mm512_i32gather_ps::<4>(i, t), _mm512_i32gather_ps::<4>(i, t.add(1))) },
