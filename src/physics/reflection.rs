@@ -123,9 +123,10 @@ pub fn ellipsoid_reflectance(
         if projected <= 0.0 {
             return (0.0, 0.0);
         }
-        let n = normal_scaled.normalize();
+        let length = normal_scaled.length();
+        let n = normal_scaled / length;
         let nl = n.dot(l_body);
-        let weighted = if nl > 0.0 { w * projected * brdf.f_per_sr(n) * nl } else { 0.0 };
+        let weighted = if nl > 0.0 { w * projected * brdf.f_unit(n, projected / length, nl) * nl } else { 0.0 };
         (w * projected, weighted)
     };
     // a large grid's terms are evaluated in parallel and summed in the points' order, as one thread would
