@@ -120,6 +120,11 @@ impl Readout {
     /// rows, just before they are read out (a frame made on a coarse grid is interpolated block by block there,
     /// while the block is in the first-level cache, instead of in a pass of its own); the result is that of
     /// filling every row first.
+    ///
+    /// A thermal detector whose deviates come from the `table` sampler (the `draft` preset's) takes its rows
+    /// through one AVX-512 pass where the CPU has it (`fused_row_512`): the deviates are made in
+    /// vector registers and used there, the signal, noise, ADC and rounding in one sweep, by the general path's
+    /// f32 operations in its order, so every finite radiance gives the same bits.
     #[allow(clippy::too_many_arguments)]
     pub fn apply(
         &self,
@@ -132,10 +137,43 @@ impl Readout {
         max_level: Option<f32>,
         fill: Option<&RowFill<'_>>,
     ) {
+        self.apply_rows(pixels, width, maps, noise, (seed, frame), max_level, fill, true);
+    }
+
+    /// Whether a row of `width` takes the fused pass: noise on, no shot noise, read noise, the `table` sampler,
+    /// whole blocks of 64 and AVX-512.
+    fn fuses(&self, width: usize, noise: bool) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if noise
+            && !self.shot_noise
+            && self.read_variance > 0.0
+            && self.normal_sampler == NormalSampler::Table
+            && width % 64 == 0
+        {
+            return super::simd::Level::detect() == super::simd::Level::Avx512;
+        }
+        let _ = (width, noise);
+        false
+    }
+
+    /// [`Readout::apply`], the fused pass allowed or not.
+    #[allow(clippy::too_many_arguments)]
+    fn apply_rows(
+        &self,
+        pixels: &mut [f32],
+        width: usize,
+        maps: ReadoutMaps<'_>,
+        noise: bool,
+        (seed, frame): (u64, u64),
+        max_level: Option<f32>,
+        fill: Option<&RowFill<'_>>,
+        fused: bool,
+    ) {
         use rayon::prelude::*;
         if width == 0 {
             return;
         }
+        let fused = fused && self.fuses(width, noise);
         let key = stream_rng(seed, stage::SENSOR_NOISE, frame, 0).next_u64();
         // rows in batches: one row is too little work to be worth a task
         let rows_per_task = super::simd::rows_per_task(width, 1);
@@ -149,6 +187,15 @@ impl Readout {
                 let span = row * width..(row + 1) * width;
                 let gain = maps.gain.map(|g| &g[span.clone()]);
                 let offset = maps.offset_dn.map(|o| &o[span]);
+                #[cfg(target_arch = "x86_64")]
+                if fused {
+                    // the row's normal deviates are sub-stream 2·row, as apply_row draws them
+                    let mut normals = SplitMix64::substream(key, 2 * row as u64);
+                    let maps = [gain, offset, maps.column_dn];
+                    // SAFETY: `fuses` checked for AVX-512; the row and the maps are whole blocks of 64
+                    unsafe { x86::fused_row_512(self, line, maps, &mut normals, max_level) };
+                    continue;
+                }
                 widest(
                     #[inline(always)]
                     || {
@@ -252,6 +299,76 @@ impl Readout {
             }
             let v = self.offset_dn + o + s.min(self.full_well) * self.dn_per_signal + c;
             *p = if ROUND { quantize_level(v, top) } else { v };
+        }
+    }
+}
+
+/// The fused readout with AVX-512.
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use std::arch::x86_64::*;
+
+    use super::Readout;
+    use crate::physics::random::{Quantiles, SplitMix64};
+
+    /// One row of a thermal detector (`line`, whole blocks of 64) read out with deviates of the `table` sampler:
+    /// per block of 64, the run's deviates as four vectors ([`Quantiles::next_run_512`]), then per vector of
+    /// sixteen the general path's f32 operations in its order: the signal `(K·g)·L + D`, plus `√(0 + σ²)·z` (a
+    /// detector without shot noise: `max(s, 0)·0` is 0 for every finite `s`), the well (`min`, which like
+    /// `f32::min` gives the well for NaN), the ADC `((offset + o) + s·(1/gain)) + c`, and
+    /// [`super::quantize_level`]'s rounding if `top` is given. `maps` are the row's gain, offset and column
+    /// offsets, each `line`'s length where given; an absent one is 1, 0 or −0 as in the general path.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, DQ, BW, VL).
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    pub unsafe fn fused_row_512(
+        r: &Readout,
+        line: &mut [f32],
+        maps: [Option<&[f32]>; 3],
+        normals: &mut SplitMix64,
+        top: Option<f32>,
+    ) {
+        let n = line.len();
+        assert!(n % 64 == 0 && maps.iter().flatten().all(|m| m.len() == n), "whole blocks, maps of the row's length");
+        let quantiles = Quantiles::get();
+        let ps = _mm512_set1_ps;
+        let k = ps(r.signal_per_radiance);
+        let dark = ps(r.dark_signal);
+        let sigma = ps((0.0 + r.read_variance).sqrt());
+        let (well, dn, offset) = (ps(r.full_well), ps(r.dn_per_signal), ps(r.offset_dn));
+        // sixteen map values from pixel i, or the absent map's constant
+        let [gain, offsets, columns] = maps;
+        let at_or = |map: Option<&[f32]>, i: usize, absent: __m512| match map {
+            // SAFETY: i + 16 ≤ n, the map's length
+            Some(m) => unsafe { _mm512_loadu_ps(m.as_ptr().add(i)) },
+            None => absent,
+        };
+        let (ones, neg_zeros) = (ps(1.0), ps(-0.0));
+        let (zero, half, shift, one) = (ps(0.0), ps(0.5), ps(8_388_608.0), ps(1.0));
+        let top_v = ps(top.unwrap_or(0.0));
+        for (b, block) in line.chunks_exact_mut(64).enumerate() {
+            // SAFETY: the CPU has AVX-512 (the caller's promise)
+            let z = unsafe { quantiles.next_run_512(normals) };
+            for (j, z) in z.into_iter().enumerate() {
+                let i = 64 * b + 16 * j;
+                // SAFETY: sixteen floats at 16·j, inside the block of 64
+                let at = unsafe { block.as_mut_ptr().add(16 * j) };
+                let p = unsafe { _mm512_loadu_ps(at) };
+                let s = _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(k, at_or(gain, i, ones)), p), dark);
+                let s = _mm512_add_ps(s, _mm512_mul_ps(sigma, z));
+                let v = _mm512_add_ps(offset, at_or(offsets, i, zero));
+                let v = _mm512_add_ps(v, _mm512_mul_ps(_mm512_min_ps(s, well), dn));
+                let mut v = _mm512_add_ps(v, at_or(columns, i, neg_zeros));
+                if top.is_some() {
+                    // max first, whose second operand (0) is what a NaN gives, as f32::max does
+                    let y = _mm512_add_ps(_mm512_min_ps(_mm512_max_ps(v, zero), top_v), half);
+                    let t = _mm512_sub_ps(_mm512_add_ps(y, shift), shift);
+                    v = _mm512_mask_sub_ps(t, _mm512_cmp_ps_mask::<_CMP_GT_OQ>(t, y), t, one);
+                }
+                // SAFETY: as the load
+                unsafe { _mm512_storeu_ps(at, v) };
+            }
         }
     }
 }
@@ -574,6 +691,47 @@ mod tests {
             assert_eq!(v, r.mean_dn(l, 1.0, 0.0), "pixel {i}");
         }
         assert_ne!(a, c);
+    }
+
+    #[test]
+    fn the_fused_thermal_pass_is_the_general_path_bit_for_bit() {
+        // a thermal detector with the table sampler: radiances below zero, across the range and past the well
+        // and the top level, widths of 4 and 10 blocks, rounded and not
+        let r = Readout {
+            shot_noise: false,
+            read_variance: 9.0,
+            dark_signal: 3.5,
+            full_well: 5000.0,
+            normal_sampler: NormalSampler::Table,
+            ..readout()
+        };
+        for (w, h) in [(256, 9), (640, 5)] {
+            let base: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 11_000) as f32 * 0.37 - 500.0).collect();
+            let avx512 = crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512;
+            assert_eq!(r.fuses(w, true), avx512);
+            let gain: Vec<f32> = (0..w * h).map(|i| 0.9 + 0.2 * ((i * 37) % 101) as f32 / 101.0).collect();
+            let offset: Vec<f32> = (0..w * h).map(|i| ((i * 53) % 17) as f32 - 8.0).collect();
+            let columns: Vec<f32> = (0..w).map(|x| (x % 5) as f32 * 0.75 - 1.5).collect();
+            let with_maps = ReadoutMaps { gain: Some(&gain), offset_dn: Some(&offset), column_dn: Some(&columns) };
+            for maps in [ReadoutMaps::default(), with_maps] {
+                for top in [Some(1023.0), None] {
+                    let mut fused = base.clone();
+                    r.apply_rows(&mut fused, w, maps, true, (7, 3), top, None, true);
+                    let mut general = base.clone();
+                    r.apply_rows(&mut general, w, maps, true, (7, 3), top, None, false);
+                    for (i, (a, b)) in fused.iter().zip(&general).enumerate() {
+                        assert_eq!(a.to_bits(), b.to_bits(), "{w}×{h}, top {top:?}, pixel {i}: {a} against {b}");
+                    }
+                    if let Some(top) = top {
+                        assert!(fused.contains(&0.0) && fused.contains(&top), "the clamps were reached");
+                    }
+                }
+            }
+        }
+        // shot noise, another sampler, a row of part blocks or no noise take the general path
+        assert!(!Readout { shot_noise: true, ..r }.fuses(256, true));
+        assert!(!Readout { normal_sampler: NormalSampler::BoxMuller, ..r }.fuses(256, true));
+        assert!(!r.fuses(200, true) && !r.fuses(256, false));
     }
 
     #[test]

@@ -355,6 +355,22 @@ impl Quantiles {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
+impl Quantiles {
+    /// The next run of 64 deviates of `rng` as [`Quantiles::fill`] draws them into a slice of 64, as four vectors
+    /// of sixteen (for a kernel that uses them where they are made).
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, DQ, BW, VL).
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    #[inline]
+    pub(crate) unsafe fn next_run_512(&self, rng: &mut SplitMix64) -> [std::arch::x86_64::__m512; 4] {
+        let start = rng.state;
+        rng.state = start.wrapping_add(16u64.wrapping_mul(SplitMix64::GAMMA));
+        x86::quantile_vectors_512(&self.coefficients, start)
+    }
+}
+
 /// The least-squares polynomial with `terms` coefficients (constant first) through the points `(x, y)`: the
 /// normal equations solved by Gaussian elimination with partial pivoting (`x` within ±½ here, so they are well
 /// conditioned in f64 at six terms).
@@ -578,6 +594,16 @@ mod x86 {
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
     pub unsafe fn quantile_run_512(coefficients: &[[f32; OCTAVES]; QUANTILE_TERMS], start: u64, out: &mut [f32]) {
         assert_eq!(out.len(), 64, "a run of 64");
+        for (q, z) in quantile_vectors_512(coefficients, start).into_iter().enumerate() {
+            // SAFETY: sixteen floats at 16·q, inside `out` (64 long)
+            unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(16 * q), z) };
+        }
+    }
+
+    /// The 64 deviates of [`quantile_run_512`] as four vectors of sixteen, in order.
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    #[inline]
+    pub fn quantile_vectors_512(coefficients: &[[f32; OCTAVES]; QUANTILE_TERMS], start: u64) -> [__m512; 4] {
         let (low, high) = (mix64_512(states_512(start, 1)), mix64_512(states_512(start, 9)));
         // SAFETY: each row is sixteen floats
         let c: [__m512; QUANTILE_TERMS] = std::array::from_fn(|k| unsafe { _mm512_loadu_ps(coefficients[k].as_ptr()) });
@@ -589,6 +615,8 @@ mod x86 {
             _mm512_castsi512_si256(high),
             _mm512_extracti64x4_epi64::<1>(high),
         ];
+        // a loop, not `quarters.map`: the closure was compiled as a function of its own, called four times a run
+        let mut deviates = [_mm512_setzero_ps(); 4];
         for (q, fields) in quarters.into_iter().enumerate() {
             let i = _mm512_cvtepu16_epi32(fields);
             let upper = _mm512_cmpge_epi32_mask(i, epi(0x8000));
@@ -601,10 +629,9 @@ mod x86 {
             for k in (0..QUANTILE_TERMS - 1).rev() {
                 z = _mm512_add_ps(_mm512_mul_ps(z, x), _mm512_permutexvar_ps(e, c[k]));
             }
-            let z = _mm512_mask_xor_ps(z, upper, z, sign);
-            // SAFETY: sixteen floats at 16·q, inside `out` (64 long)
-            unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(16 * q), z) };
+            deviates[q] = _mm512_mask_xor_ps(z, upper, z, sign);
         }
+        deviates
     }
 
     /// [`box_muller_fill`](super::box_muller_fill) for the whole blocks of sixteen pairs in `out`; returns how
