@@ -8,7 +8,8 @@
 //! - `G/((n·v)(n·l))` is evaluated as `min(1/((n·v)(n·l)), 2(n·h)/((v·h)(n·l)), 2(n·h)/((v·h)(n·v)))`, whose
 //!   value at `n·v = 0` or `n·l = 0` is the finite grazing limit;
 //! - `D` is evaluated in logs with `tan²α = |n×h|²/(n·h)²`, so it goes smoothly to 0 as `h` tilts away from `n`
-//!   and never forms `0·∞`;
+//!   and never forms `0·∞` (the per-normal form of an ellipsoid's sphere grid, [`TowardPair::f_unit`], takes
+//!   `exp(−tan²α/m²)/(π m² cos⁴α)` and 0 where the exponential nears underflow);
 //! - directions strictly below the surface's horizon reflect nothing (`f = 0`);
 //! - `v = −l` leaves the half vector undefined; the specular limit there depends on the path of approach (the
 //!   reference table notes `+∞` along `θ_v = θ_l → 90°`) and no light arrives (`n·l = 0`), so the specular
@@ -108,15 +109,20 @@ impl TowardPair<'_> {
 }
 
 impl TowardPair<'_> {
-    /// `f`, sr⁻¹, for a unit normal `n` that sees the viewer and the light, with `nv = n·v ≥ 0` and
-    /// `nl = n·l ≥ 0` already in hand: [`TowardPair::f_per_sr`] without normalising `n` again, and Beckmann's `D`
+    /// `f`, sr⁻¹, for a unit normal `n` with `nv = n·v` and `nl = n·l` already in hand (0 where either is
+    /// negative, as [`TowardPair::f_per_sr`] gives): `f_per_sr` without normalising `n` again, and Beckmann's `D`
     /// as `exp(−tan²α/m²)/(π m² cos⁴α)` instead of through logarithms (one `exp` and no `ln`). It agrees with
-    /// `f_per_sr` to a few units in the last place (test `unit_normal_form_matches_the_general_form`); where
-    /// `exp(−tan²α/m²)` is below e⁻⁷⁰⁸ (1e-307), so far in the lobe's tail that it nears underflow, the specular
-    /// part is 0.
+    /// `f_per_sr` within 1e-13 relative (test `unit_normal_form_matches_the_general_form`; the log form's own
+    /// rounding grows with the exponent); where `exp(−tan²α/m²)` is at or below e⁻⁷⁰⁸ (3.3e-308), so far in the
+    /// lobe's tail that it nears underflow, the specular part is 0.
     /// The ellipsoid's reflectance calls it for each of a sphere grid's points.
     #[inline]
     pub fn f_unit(&self, n: DVec3, nv: f64, nl: f64) -> f64 {
+        // as in `evaluate_unit`: −0.0 to +0.0, so that 1/(n·v) at grazing is +∞
+        let (nv, nl) = (nv + 0.0, nl + 0.0);
+        if !(nv >= 0.0 && nl >= 0.0) {
+            return 0.0;
+        }
         let brdf = self.brdf;
         let diffuse = brdf.kd / PI;
         let Some((h, vh, fresnel)) = self.half else {
@@ -443,7 +449,7 @@ mod tests {
 
     #[test]
     fn unit_normal_form_matches_the_general_form() {
-        // the grid of the bit-for-bit test above, every normal that sees both directions
+        // direction pairs like the bit-for-bit test's, and a finer grid of unit normals, every one that sees both
         let dir =
             |theta: f64, phi: f64, _: f64| DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
         let mut pairs = vec![(DVec3::Z, DVec3::Z), (DVec3::Y, DVec3::new(0.3, -0.5, 0.8).normalize())];

@@ -148,7 +148,7 @@ impl Readout {
             && !self.shot_noise
             && self.read_variance > 0.0
             && self.normal_sampler == NormalSampler::Table
-            && width % 64 == 0
+            && width.is_multiple_of(64)
         {
             return super::simd::Level::detect() == super::simd::Level::Avx512;
         }
@@ -173,7 +173,16 @@ impl Readout {
         if width == 0 {
             return;
         }
-        let fused = fused && self.fuses(width, noise);
+        // whole rows and maps of the frame's size (the general path takes whatever it is given)
+        let fits = |m: Option<&[f32]>, len: usize| m.is_none_or(|m| m.len() == len);
+        let fused = fused
+            && self.fuses(width, noise)
+            && pixels.len().is_multiple_of(width)
+            && fits(maps.gain, pixels.len())
+            && fits(maps.offset_dn, pixels.len())
+            && fits(maps.column_dn, width);
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = fused;
         let key = stream_rng(seed, stage::SENSOR_NOISE, frame, 0).next_u64();
         // rows in batches: one row is too little work to be worth a task
         let rows_per_task = super::simd::rows_per_task(width, 1);
@@ -255,11 +264,14 @@ impl Readout {
             // a block with a pixel below the threshold takes its noise pixel by pixel; every other noisy block
             // takes it in the pass that finishes the block
             let per_pixel = noisy && !normal;
+            let shot = if self.shot_noise { 1.0 } else { 0.0 };
             if per_pixel {
                 let sd_read = self.read_variance.sqrt();
                 for (s, &z) in block.iter_mut().zip(z.iter()) {
                     if *s >= threshold {
-                        *s += (s.max(0.0) + self.read_variance).sqrt() * z;
+                        // the shot noise's variance only where there is shot noise (a thermal detector's block
+                        // comes here only for a NaN signal, whose neighbours keep their read noise alone)
+                        *s += (s.max(0.0) * shot + self.read_variance).sqrt() * z;
                     } else {
                         // exact Poisson shot noise, and the pixel's normal deviate for the read noise
                         let count =
@@ -268,7 +280,6 @@ impl Readout {
                     }
                 }
             }
-            let shot = if self.shot_noise { 1.0 } else { 0.0 };
             match (noisy && !per_pixel, max_level) {
                 (true, Some(top)) => self.finish_block::<true, true>(block, z, o, c, shot, top),
                 (true, None) => self.finish_block::<true, false>(block, z, o, c, shot, 0.0),
@@ -330,7 +341,10 @@ mod x86 {
         top: Option<f32>,
     ) {
         let n = line.len();
-        assert!(n % 64 == 0 && maps.iter().flatten().all(|m| m.len() == n), "whole blocks, maps of the row's length");
+        assert!(
+            n.is_multiple_of(64) && maps.iter().flatten().all(|m| m.len() == n),
+            "whole blocks, maps of the row's length"
+        );
         let quantiles = Quantiles::get();
         let ps = _mm512_set1_ps;
         let k = ps(r.signal_per_radiance);
@@ -705,9 +719,12 @@ mod tests {
             normal_sampler: NormalSampler::Table,
             ..readout()
         };
+        let avx512 = crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512;
+        if !avx512 {
+            eprintln!("no AVX-512 here (or IRSIM_SIMD caps it): the fused pass is not compared");
+        }
         for (w, h) in [(256, 9), (640, 5)] {
             let base: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 11_000) as f32 * 0.37 - 500.0).collect();
-            let avx512 = crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512;
             assert_eq!(r.fuses(w, true), avx512);
             let gain: Vec<f32> = (0..w * h).map(|i| 0.9 + 0.2 * ((i * 37) % 101) as f32 / 101.0).collect();
             let offset: Vec<f32> = (0..w * h).map(|i| ((i * 53) % 17) as f32 - 8.0).collect();
@@ -728,6 +745,21 @@ mod tests {
                 }
             }
         }
+        // levels exactly halfway (noise far below an ulp: 1e-15 against signals of 1–1000) round up in both
+        let halves = Readout {
+            read_variance: 1e-30,
+            dark_signal: 0.0,
+            signal_per_radiance: 1.0,
+            dn_per_signal: 1.0,
+            offset_dn: 0.5,
+            ..r
+        };
+        let base: Vec<f32> = (0..256 * 4).map(|i| (i % 1000) as f32).collect();
+        let (mut fused, mut general) = (base.clone(), base.clone());
+        halves.apply_rows(&mut fused, 256, ReadoutMaps::default(), true, (1, 1), Some(4095.0), None, true);
+        halves.apply_rows(&mut general, 256, ReadoutMaps::default(), true, (1, 1), Some(4095.0), None, false);
+        assert_eq!(fused, general);
+        assert!(fused.iter().zip(&base).all(|(&v, &l)| v == l + 1.0), "x + ½ rounds to x + 1");
         // shot noise, another sampler, a row of part blocks or no noise take the general path
         assert!(!Readout { shot_noise: true, ..r }.fuses(256, true));
         assert!(!Readout { normal_sampler: NormalSampler::BoxMuller, ..r }.fuses(256, true));
