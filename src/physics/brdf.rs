@@ -91,24 +91,10 @@ impl TowardPair<'_> {
         if n == DVec3::ZERO || self.v == DVec3::ZERO || self.l == DVec3::ZERO {
             return 0.0;
         }
-        // as in `evaluate_unit`: −0.0 to +0.0
-        let (nv, nl) = (n.dot(self.v) + 0.0, n.dot(self.l) + 0.0);
-        if !(nv >= 0.0 && nl >= 0.0) {
-            return 0.0;
-        }
-        let brdf = self.brdf;
-        let diffuse = brdf.kd / PI;
-        let Some((h, vh, fresnel)) = self.half else {
-            return diffuse;
-        };
-        let nh = n.dot(h);
-        let m2 = brdf.roughness * brdf.roughness;
-        let distribution = beckmann_in_logs(nh, n.cross(h).length(), m2, self.ln_pi_m2);
-        diffuse + brdf.ks * specular_term(fresnel, distribution, nh, nv, nl, vh)
+        let m2 = self.brdf.roughness * self.brdf.roughness;
+        self.f_with(n, n.dot(self.v), n.dot(self.l), |nh, sin| beckmann_in_logs(nh, sin(), m2, self.ln_pi_m2))
     }
-}
 
-impl TowardPair<'_> {
     /// `f`, sr⁻¹, for a unit normal `n` with `nv = n·v` and `nl = n·l` already in hand (0 where either is
     /// negative, as [`TowardPair::f_per_sr`] gives): `f_per_sr` without normalising `n` again, and Beckmann's `D`
     /// as `exp(−tan²α/m²)/(π m² cos⁴α)` instead of through logarithms (one `exp` and no `ln`). It agrees with
@@ -118,6 +104,26 @@ impl TowardPair<'_> {
     /// The ellipsoid's reflectance calls it for each of a sphere grid's points.
     #[inline]
     pub fn f_unit(&self, n: DVec3, nv: f64, nl: f64) -> f64 {
+        self.f_with(n, nv, nl, |nh, sin| {
+            if !(nh > 0.0) {
+                return 0.0;
+            }
+            let t = sin() / nh;
+            let exponent = -(t * t) / self.m2;
+            // exp underflows below about −708 (normal) and −745 (subnormal): 0 there, and no 0/0 from cos⁴α
+            if !(exponent > -708.0) {
+                return 0.0;
+            }
+            let c2 = nh * nh;
+            exponent.exp() / (self.pi_m2 * (c2 * c2))
+        })
+    }
+
+    /// `f` for the unit normal `n` with `nv = n·v` and `nl = n·l` (0 where either is negative), Beckmann's `D`
+    /// from `distribution(n·h, || |n×h|)`: the diffuse part, and the specular part where `h` is defined and `D`
+    /// is not 0.
+    #[inline(always)]
+    fn f_with(&self, n: DVec3, nv: f64, nl: f64, distribution: impl Fn(f64, &dyn Fn() -> f64) -> f64) -> f64 {
         // as in `evaluate_unit`: −0.0 to +0.0, so that 1/(n·v) at grazing is +∞
         let (nv, nl) = (nv + 0.0, nl + 0.0);
         if !(nv >= 0.0 && nl >= 0.0) {
@@ -129,18 +135,8 @@ impl TowardPair<'_> {
             return diffuse;
         };
         let nh = n.dot(h);
-        if !(nh > 0.0) {
-            return diffuse;
-        }
-        let t = n.cross(h).length() / nh;
-        let exponent = -(t * t) / self.m2;
-        // exp underflows below about −708 (normal) and −745 (subnormal): 0 there, and no 0/0 from cos⁴α
-        if !(exponent > -708.0) {
-            return diffuse;
-        }
-        let c2 = nh * nh;
-        let distribution = exponent.exp() / (self.pi_m2 * (c2 * c2));
-        diffuse + brdf.ks * specular_term(fresnel, distribution, nh, nv, nl, vh)
+        let d = distribution(nh, &|| n.cross(h).length());
+        diffuse + brdf.ks * specular_term(fresnel, d, nh, nv, nl, vh)
     }
 }
 
