@@ -361,9 +361,17 @@ mod x86 {
         let (ones, neg_zeros) = (ps(1.0), ps(-0.0));
         let (zero, half, shift, one) = (ps(0.0), ps(0.5), ps(8_388_608.0), ps(1.0));
         let top_v = ps(top.unwrap_or(0.0));
+        // the deviates one block ahead: the next block's polynomials are independent of this block's readout, and
+        // written before it they overlap it instead of waiting in the same dependency chain
+        let blocks = n / 64;
+        // SAFETY: the CPU has AVX-512 (the caller's promise)
+        let mut next = if blocks > 0 { unsafe { quantiles.next_run_512(normals) } } else { [zero; 4] };
         for (b, block) in line.chunks_exact_mut(64).enumerate() {
-            // SAFETY: the CPU has AVX-512 (the caller's promise)
-            let z = unsafe { quantiles.next_run_512(normals) };
+            let z = next;
+            if b + 1 < blocks {
+                // SAFETY: as above
+                next = unsafe { quantiles.next_run_512(normals) };
+            }
             for (j, z) in z.into_iter().enumerate() {
                 let i = 64 * b + 16 * j;
                 // SAFETY: sixteen floats at 16·j, inside the block of 64
