@@ -922,7 +922,13 @@ impl RowGeometry {
         if px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
             // SAFETY: the CPU has AVX-512; every sample (and its neighbours, bilinear) lies inside the image
             // (checked above)
-            unsafe { x86::span_512(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) };
+            unsafe {
+                if bilinear {
+                    x86::span_512::<true>(px, w, [x, y], [dx, dy], [ddx, ddy], out, accumulate)
+                } else {
+                    x86::span_512::<false>(px, w, [x, y], [dx, dy], [ddx, ddy], out, accumulate)
+                }
+            };
             return true;
         }
         for o in out.iter_mut() {
@@ -961,20 +967,21 @@ mod x86 {
     /// and the mix is the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so every value
     /// is the same. The texels are read by [`sample16_avx512`]: along a row of a view not turned much against the
     /// image, sixteen lanes' texels lie within one or two windows of 32 floats, two loads and a permute each; a
-    /// gather of sixteen had been 90 % of this loop's time (`perf annotate`).
+    /// gather of sixteen had been 90 % of this loop's time (`perf annotate`). `BILINEAR` is a parameter of the
+    /// type so that the nearest sampler's copy of the loop leaves out the fractions it does not read (a quarter of
+    /// the loop's vector operations).
     ///
     /// # Safety
     /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel (and, bilinear, its right and lower
     /// neighbours) must lie inside `px` (`w` wide), and `px.len()` must fit an `i32`.
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
-    pub unsafe fn span_512(
+    pub unsafe fn span_512<const BILINEAR: bool>(
         px: &[f32],
         w: usize,
         q: [i64; 2],
         d: [i64; 2],
         dd: [i64; 2],
-        bilinear: bool,
         out: &mut [f32],
         accumulate: bool,
     ) {
@@ -1007,10 +1014,14 @@ mod x86 {
             };
             ([at(lanes_lo, tri_lo), at(lanes_hi, tri_hi)], [step(lanes_lo), step(lanes_hi)], dd.wrapping_mul(256))
         };
-        // whole pixels (i32) and the fraction's top 24 bits as f32 of sixteen positions
+        // whole pixels (i32) and the fraction's top 24 bits as f32 of sixteen positions (0 for nearest samples,
+        // which do not read it)
         let split = |p: [__m512i; 2]| {
             let low = |a: __m512i, b: __m512i| _mm512_permutex2var_epi32(a, even, b);
             let whole = low(_mm512_srli_epi64::<40>(p[0]), _mm512_srli_epi64::<40>(p[1]));
+            if !BILINEAR {
+                return (whole, _mm512_setzero_ps());
+            }
             let top24 = _mm512_and_si512(low(_mm512_srli_epi64::<16>(p[0]), _mm512_srli_epi64::<16>(p[1])), top_bits);
             (whole, _mm512_mul_ps(_mm512_cvtepi32_ps(top24), fraction))
         };
@@ -1027,7 +1038,7 @@ mod x86 {
             let i = _mm512_add_epi32(_mm512_mullo_epi32(iy, width), ix);
             // SAFETY: the caller guarantees every written pixel's index and its neighbours are inside `px`; the
             // lanes past the span's end are masked off
-            let mut v = unsafe { sample16_avx512(px, i, w, fx, fy, mask, bilinear) };
+            let mut v = unsafe { sample16_avx512(px, i, w, fx, fy, mask, BILINEAR) };
             let at = out[k..].as_mut_ptr();
             // SAFETY: the masked lanes are inside `out`
             unsafe {
@@ -1136,7 +1147,13 @@ mod tests {
                     }
                     let mut vector = before.clone();
                     // SAFETY: AVX-512 checked above; the paths stay inside the image
-                    unsafe { x86::span_512(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
+                    unsafe {
+                        if bilinear {
+                            x86::span_512::<true>(&px, w, q, d, dd, &mut vector, accumulate)
+                        } else {
+                            x86::span_512::<false>(&px, w, q, d, dd, &mut vector, accumulate)
+                        }
+                    };
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert_eq!(bits(&vector), bits(&scalar), "len {len}, bilinear {bilinear}, accumulate {accumulate}");
                 }
