@@ -922,13 +922,7 @@ impl RowGeometry {
         if px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
             // SAFETY: the CPU has AVX-512; every sample (and its neighbours, bilinear) lies inside the image
             // (checked above)
-            unsafe {
-                if bilinear {
-                    x86::span_512::<true>(px, w, [x, y], [dx, dy], [ddx, ddy], out, accumulate)
-                } else {
-                    x86::span_512::<false>(px, w, [x, y], [dx, dy], [ddx, ddy], out, accumulate)
-                }
-            };
+            unsafe { x86::span(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) };
             return true;
         }
         for o in out.iter_mut() {
@@ -967,16 +961,42 @@ mod x86 {
     /// and the mix is the scalar [`bilinear_mix`](super::bilinear_mix)'s operations in its order, so every value
     /// is the same. The texels are read by [`sample16_avx512`]: along a row of a view not turned much against the
     /// image, sixteen lanes' texels lie within one or two windows of 32 floats, two loads and a permute each; a
-    /// gather of sixteen had been 90 % of this loop's time (`perf annotate`). `BILINEAR` is a parameter of the
-    /// type so that the nearest sampler's copy of the loop leaves out the fractions it does not read (a quarter of
-    /// the loop's vector operations).
+    /// gather of sixteen had been 90 % of this loop's time (`perf annotate`). The sampler is a const parameter of
+    /// the loop ([`span_512`]) so that the nearest sampler's copy leaves out the fractions it does not read (a
+    /// quarter of the loop's vector operations).
     ///
     /// # Safety
     /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel (and, bilinear, its right and lower
     /// neighbours) must lie inside `px` (`w` wide), and `px.len()` must fit an `i32`.
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
-    pub unsafe fn span_512<const BILINEAR: bool>(
+    pub unsafe fn span(
+        px: &[f32],
+        w: usize,
+        q: [i64; 2],
+        d: [i64; 2],
+        dd: [i64; 2],
+        bilinear: bool,
+        out: &mut [f32],
+        accumulate: bool,
+    ) {
+        // SAFETY: the caller's promises, passed on
+        unsafe {
+            if bilinear {
+                span_512::<true>(px, w, q, d, dd, out, accumulate)
+            } else {
+                span_512::<false>(px, w, q, d, dd, out, accumulate)
+            }
+        }
+    }
+
+    /// [`span`] for one sampler.
+    ///
+    /// # Safety
+    /// As [`span`]'s.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    unsafe fn span_512<const BILINEAR: bool>(
         px: &[f32],
         w: usize,
         q: [i64; 2],
@@ -1147,13 +1167,7 @@ mod tests {
                     }
                     let mut vector = before.clone();
                     // SAFETY: AVX-512 checked above; the paths stay inside the image
-                    unsafe {
-                        if bilinear {
-                            x86::span_512::<true>(&px, w, q, d, dd, &mut vector, accumulate)
-                        } else {
-                            x86::span_512::<false>(&px, w, q, d, dd, &mut vector, accumulate)
-                        }
-                    };
+                    unsafe { x86::span(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert_eq!(bits(&vector), bits(&scalar), "len {len}, bilinear {bilinear}, accumulate {accumulate}");
                 }

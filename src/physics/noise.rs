@@ -358,14 +358,15 @@ mod x86 {
             Some(m) => unsafe { _mm512_loadu_ps(m.as_ptr().add(i)) },
             None => absent,
         };
-        let (ones, neg_zeros) = (ps(1.0), ps(-0.0));
-        let (zero, half, shift, one) = (ps(0.0), ps(0.5), ps(8_388_608.0), ps(1.0));
+        let (zero, half, one, neg_zeros) = (ps(0.0), ps(0.5), ps(1.0), ps(-0.0));
+        let shift = ps(super::QUANTIZE_SHIFT);
         let top_v = ps(top.unwrap_or(0.0));
         // the deviates one block ahead: the next block's polynomials are independent of this block's readout, and
         // written before it they overlap it instead of waiting in the same dependency chain
+        // (an empty row draws a run it does not use, from a generator of its own)
         let blocks = n / 64;
         // SAFETY: the CPU has AVX-512 (the caller's promise)
-        let mut next = if blocks > 0 { unsafe { quantiles.next_run_512(normals) } } else { [zero; 4] };
+        let mut next = unsafe { quantiles.next_run_512(normals) };
         for (b, block) in line.chunks_exact_mut(64).enumerate() {
             let z = next;
             if b + 1 < blocks {
@@ -377,7 +378,7 @@ mod x86 {
                 // SAFETY: sixteen floats at 16·j, inside the block of 64
                 let at = unsafe { block.as_mut_ptr().add(16 * j) };
                 let p = unsafe { _mm512_loadu_ps(at) };
-                let s = _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(k, at_or(gain, i, ones)), p), dark);
+                let s = _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(k, at_or(gain, i, one)), p), dark);
                 let s = _mm512_add_ps(s, _mm512_mul_ps(sigma, z));
                 let v = _mm512_add_ps(offset, at_or(offsets, i, zero));
                 let v = _mm512_add_ps(v, _mm512_mul_ps(_mm512_min_ps(s, well), dn));
@@ -408,13 +409,15 @@ pub fn quantize_row(line: &mut [f32], top: f32) {
     }
 }
 
+/// 2²³: adding and subtracting it rounds an f32 in [0, 2²²] to a whole number ([`quantize_level`]).
+const QUANTIZE_SHIFT: f32 = 8_388_608.0;
+
 /// [`quantize_row`] of one value.
 #[inline(always)]
 pub fn quantize_level(v: f32, top: f32) -> f32 {
-    const SHIFT: f32 = 8_388_608.0; // 2²³
     // max first: NaN.max(0) is 0
     let y = v.max(0.0).min(top) + 0.5;
-    let t = (y + SHIFT) - SHIFT;
+    let t = (y + QUANTIZE_SHIFT) - QUANTIZE_SHIFT;
     if t > y { t - 1.0 } else { t }
 }
 
