@@ -185,6 +185,11 @@ fn awake_while<R>(idle: Option<&IdleWork>, start_wait: std::time::Duration, f: i
         if ctx.index() == owner {
             return;
         }
+        // read before this job counts itself as taken: `f` begins as soon as every job is counted, so a read after
+        // the count would find it begun, and the worker not held, whenever `f` won that race (for a recording,
+        // whose loop is one `f`, a worker never held for the whole run); begun not yet when the job started
+        // means no part of `f` can be beneath it
+        let late = job_frame.begun.load(Ordering::SeqCst);
         job_frame.taken.fetch_add(1, Ordering::SeqCst);
         if IN_FRAME.get() {
             return;
@@ -193,7 +198,7 @@ fn awake_while<R>(idle: Option<&IdleWork>, start_wait: std::time::Duration, f: i
             ADOPTED.with_borrow_mut(|a| a.push(Arc::clone(&job_frame)));
             return;
         }
-        if job_frame.begun.load(Ordering::SeqCst) {
+        if late {
             return;
         }
         let _waiting = FlagScope::set(&WAITING);
@@ -298,7 +303,7 @@ pub fn current_frame(app: &mut App) -> &Frame {
 
 #[cfg(test)]
 mod tests {
-    use super::with_workers_awake;
+    use super::{LOOP_START_WAIT, with_workers_awake};
 
     /// Runs `f` on a thread of its own and returns its value, failing if it has not returned within `seconds`.
     fn finishes_within<T: Send + 'static>(seconds: u64, f: impl FnOnce() -> T + Send + 'static) -> T {
@@ -371,6 +376,56 @@ mod tests {
     /// What [`test_frame`]s `0..frames` sum to.
     fn test_frames_sum(frames: u32) -> f64 {
         (0..frames).map(|k| (0..2048u32).map(|n| f64::from(n + k).sqrt().ln_1p()).sum::<f64>()).sum()
+    }
+
+    #[test]
+    fn the_other_worker_is_held_for_the_whole_call() {
+        // a long `f` (a recording's loop) is started as soon as the other worker has taken its job, and that worker
+        // must then stay in its waiting loop, doing the idle work, for all of `f`: one that saw `f` begun in the
+        // race with its own count would leave, and a recording's frames would all be encoded by the frame's thread
+        use std::sync::Arc;
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        use std::time::{Duration, Instant};
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        let (prompt, dropped) = pool.install(|| {
+            let (mut prompt, mut dropped) = (0, 0);
+            // one idle work for every call (a loop that lingers from the last call and adopts this one's job does the
+            // idle work of the job that started it): it marks the call under way as seen by the other worker
+            let owner = rayon::current_thread_index();
+            let (call, seen) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+            let (now, mark) = (Arc::clone(&call), Arc::clone(&seen));
+            let idle: super::IdleWork = Arc::new(move || {
+                if rayon::current_thread_index() != owner {
+                    mark.store(now.load(Ordering::SeqCst), Ordering::SeqCst);
+                }
+                false
+            });
+            for k in 1..=200 {
+                // mostly past the linger of the last call's loop, so that most calls start the loop afresh
+                std::thread::sleep(Duration::from_millis(1));
+                call.store(k, Ordering::SeqCst);
+                let called = Instant::now();
+                let waited = super::with_workers_awake_and(Some(&idle), || {
+                    let waited = called.elapsed();
+                    let t = Instant::now();
+                    while seen.load(Ordering::SeqCst) != k && t.elapsed() < Duration::from_millis(200) {
+                        std::hint::spin_loop();
+                    }
+                    waited
+                });
+                // `f` begun well inside the start wait: the worker had taken its job before, so it must be held (one
+                // not given a core within the start wait, on a loaded machine, is rightly not held)
+                if waited < LOOP_START_WAIT / 2 {
+                    prompt += 1;
+                    dropped += usize::from(seen.load(Ordering::SeqCst) != k);
+                }
+            }
+            (prompt, dropped)
+        });
+        assert_eq!(dropped, 0, "the other worker took its job in time but left in {dropped} of {prompt} calls");
+        if prompt < 20 {
+            eprintln!("only {prompt} of 200 calls began inside the start wait: a loaded machine tests little here");
+        }
     }
 
     #[test]
