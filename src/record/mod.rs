@@ -363,8 +363,56 @@ pub fn prepare_dir(dir: &Path, force: bool) -> Result<DirLock, RecordError> {
             }
         }
     }
-    std::fs::create_dir_all(dir.join("frames")).map_err(|e| io_err(dir, e))?;
+    spread_subdirectories(dir);
+    make_subdirectory(dir, "frames")?;
     Ok(lock)
+}
+
+/// Makes `dir/name` unless it is there: made under a name of its own and renamed, so that where `dir` is the top
+/// of a hierarchy ([`spread_subdirectories`]) the block group ext4 chooses for it, which starts from a hash of the
+/// name, differs from one recording to the next (under the same name, each recording's frames went to the group
+/// the last one's were deleted from).
+fn make_subdirectory(dir: &Path, name: &str) -> Result<(), RecordError> {
+    let path = dir.join(name);
+    if path.is_dir() {
+        return Ok(());
+    }
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let fresh = dir.join(format!(".{name}.{}.{nanos}.tmp", std::process::id()));
+    if std::fs::create_dir(&fresh).is_ok() && std::fs::rename(&fresh, &path).is_err() {
+        let _ = std::fs::remove_dir(&fresh);
+    }
+    std::fs::create_dir_all(&path).map_err(|e| io_err(&path, e))
+}
+
+/// Marks `dir` as the top of a directory hierarchy (ext4's `T` attribute, `chattr +T`; Linux), so that the file
+/// system places the subdirectories made next (`frames`, `masks`) in block groups of their own with room to spare,
+/// not beside `dir`'s parent. Where files were deleted near the parent in the last minutes (an earlier recording
+/// removed, or replaced with `--force`), ext4 looks past every recently deleted inode there for each file it
+/// creates: 2000 frames of 256 × 256 recorded into a new subdirectory of `/tmp`, each run after the last one's was
+/// deleted, ran at 1405–2353 frames/s placed beside the parent and at 2467–3800 spread (and `irsim bench`'s
+/// recording case, which deletes its output, at 0.18–0.22 of the rate without disk writes run after run against
+/// 0.71–0.80). Best effort: a file system without the
+/// attribute, or a directory this user does not own, keeps its placement.
+fn spread_subdirectories(dir: &Path) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        /// `FS_TOPDIR_FL` of `linux/fs.h`.
+        const TOPDIR: libc::c_int = 0x0002_0000;
+        let Ok(handle) = std::fs::File::open(dir) else { return };
+        let mut flags: libc::c_int = 0;
+        // SAFETY: `handle` is an open descriptor and `flags` an int the call writes (the kernel's
+        // FS_IOC_GETFLAGS takes a pointer to int)
+        if unsafe { libc::ioctl(handle.as_raw_fd(), libc::FS_IOC_GETFLAGS, &mut flags) } != 0 || flags & TOPDIR != 0 {
+            return;
+        }
+        flags |= TOPDIR;
+        // SAFETY: as above; the call reads `flags`
+        unsafe { libc::ioctl(handle.as_raw_fd(), libc::FS_IOC_SETFLAGS, &flags) };
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = dir;
 }
 
 /// One frame for an encoding task.
@@ -717,7 +765,7 @@ impl Recorder {
         frames_requested: u64,
     ) -> Result<Self, RecordError> {
         if masks {
-            std::fs::create_dir_all(dir.join("masks")).map_err(|e| io_err(dir, e))?;
+            make_subdirectory(dir, "masks")?;
         }
         let (done_tx, done_rx) = channel::<Done>();
         let writeback = Writeback::start(dir);
@@ -1274,6 +1322,46 @@ mod tests {
             serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
         assert_eq!((m["status"].as_str(), m["frames_written"].as_u64()), (Some("failed"), Some(1)));
         assert_eq!(std::fs::read_dir(dir.join("frames")).unwrap().count(), 1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_prepared_directory_holds_frames_and_its_lock_and_is_marked_to_spread() {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-spread-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let lock = prepare_dir(&dir, false).unwrap();
+        let names = |d: &Path| {
+            let mut n: Vec<String> =
+                std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+            n.sort();
+            n
+        };
+        // the subdirectory made under a name of its own is renamed into place: nothing else is left
+        assert_eq!(names(&dir), [LOCK_FILE, "frames"]);
+        make_subdirectory(&dir, "masks").unwrap();
+        make_subdirectory(&dir, "masks").unwrap();
+        assert_eq!(names(&dir), [LOCK_FILE, "frames", "masks"]);
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::fd::AsRawFd;
+            // where the file system keeps the attribute (ext4; not tmpfs), the directory is the top of a hierarchy
+            let probe = std::fs::File::open(&dir).unwrap();
+            let mut flags: libc::c_int = 0;
+            // SAFETY: an open descriptor and an int the call writes
+            if unsafe { libc::ioctl(probe.as_raw_fd(), libc::FS_IOC_GETFLAGS, &mut flags) } == 0 {
+                let supported = std::env::temp_dir().join(format!("irsim-rec-spread-probe-{}", std::process::id()));
+                std::fs::create_dir_all(&supported).unwrap();
+                let probe = std::fs::File::open(&supported).unwrap();
+                let mut wanted: libc::c_int = 0x0002_0000;
+                // SAFETY: as above; the call reads `wanted`
+                let settable = unsafe { libc::ioctl(probe.as_raw_fd(), libc::FS_IOC_SETFLAGS, &mut wanted) } == 0;
+                let _ = std::fs::remove_dir_all(&supported);
+                if settable {
+                    assert_ne!(flags & 0x0002_0000, 0, "the output directory was not marked");
+                }
+            }
+        }
+        drop(lock);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
