@@ -145,14 +145,15 @@ fn write_renamed_pausing(
 }
 
 /// How often [`Writeback`] hands the files written since its last pass to the disk.
+#[cfg_attr(not(target_os = "linux"), allow(dead_code))]
 const WRITEBACK_PERIOD: std::time::Duration = std::time::Duration::from_millis(100);
 
 /// A thread of its own that starts the disk on the recording's files as they come: every [`WRITEBACK_PERIOD`],
 /// if files were written since its last pass, one `syncfs` of the output's file system (Linux), so that a
 /// checkpoint's sync, the last one's above all, finds little left to write. One pass over all the files of a
 /// tenth of a second costs the machine less than asking for each file's write-back as it is written (one device
-/// request and one notification of the device each): 256 × 256 png16 on ext4 on one thread, 1817–1941 frames/s
-/// that way against 2008–2288 this way. The pass's errors are not its to report: it syncs through a descriptor
+/// request and one notification of the device each): 256 × 256 png16 into fresh ext4 directories on one thread
+/// of an AMD EPYC, 1616–1817 frames/s that way against 2046–2155 this way (interleaved rounds). The pass's errors are not its to report: it syncs through a descriptor
 /// of its own, so a write-back error stays unreported on the recording's, whose checkpoint reports it (see
 /// [`sync_written`]).
 struct Writeback {
@@ -388,12 +389,13 @@ fn make_subdirectory(dir: &Path, name: &str) -> Result<(), RecordError> {
 /// Marks `dir` as the top of a directory hierarchy (ext4's `T` attribute, `chattr +T`; Linux), so that the file
 /// system places the subdirectories made next (`frames`, `masks`) in block groups of their own with room to spare,
 /// not beside `dir`'s parent. Where files were deleted near the parent in the last minutes (an earlier recording
-/// removed, or replaced with `--force`), ext4 looks past every recently deleted inode there for each file it
-/// creates: 2000 frames of 256 × 256 recorded into a new subdirectory of `/tmp`, each run after the last one's was
+/// removed, or replaced with `--force`), the ext4 of the machine measured looked past every recently deleted inode
+/// there for each file it created (`recently_deleted` in `perf`; the kernel makes that check on a file system
+/// without a journal, so on others the gain may be smaller): 2000 frames of 256 × 256 recorded into a new subdirectory of `/tmp`, each run after the last one's was
 /// deleted, ran at 1405–2353 frames/s placed beside the parent and at 2467–3800 spread (and `irsim bench`'s
 /// recording case, which deletes its output, at 0.18–0.22 of the rate without disk writes run after run against
-/// 0.71–0.80). Best effort: a file system without the
-/// attribute, or a directory this user does not own, keeps its placement.
+/// 0.71–0.80; an AMD EPYC, interleaved rounds). Best effort: a file system without the attribute, or a directory
+/// this user does not own, keeps its placement.
 fn spread_subdirectories(dir: &Path) {
     #[cfg(target_os = "linux")]
     {
