@@ -16,18 +16,18 @@
 //! SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest whose
 //! `status` and `frames_written` say where the run stopped.
 //!
-//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary file
-//! and renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without
-//! waiting for the disk; a thread of its own (`Writeback`, on Linux) starts the disk on the files written every
-//! tenth of a second, so that the last checkpoint's sync finds little left to write; each checkpoint first makes
-//! everything written since the last one durable (one `syncfs` of the output's file system on Linux, through the
-//! directory opened when the recording began, so that a write-back error on any file since then is reported; a
-//! sync of each file elsewhere), then writes the labels. A checkpoint during the run is written by a thread of its own from a copy of the texts, so
-//! the simulation does not wait for the disk (a checkpoint still being written when the next is due delays that
-//! one); the last one, at the end, is waited for. A crash of the machine loses at most the frames since the last
-//! checkpoint, and never leaves labels that list a frame the disk does not hold. A checkpoint writes the labels,
-//! then the MOT file, then the manifest, so a process killed in the middle of one (`kill -9`) may leave the
-//! manifest's `frames_written` one checkpoint behind the labels, never ahead of them.
+//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a temporary file and
+//! renames it into place (so a file under a frame's name is always whole, even after `kill -9`), without waiting for
+//! the disk; a thread of its own (`Writeback`, on Linux) starts the disk on the files written every tenth of a second,
+//! so that the last checkpoint's sync finds little left to write; each checkpoint first makes everything written since
+//! the last one durable (one `syncfs` of the output's file system on Linux, through the directory opened when the
+//! recording began, so that a write-back error on any file since then is reported; a sync of each file elsewhere), then
+//! writes the labels. A checkpoint during the run is written by a thread of its own from a copy of the texts, so the
+//! simulation does not wait for the disk (a checkpoint still being written when the next is due delays that one); the
+//! last one, at the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint, and
+//! never leaves labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file,
+//! then the manifest, so a process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written`
+//! one checkpoint behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
@@ -150,56 +150,76 @@ const WRITEBACK_PERIOD: std::time::Duration = std::time::Duration::from_millis(1
 
 /// A thread of its own that starts the disk on the recording's files as they come: every [`WRITEBACK_PERIOD`],
 /// if files were written since its last pass, one `syncfs` of the output's file system (Linux), so that a
-/// checkpoint's sync, the last one's above all, finds little left to write. One pass over all the files of a
-/// tenth of a second costs the machine less than asking for each file's write-back as it is written (one device
-/// request and one notification of the device each): 256 × 256 png16 into fresh ext4 directories on one thread
-/// of an AMD EPYC, 1616–1817 frames/s that way against 2046–2155 this way (interleaved rounds). The pass's errors are not its to report: it syncs through a descriptor
-/// of its own, so a write-back error stays unreported on the recording's, whose checkpoint reports it (see
-/// [`sync_written`]).
+/// checkpoint's sync, the last one's above all, finds little left to write. A `syncfs` writes and waits for every
+/// dirty file of the file system, this recording's and others', and commits its journal: ten times a second at
+/// most, and only while files are being written. One pass over all the files of a tenth of a second costs the
+/// machine less than asking for each file's write-back as it is written (one device request and one notification
+/// of the device each): 256 × 256 png16 into fresh ext4 directories on one thread of an AMD EPYC, 1616–1817
+/// frames/s that way against 2046–2155 this way (interleaved rounds).
+///
+/// The pass syncs through a descriptor of its own, so that a write-back error stays unreported on the recording's,
+/// whose checkpoint reports it (see [`sync_written`]); the pass also keeps the first error it saw, which the next
+/// checkpoint reports too (kernels before 5.8 report a write-back error to no `syncfs`).
 struct Writeback {
     /// Files written so far, counted by the encoding tasks.
     written: Arc<std::sync::atomic::AtomicU64>,
     /// Passes made.
     #[cfg_attr(not(test), allow(dead_code))]
     passes: Arc<std::sync::atomic::AtomicU64>,
+    /// The OS error number of the first pass that failed; 0 while none has.
+    failed: Arc<std::sync::atomic::AtomicI32>,
+    /// Set to stop the thread; the condition variable wakes it from its wait.
     stop: Arc<(Mutex<bool>, std::sync::Condvar)>,
+    /// The thread, until it is stopped; `None` where none runs.
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Writeback {
-    /// Starts the thread for `dir`; where no thread can be started or no descriptor opened (or off Linux),
-    /// none runs and the checkpoints' syncs write everything.
-    fn start(dir: &Path) -> Self {
-        let (written, passes) = (Arc::default(), Arc::default());
+    /// Starts the thread for `dir`, passing every `period`; where `dir` is `None` (the recording could not open its
+    /// directory, so its checkpoints sync each file) or no thread can be started or no descriptor opened (or off
+    /// Linux), none runs and the checkpoints' syncs write everything.
+    fn start(dir: Option<&Path>, period: std::time::Duration) -> Self {
+        let (written, passes, failed) = (Arc::default(), Arc::default(), Arc::default());
         let stop = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
-        let thread = Self::spawn(dir, [Arc::clone(&written), Arc::clone(&passes)], Arc::clone(&stop));
-        Self { written, passes, stop, thread }
+        let thread = dir.and_then(|dir| {
+            let shared = (Arc::clone(&written), Arc::clone(&passes), Arc::clone(&failed));
+            Self::spawn(dir, period, shared, Arc::clone(&stop))
+        });
+        Self { written, passes, failed, stop, thread }
     }
 
     #[cfg(target_os = "linux")]
     fn spawn(
         dir: &Path,
-        [written, passes]: [Arc<std::sync::atomic::AtomicU64>; 2],
+        period: std::time::Duration,
+        (written, passes, failed): (
+            Arc<std::sync::atomic::AtomicU64>,
+            Arc<std::sync::atomic::AtomicU64>,
+            Arc<std::sync::atomic::AtomicI32>,
+        ),
         stop: Arc<(Mutex<bool>, std::sync::Condvar)>,
     ) -> Option<std::thread::JoinHandle<()>> {
         use std::os::fd::AsRawFd;
+        use std::sync::atomic::Ordering;
         let handle = std::fs::File::open(dir).ok()?;
         let work = move || {
             let (flag, wake) = &*stop;
             let mut passed = 0;
             let mut stopped = flag.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             while !*stopped {
-                stopped =
-                    wake.wait_timeout(stopped, WRITEBACK_PERIOD).unwrap_or_else(std::sync::PoisonError::into_inner).0;
-                let now = written.load(std::sync::atomic::Ordering::Relaxed);
+                stopped = wake.wait_timeout(stopped, period).unwrap_or_else(std::sync::PoisonError::into_inner).0;
+                let now = written.load(Ordering::Relaxed);
                 if *stopped || now == passed {
                     continue;
                 }
                 passed = now;
                 drop(stopped);
                 // SAFETY: `handle` is an open descriptor for the duration of the call
-                unsafe { libc::syncfs(handle.as_raw_fd()) };
-                passes.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if unsafe { libc::syncfs(handle.as_raw_fd()) } != 0 {
+                    let errno = std::io::Error::last_os_error().raw_os_error().unwrap_or(libc::EIO);
+                    let _ = failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed);
+                }
+                passes.fetch_add(1, Ordering::Relaxed);
                 stopped = flag.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             }
         };
@@ -209,7 +229,8 @@ impl Writeback {
     #[cfg(not(target_os = "linux"))]
     fn spawn(
         _: &Path,
-        _: [Arc<std::sync::atomic::AtomicU64>; 2],
+        _: std::time::Duration,
+        _: (Arc<std::sync::atomic::AtomicU64>, Arc<std::sync::atomic::AtomicU64>, Arc<std::sync::atomic::AtomicI32>),
         _: Arc<(Mutex<bool>, std::sync::Condvar)>,
     ) -> Option<std::thread::JoinHandle<()>> {
         None
@@ -223,6 +244,12 @@ impl Writeback {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+    }
+}
+
+impl Drop for Writeback {
+    fn drop(&mut self) {
+        self.stop();
     }
 }
 
@@ -245,11 +272,17 @@ pub fn write_shared(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
 /// A `syncfs` reports a write-back error that happened since the descriptor it is given was opened (and that
 /// no call on it has reported yet): through one descriptor held for the whole recording, an error on any file
 /// written since the start is reported, where a descriptor opened afresh for each checkpoint misses one that
-/// another process's `syncfs` of the same file system saw first.
+/// another process's `syncfs` of the same file system saw first. `writeback_failed` is the OS error number of the
+/// first failed pass of the [`Writeback`] thread (0 while none has), reported here as well.
 ///
 /// # Errors
 /// The I/O error with the path.
-fn sync_written(dir: &Path, handle: Option<&std::fs::File>, files: &[PathBuf]) -> Result<(), RecordError> {
+fn sync_written(
+    dir: &Path,
+    handle: Option<&std::fs::File>,
+    files: &[PathBuf],
+    writeback_failed: i32,
+) -> Result<(), RecordError> {
     #[cfg(target_os = "linux")]
     {
         use std::os::fd::AsRawFd;
@@ -266,11 +299,14 @@ fn sync_written(dir: &Path, handle: Option<&std::fs::File>, files: &[PathBuf]) -
         if unsafe { libc::syncfs(d.as_raw_fd()) } != 0 {
             return Err(io_err(dir, std::io::Error::last_os_error()));
         }
+        if writeback_failed != 0 {
+            return Err(io_err(dir, std::io::Error::from_raw_os_error(writeback_failed)));
+        }
         Ok(())
     }
     #[cfg(not(target_os = "linux"))]
     {
-        let _ = handle;
+        let _ = (handle, writeback_failed);
         let mut dirs = std::collections::BTreeSet::new();
         for f in files {
             std::fs::File::open(f).and_then(|h| h.sync_all()).map_err(|e| io_err(f, e))?;
@@ -330,9 +366,23 @@ fn lock_dir(dir: &Path) -> Result<DirLock, RecordError> {
     Err(RecordError::Locked(dir.display().to_string(), "unknown".into()))
 }
 
+/// Whether `name`, in an output directory, is a temporary a recording makes and renames (left behind by one that
+/// was killed): a subdirectory being made ([`make_subdirectory`]) or a label, MOT or manifest file being written.
+fn is_leftover(name: &str) -> bool {
+    let made = ["frames", "masks"].iter().any(|sub| {
+        name.strip_prefix('.')
+            .and_then(|n| n.strip_prefix(sub))
+            .and_then(|n| n.strip_prefix('.'))
+            .and_then(|n| n.strip_suffix(".tmp"))
+            .is_some_and(|n| n.split('.').all(|part| !part.is_empty() && part.bytes().all(|b| b.is_ascii_digit())))
+    });
+    made || ["labels.jsonl.tmp", "gt_mot.txt.tmp", "manifest.json.tmp"].contains(&name)
+}
+
 /// Prepares `dir`: creates it and takes its lock, or refuses if another recording holds the lock, or if the
 /// directory holds anything unless `force`, in which case it removes the outputs of an earlier run (frames,
-/// masks, labels, MOT file, manifest) and nothing else. Keep the returned lock for the whole recording.
+/// masks, labels, MOT file, manifest, and the temporaries of one that was killed) and nothing else. Keep the
+/// returned lock for the whole recording.
 ///
 /// # Errors
 /// [`RecordError::NotEmpty`], [`RecordError::NotADirectory`], [`RecordError::Locked`] or an I/O error.
@@ -362,6 +412,15 @@ pub fn prepare_dir(dir: &Path, force: bool) -> Result<DirLock, RecordError> {
                     std::fs::remove_file(&p).map_err(|e| io_err(&p, e))?;
                 }
             }
+            for entry in std::fs::read_dir(dir).map_err(|e| io_err(dir, e))? {
+                let entry = entry.map_err(|e| io_err(dir, e))?;
+                if !entry.file_name().to_str().is_some_and(is_leftover) {
+                    continue;
+                }
+                let p = entry.path();
+                let removed = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+                removed.map_err(|e| io_err(&p, e))?;
+            }
         }
     }
     spread_subdirectories(dir);
@@ -386,16 +445,16 @@ fn make_subdirectory(dir: &Path, name: &str) -> Result<(), RecordError> {
     std::fs::create_dir_all(&path).map_err(|e| io_err(&path, e))
 }
 
-/// Marks `dir` as the top of a directory hierarchy (ext4's `T` attribute, `chattr +T`; Linux), so that the file
-/// system places the subdirectories made next (`frames`, `masks`) in block groups of their own with room to spare,
-/// not beside `dir`'s parent. Where files were deleted near the parent in the last minutes (an earlier recording
-/// removed, or replaced with `--force`), the ext4 of the machine measured looked past every recently deleted inode
-/// there for each file it created (`recently_deleted` in `perf`; the kernel makes that check on a file system
-/// without a journal, so on others the gain may be smaller): 2000 frames of 256 × 256 recorded into a new subdirectory of `/tmp`, each run after the last one's was
-/// deleted, ran at 1405–2353 frames/s placed beside the parent and at 2467–3800 spread (and `irsim bench`'s
-/// recording case, which deletes its output, at 0.18–0.22 of the rate without disk writes run after run against
-/// 0.71–0.80; an AMD EPYC, interleaved rounds). Best effort: a file system without the attribute, or a directory
-/// this user does not own, keeps its placement.
+/// Marks `dir` as the top of a directory hierarchy (ext4's `T` attribute, `chattr +T`; Linux), so that the file system
+/// places the subdirectories made next (`frames`, `masks`) in block groups of their own with room to spare, not beside
+/// `dir`'s parent. Where files were deleted near the parent in the last minutes (an earlier recording removed, or
+/// replaced with `--force`), the ext4 of the machine measured looked past every recently deleted inode there for each
+/// file it created (`recently_deleted` in `perf`; the kernel makes that check on a file system without a journal, so on
+/// others the gain may be smaller): 2000 frames of 256 × 256 recorded into a new subdirectory of `/tmp`, each run after
+/// the last one's was deleted, ran at 1405–2353 frames/s placed beside the parent and at 2467–3800 spread (and `irsim
+/// bench`'s recording case, which deletes its output, at 0.18–0.22 of the rate without disk writes run after run
+/// against 0.71–0.80; an AMD EPYC, interleaved rounds). Best effort: a file system without the attribute, or a
+/// directory this user does not own, keeps its placement.
 fn spread_subdirectories(dir: &Path) {
     #[cfg(target_os = "linux")]
     {
@@ -718,6 +777,8 @@ struct CheckpointOutcome {
 struct CheckpointJob {
     dir: PathBuf,
     dir_handle: Option<Arc<std::fs::File>>,
+    /// The [`Writeback`] thread's first error ([`sync_written`]).
+    writeback_failed: Arc<std::sync::atomic::AtomicI32>,
     /// The frames committed: those the labels list and the manifest counts.
     frames: u64,
     /// Files to make durable before the labels that list them.
@@ -737,7 +798,8 @@ impl CheckpointJob {
     fn write_files(&mut self) -> Result<(), (Reached, RecordError)> {
         if let Some((labels, mot)) = &self.texts {
             if !self.unsynced.is_empty() {
-                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced)
+                let failed = self.writeback_failed.load(std::sync::atomic::Ordering::Relaxed);
+                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced, failed)
                     .map_err(|e| (Reached::Nothing, e))?;
                 self.unsynced.clear();
             }
@@ -755,8 +817,9 @@ impl CheckpointJob {
 }
 
 impl Recorder {
-    /// A recorder writing into the prepared directory `dir`, its frames encoded by the threads of rayon's pool
-    /// (see the module's docs), at most `2 · threads` frames out at once. `manifest` is the run's description; the recorder adds `status`, `frames_requested`, `frames_written` and `error`.
+    /// A recorder writing into the prepared directory `dir`, its frames encoded by the threads of rayon's pool (see the
+    /// module's docs), at most `2 · threads` frames out at once. `manifest` is the run's description; the recorder adds
+    /// `status`, `frames_requested`, `frames_written` and `error`.
     pub fn new(
         dir: &Path,
         (format, png): (FrameFormat, PngCompression),
@@ -770,12 +833,13 @@ impl Recorder {
             make_subdirectory(dir, "masks")?;
         }
         let (done_tx, done_rx) = channel::<Done>();
-        let writeback = Writeback::start(dir);
+        let dir_handle = std::fs::File::open(dir).ok().map(Arc::new);
+        let writeback = Writeback::start(dir_handle.is_some().then_some(dir), WRITEBACK_PERIOD);
         let spec = TaskSpec { dir: dir.to_path_buf(), format, png, max_level, written: Arc::clone(&writeback.written) };
         let queue = Arc::new(EncodeQueue { spec, jobs: Mutex::new(VecDeque::new()), done: done_tx });
         let mut rec = Self {
             dir: dir.to_path_buf(),
-            dir_handle: std::fs::File::open(dir).ok().map(Arc::new),
+            dir_handle,
             format,
             masks,
             queue,
@@ -999,6 +1063,7 @@ impl Recorder {
         CheckpointJob {
             dir: self.dir.clone(),
             dir_handle: self.dir_handle.clone(),
+            writeback_failed: Arc::clone(&self.writeback.failed),
             frames: self.committed,
             unsynced: if texts { std::mem::take(&mut self.unsynced) } else { Vec::new() },
             texts: texts.then(|| (self.labels_text.clone(), self.mot_text.clone())),
@@ -1128,7 +1193,7 @@ mod tests {
         use std::time::{Duration, Instant};
         let dir = std::env::temp_dir().join(format!("irsim-rec-writeback-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let mut wb = Writeback::start(&dir);
+        let wb = Writeback::start(Some(&dir), WRITEBACK_PERIOD);
         assert!(wb.thread.is_some());
         // nothing written: no pass
         std::thread::sleep(WRITEBACK_PERIOD * 3);
@@ -1141,22 +1206,27 @@ mod tests {
             std::thread::sleep(Duration::from_millis(5));
         }
         assert_eq!(wb.passes.load(Ordering::SeqCst), 1);
+        assert_eq!(wb.failed.load(Ordering::SeqCst), 0);
         // no more writes: no more passes
         std::thread::sleep(WRITEBACK_PERIOD * 3);
         assert_eq!(wb.passes.load(Ordering::SeqCst), 1);
-        // stopping wakes the thread from its wait, not a period later
-        let t = Instant::now();
-        wb.stop();
-        assert!(wb.thread.is_none());
-        assert!(t.elapsed() < WRITEBACK_PERIOD / 2, "stopping took {:?}", t.elapsed());
-        // also a thread just started, at the beginning of its wait
-        for _ in 0..3 {
-            let mut wb = Writeback::start(&dir);
-            std::thread::sleep(Duration::from_millis(2));
+        drop(wb);
+        // stopping wakes the thread from its wait, not a period later: with a period of a minute, a thread in
+        // its wait (with files written or not) stops within seconds even on a loaded machine
+        let long = Duration::from_secs(60);
+        for written in [false, true] {
+            let mut wb = Writeback::start(Some(&dir), long);
+            if written {
+                wb.written.fetch_add(1, Ordering::SeqCst);
+            }
+            std::thread::sleep(Duration::from_millis(20));
             let t = Instant::now();
             wb.stop();
-            assert!(t.elapsed() < WRITEBACK_PERIOD / 2, "stopping took {:?}", t.elapsed());
+            assert!(wb.thread.is_none());
+            assert!(t.elapsed() < Duration::from_secs(5), "stopping took {:?}", t.elapsed());
         }
+        // no directory: no thread
+        assert!(Writeback::start(None, WRITEBACK_PERIOD).thread.is_none());
         let _ = std::fs::remove_dir_all(&dir);
     }
 
@@ -1190,6 +1260,7 @@ mod tests {
             dir: d.to_path_buf(),
             // as the recorder holds it (none where the directory is missing: the sync opens the path, and fails)
             dir_handle: std::fs::File::open(d).ok().map(Arc::new),
+            writeback_failed: Arc::default(),
             frames: 1,
             unsynced: vec![frame.clone()],
             texts: Some(("labels\n".into(), "mot\n".into())),
@@ -1199,6 +1270,17 @@ mod tests {
         let out = job(&dir.join("missing")).write();
         assert!(matches!(out.result, Err((Reached::Nothing, _))), "{:?}", out.result.err());
         assert_eq!(out.unsynced, std::slice::from_ref(&frame));
+        // a failed pass of the writeback thread (Linux): the sync succeeds, the pass's error is reported
+        #[cfg(target_os = "linux")]
+        {
+            let failing = job(&dir);
+            failing.writeback_failed.store(libc::EIO, std::sync::atomic::Ordering::Relaxed);
+            let out = failing.write();
+            let Err((Reached::Nothing, e)) = &out.result else { panic!("{:?}", out.result.err()) };
+            assert!(e.to_string().contains(&std::io::Error::from_raw_os_error(libc::EIO).to_string()), "{e}");
+            assert_eq!(out.unsynced, std::slice::from_ref(&frame));
+            assert!(!dir.join("labels.jsonl").exists());
+        }
         // the MOT file's name taken by a directory: the labels are written, the MOT file is not
         std::fs::create_dir_all(dir.join("gt_mot.txt")).unwrap();
         let out = job(&dir).write();
@@ -1354,9 +1436,14 @@ mod tests {
                 let supported = std::env::temp_dir().join(format!("irsim-rec-spread-probe-{}", std::process::id()));
                 std::fs::create_dir_all(&supported).unwrap();
                 let probe = std::fs::File::open(&supported).unwrap();
-                let mut wanted: libc::c_int = 0x0002_0000;
-                // SAFETY: as above; the call reads `wanted`
-                let settable = unsafe { libc::ioctl(probe.as_raw_fd(), libc::FS_IOC_SETFLAGS, &mut wanted) } == 0;
+                let mut wanted: libc::c_int = 0;
+                // SAFETY: as above; the calls write, then read, `wanted`
+                let settable = unsafe {
+                    libc::ioctl(probe.as_raw_fd(), libc::FS_IOC_GETFLAGS, &mut wanted) == 0 && {
+                        wanted |= 0x0002_0000;
+                        libc::ioctl(probe.as_raw_fd(), libc::FS_IOC_SETFLAGS, &wanted) == 0
+                    }
+                };
                 let _ = std::fs::remove_dir_all(&supported);
                 if settable {
                     assert_ne!(flags & 0x0002_0000, 0, "the output directory was not marked");
@@ -1373,9 +1460,23 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("keep.txt"), "mine").unwrap();
+        // what a killed recording leaves: a subdirectory made and not yet renamed, a labels file being written
+        std::fs::create_dir_all(dir.join(".frames.123.1764322211000000000.tmp")).unwrap();
+        std::fs::write(dir.join("labels.jsonl.tmp"), "half").unwrap();
+        // and names alike that are not a recording's
+        for other in [".frames.tmp", ".frames.12a.tmp", ".masks..tmp", "labels.jsonl.tmp.bak"] {
+            std::fs::write(dir.join(other), "mine").unwrap();
+        }
         assert!(matches!(prepare_dir(&dir, false), Err(RecordError::NotEmpty(_))));
-        prepare_dir(&dir, true).unwrap();
+        drop(prepare_dir(&dir, true).unwrap());
         // --force removes only a run's outputs
+        let mut names: Vec<String> =
+            std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        names.sort();
+        assert_eq!(
+            names,
+            [".frames.12a.tmp", ".frames.tmp", ".masks..tmp", "frames", "keep.txt", "labels.jsonl.tmp.bak"]
+        );
         assert_eq!(std::fs::read_to_string(dir.join("keep.txt")).unwrap(), "mine");
         std::fs::remove_dir_all(&dir).unwrap();
     }
