@@ -439,6 +439,30 @@ fn bench_times_a_given_scenario() {
     assert_eq!(code, 2, "{err}");
 }
 
+/// The built-in cases: each a rate, and the recording's ratio to the rate without disk writes timed just before and
+/// just after it.
+#[test]
+fn bench_s_recording_case_is_compared_with_headless_runs_beside_it() {
+    let (code, out, err) = irsim(&["bench", "--frames", "10"]);
+    assert_eq!(code, 0, "{err}");
+    for case in ["256x256, 1 target, no disk", "640x512, 8 targets, no disk", "256x256, 1 target, png16 recording"] {
+        let line = out.lines().find(|l| l.starts_with(case)).unwrap_or_else(|| panic!("no {case} in {out}"));
+        let fps: f64 = line.split_whitespace().rev().nth(1).unwrap().parse().unwrap();
+        assert!(fps.is_finite() && fps > 0.0, "{line}");
+    }
+    let line = err.lines().find(|l| l.contains("of the rate without disk writes")).expect("the ratio");
+    let numbers: Vec<f64> = line
+        .rsplit_once('(')
+        .unwrap()
+        .1
+        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    assert_eq!(numbers.len(), 3, "{line}");
+    assert!(numbers.iter().all(|n| n.is_finite() && *n > 0.0), "{line}");
+    assert!(line.contains("frames/s just before and after)"), "{line}");
+}
+
 #[test]
 fn bench_replays_a_short_scenario_s_own_frames() {
     // five frames, timed over twelve after the warm-up: the scenario runs again from its first frame

@@ -1019,7 +1019,8 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
     let _ = writeln!(
         md,
         "\nRecording (`irsim record`'s loop, 16-bit PNG, `fast` compression, {} frames) against the same case \
-         headless, in this run:\n\n| case | headless frames/s | recording frames/s | ratio |\n|---|---|---|---|",
+         headless, timed just before and just after the recording in this run (the ratio is to their mean):\n\n\
+         | case | headless frames/s, before and after | recording frames/s | ratio |\n|---|---|---|---|",
         plan.recording_frames
     );
     let dir = super::run::bench_dir("report-recording")?;
@@ -1028,18 +1029,18 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
         std::fs::write(&path, super::run::bench_scenario(w, h, n)).map_err(failed)?;
         let scenario =
             load_for_frames(&path, Some(plan.recording_frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
-        let headless = super::run::time_stages(&scenario, plan.recording_frames)?;
-        let fps = 1e6 / headless.frame_us;
+        let before = 1e6 / super::run::time_stages(&scenario, plan.recording_frames)?.frame_us;
         // a directory per case: recording over the last case's frames would first delete them, and on ext4
         // files made just after many deletions are slow to create (docs/accuracy.md)
         let out = dir.join(format!("out-{w}x{h}"));
         let done = super::run::time_recording(&path, &scenario, plan.recording_frames, None, &out)?;
+        let after = 1e6 / super::run::time_stages(&scenario, plan.recording_frames)?.frame_us;
         let _ = writeln!(
             md,
-            "| {w} × {h}, {n} target{} | {fps:.0} | {:.0} | {:.2} |",
+            "| {w} × {h}, {n} target{} | {before:.0}, {after:.0} | {:.0} | {:.2} |",
             if n > 1 { "s" } else { "" },
             done.frames_per_s,
-            done.frames_per_s / fps
+            done.frames_per_s / (0.5 * (before + after))
         );
     }
     let _ = std::fs::remove_dir_all(&dir);

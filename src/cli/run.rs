@@ -772,24 +772,25 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         return Ok(());
     }
     let dir = bench_dir("bench")?;
-    let mut headless_256 = None;
     for (w, h, n, recording) in [(256, 256, 1, false), (640, 512, 8, false), (256, 256, 1, true)] {
         let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
         std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;
         let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
         let scenario = with_quality(scenario, a.quality)?;
         let (fps, details) = if recording {
+            // the rate without disk writes timed again just before and just after the recording, so that the
+            // ratio compares runs seconds apart, not a run with one a case or two earlier on a machine whose
+            // speed drifts
+            let before = time_headless(&scenario, frames, frames)?.0;
             let done = time_recording(&path, &scenario, frames, a.quality, &dir.join("out"))?;
-            let ratio = headless_256.map_or_else(String::new, |h: f64| {
-                format!("  ({:.2} of the rate without disk writes)", done.frames_per_s / h)
-            });
+            let after = time_headless(&scenario, frames, frames)?.0;
+            let ratio = format!(
+                "  ({:.2} of the rate without disk writes, {before:.1} and {after:.1} frames/s just before and after)",
+                done.frames_per_s / (0.5 * (before + after))
+            );
             (done.frames_per_s, vec![format!("  {}{ratio}", done.summary)])
         } else {
-            let timed = time_headless(&scenario, frames, frames)?;
-            if (w, h) == (256, 256) {
-                headless_256 = Some(timed.0);
-            }
-            timed
+            time_headless(&scenario, frames, frames)?
         };
         let case = format!(
             "{w}x{h}, {n} target{}{}",
