@@ -397,7 +397,7 @@ fn sigkill_leaves_the_checkpointed_frames_whole_and_their_labels() {
     let mot = std::fs::read_to_string(out.join("gt_mot.txt")).unwrap();
     assert!(mot.lines().all(|l| l.split(',').next().unwrap().parse::<usize>().unwrap() <= labelled), "{mot}");
     // every labelled frame is there and decodes completely; any frame file beyond them is whole too (files
-    // are renamed into place), only temporary files may be cut short
+    // are given their names only when whole), only temporary files may be cut short
     for entry in std::fs::read_dir(out.join("frames")).unwrap() {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "png") {
@@ -459,7 +459,9 @@ fn bench_s_recording_case_is_compared_with_headless_runs_beside_it() {
         .filter_map(|w| w.parse().ok())
         .collect();
     assert_eq!(numbers.len(), 3, "{line}");
-    assert!(numbers.iter().all(|n| n.is_finite() && *n > 0.0), "{line}");
+    // the ratio, printed to two places, may round to 0 where ten frames wait for a busy disk
+    assert!(numbers.iter().all(|n| n.is_finite() && *n >= 0.0), "{line}");
+    assert!(numbers[1] > 0.0 && numbers[2] > 0.0, "{line}");
     assert!(line.contains("frames/s just before and after)"), "{line}");
 }
 

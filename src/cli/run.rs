@@ -779,7 +779,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         let scenario = with_quality(scenario, a.quality)?;
         let (fps, details) = if recording {
             // the rate without disk writes timed again just before and just after the recording, so that the
-            // ratio compares runs seconds apart, not a run with one a case or two earlier on a machine whose
+            // ratio compares runs seconds apart, not the first case's run, two cases earlier, on a machine whose
             // speed drifts
             let before = time_headless(&scenario, frames, frames)?.0;
             let done = time_recording(&path, &scenario, frames, a.quality, &dir.join("out"))?;

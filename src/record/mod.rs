@@ -1,5 +1,5 @@
 //! Recording a run: frames encoded in rayon's pool, labels, MOT ground truth and a manifest, all written
-//! atomically (a temporary file renamed into place).
+//! atomically (each given its name only when whole).
 //!
 //! A frame's encoding and writing is done by the threads of the simulation's own pool, not by threads of their own: on
 //! a machine with few cores, threads of their own competed with the pool's workers for the cores, and a worker waiting
@@ -150,12 +150,14 @@ fn write_renamed_pausing(
 /// always complete, and a process killed before the link leaves nothing behind. One directory entry is made, where a
 /// rename of a temporary file makes one, removes it and makes another, each after a search of the directory: the
 /// kernel's time per frame (system calls, in `perf`) went from 94 to 81 µs, 3000 frames of 256 × 256 png16 on one
-/// thread of an AMD EPYC into an ext4 directory. `pause` is called between the system calls and after every [`PAUSE_BYTES`] written.
+/// thread of an AMD EPYC into an ext4 directory. `pause` is called between the system calls and after every
+/// [`PAUSE_BYTES`] written.
 ///
 /// Returns `None` where it could not, and the caller writes the file the other way (whose errors say why, if the
-/// cause was not this way's): where the file system or the kernel has no `O_TMPFILE`, or `/proc` is not mounted
-/// (the link names the file by its descriptor there), `unnamed` is cleared, so that the run's later files go the
-/// other way at once.
+/// cause was not this way's). Where the cause would come again for every file (no `O_TMPFILE` in the kernel or the
+/// file system; a link refused for any reason but the name being taken: no `/proc`, through which the link names
+/// the file, or a sandbox refusing the call), `unnamed` is cleared, so that the run's later files go the other way
+/// at once.
 ///
 /// [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
 #[cfg(target_os = "linux")]
@@ -165,22 +167,16 @@ fn write_unnamed_pausing(
     pause: &mut dyn FnMut(),
     unnamed: &std::sync::atomic::AtomicBool,
 ) -> Option<()> {
-    use std::os::fd::AsRawFd;
-    use std::os::unix::ffi::OsStrExt;
-    use std::os::unix::fs::OpenOptionsExt;
     use std::sync::atomic::Ordering;
     if !unnamed.load(Ordering::Relaxed) {
         return None;
     }
-    // EISDIR, EOPNOTSUPP or EINVAL from the open: no O_TMPFILE (an old kernel, or a file system without it);
-    // ENOENT from the link: no /proc
-    let no_tmpfile =
-        |e: &std::io::Error| matches!(e.raw_os_error(), Some(libc::EISDIR | libc::EOPNOTSUPP | libc::EINVAL));
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let mut f = match std::fs::OpenOptions::new().write(true).custom_flags(libc::O_TMPFILE).open(dir) {
+    let mut f = match open_unnamed(dir) {
         Ok(f) => f,
         Err(e) => {
-            if no_tmpfile(&e) {
+            // EISDIR, EOPNOTSUPP or EINVAL: no O_TMPFILE (an old kernel, or a file system without it)
+            if matches!(e.raw_os_error(), Some(libc::EISDIR | libc::EOPNOTSUPP | libc::EINVAL)) {
                 unnamed.store(false, Ordering::Relaxed);
             }
             return None;
@@ -191,19 +187,56 @@ fn write_unnamed_pausing(
         f.write_all(piece).ok()?;
     }
     pause();
-    let from = std::ffi::CString::new(format!("/proc/self/fd/{}", f.as_raw_fd())).ok()?;
-    let to = std::ffi::CString::new(path.as_os_str().as_bytes()).ok()?;
+    let linked = link_unnamed(&f, path);
+    if linked.as_ref().is_err_and(|e| e.raw_os_error() != Some(libc::EEXIST)) {
+        unnamed.store(false, Ordering::Relaxed);
+    }
+    linked.ok()
+}
+
+/// A file without a name in `dir`, open for writing (`O_TMPFILE`), made with the mode a file made there by name
+/// would get.
+#[cfg(target_os = "linux")]
+fn open_unnamed(dir: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new().write(true).custom_flags(libc::O_TMPFILE).open(dir)
+}
+
+/// Gives the unnamed file `f` the name `path` (`linkat` of its descriptor's `/proc/self/fd` entry: unlike a link
+/// of the descriptor itself, it needs no privilege).
+#[cfg(target_os = "linux")]
+fn link_unnamed(f: &std::fs::File, path: &Path) -> std::io::Result<()> {
+    use std::os::fd::AsRawFd;
+    use std::os::unix::ffi::OsStrExt;
+    let from = std::ffi::CString::new(format!("/proc/self/fd/{}", f.as_raw_fd()))?;
+    let to = std::ffi::CString::new(path.as_os_str().as_bytes())?;
     // SAFETY: two NUL-terminated paths that live for the duration of the call
     let linked =
         unsafe { libc::linkat(libc::AT_FDCWD, from.as_ptr(), libc::AT_FDCWD, to.as_ptr(), libc::AT_SYMLINK_FOLLOW) };
-    if linked != 0 {
-        if std::io::Error::last_os_error().raw_os_error() == Some(libc::ENOENT) && !Path::new("/proc/self/fd").is_dir()
-        {
-            unnamed.store(false, Ordering::Relaxed);
-        }
-        return None;
-    }
-    Some(())
+    if linked == 0 { Ok(()) } else { Err(std::io::Error::last_os_error()) }
+}
+
+/// Whether files written without a name into `dir` ([`write_unnamed_pausing`]) come out as a file made there by
+/// name would: one of each is made, and their modes compared (kernels before 6.0 left the umask out of an unnamed
+/// file's mode on file systems without ACLs, which would leave frames writable by anyone), and the unnamed one
+/// linked (so that a kernel, file system or sandbox that cannot is found once, not at the first frame). Both are
+/// removed.
+#[cfg(target_os = "linux")]
+fn unnamed_files_fit(dir: &Path) -> bool {
+    use std::os::unix::fs::PermissionsExt;
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let [named, linked] =
+        ["named", "linked"].map(|what| dir.join(format!(".irsim-probe-{what}.{}.{nanos}.tmp", std::process::id())));
+    let mode = |p: &Path| std::fs::metadata(p).map(|m| m.permissions().mode() & 0o7777).ok();
+    let fits = (|| {
+        std::fs::OpenOptions::new().write(true).create_new(true).open(&named).ok()?;
+        let f = open_unnamed(dir).ok()?;
+        link_unnamed(&f, &linked).ok()?;
+        Some(mode(&named)? == mode(&linked)?)
+    })();
+    let _ = std::fs::remove_file(&named);
+    let _ = std::fs::remove_file(&linked);
+    fits == Some(true)
 }
 
 /// Elsewhere than Linux: no unnamed files; the caller writes a temporary file and renames it.
@@ -212,8 +245,11 @@ fn write_unnamed_pausing(_: &Path, _: &[u8], _: &mut dyn FnMut(), _: &std::sync:
     None
 }
 
-/// Whether a recording writes its frames as unnamed files given their name when whole ([`write_unnamed_pausing`]).
-const UNNAMED_FILES: bool = true;
+/// Elsewhere than Linux: no unnamed files.
+#[cfg(not(target_os = "linux"))]
+fn unnamed_files_fit(_: &Path) -> bool {
+    false
+}
 
 /// How often [`Writeback`] hands the files written since its last pass to the disk.
 #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
@@ -229,8 +265,9 @@ const WRITEBACK_PERIOD: std::time::Duration = std::time::Duration::from_millis(1
 /// frames/s that way against 2046–2155 this way (interleaved rounds).
 ///
 /// The pass syncs through a descriptor of its own, so that a write-back error stays unreported on the recording's,
-/// whose checkpoint reports it (see [`sync_written`]); the pass also keeps the first error it saw, which the next
-/// checkpoint reports too (kernels before 5.8 report a write-back error to no `syncfs`).
+/// whose checkpoint reports it (see [`sync_written`]; Linux 5.8 and later). The pass also keeps the first error its
+/// `syncfs` returned, which the next checkpoint reports too: before 5.8 a `syncfs` returned only the file system's
+/// and the device's errors, once, to whichever call came first, which may be the pass's.
 struct Writeback {
     /// Files written so far, counted by the encoding tasks.
     written: Arc<std::sync::atomic::AtomicU64>,
@@ -340,11 +377,11 @@ pub fn write_shared(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
 /// and the renames that put the files in place, in one journal commit) through `handle`, the directory opened
 /// when the recording began, elsewhere a sync of each of `files` and of their directories.
 ///
-/// A `syncfs` reports a write-back error that happened since the descriptor it is given was opened (and that
-/// no call on it has reported yet): through one descriptor held for the whole recording, an error on any file
-/// written since the start is reported, where a descriptor opened afresh for each checkpoint misses one that
-/// another process's `syncfs` of the same file system saw first. `writeback_failed` is the OS error number of the
-/// first failed pass of the [`Writeback`] thread (0 while none has), reported here as well.
+/// A `syncfs` reports (Linux 5.8 and later) a write-back error that happened since the descriptor it is given was
+/// opened (and that no call on it has reported yet): through one descriptor held for the whole recording, an error
+/// on any file written since the start is reported, where a descriptor opened afresh for each checkpoint misses one that
+/// another process's `syncfs` of the same file system saw first. `writeback_failed` holds the OS error number of the
+/// first failed pass of the [`Writeback`] thread (0 while none has), read after the sync and reported here as well.
 ///
 /// # Errors
 /// The I/O error with the path.
@@ -352,7 +389,7 @@ fn sync_written(
     dir: &Path,
     handle: Option<&std::fs::File>,
     files: &[PathBuf],
-    writeback_failed: i32,
+    writeback_failed: &std::sync::atomic::AtomicI32,
 ) -> Result<(), RecordError> {
     #[cfg(target_os = "linux")]
     {
@@ -370,8 +407,10 @@ fn sync_written(
         if unsafe { libc::syncfs(d.as_raw_fd()) } != 0 {
             return Err(io_err(dir, std::io::Error::last_os_error()));
         }
-        if writeback_failed != 0 {
-            return Err(io_err(dir, std::io::Error::from_raw_os_error(writeback_failed)));
+        // read after the sync, so that a pass that failed while it ran is reported too
+        let failed = writeback_failed.load(std::sync::atomic::Ordering::Relaxed);
+        if failed != 0 {
+            return Err(io_err(dir, std::io::Error::from_raw_os_error(failed)));
         }
         Ok(())
     }
@@ -489,7 +528,9 @@ pub fn prepare_dir(dir: &Path, force: bool) -> Result<DirLock, RecordError> {
                     continue;
                 }
                 let p = entry.path();
-                let removed = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+                // a link is removed, not followed
+                let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
+                let removed = if is_dir { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
                 removed.map_err(|e| io_err(&p, e))?;
             }
         }
@@ -661,8 +702,8 @@ fn write_job(
     bytes: &mut Vec<u8>,
     pausing: bool,
 ) -> (Result<(), RecordError>, Vec<PathBuf>) {
-    // each file appears under its name complete (renamed into place); it is made durable with the others at
-    // the next checkpoint, before the labels that list it
+    // each file appears under its name complete (linked or renamed into place when whole); it is made durable
+    // with the others at the next checkpoint, before the labels that list it
     // the encoder and the writes look for the pool's jobs as they go (between system calls, and every
     // PAUSE_BYTES written: a frame's writes held the thread ~40 µs on ext4, its stages meanwhile on one core)
     let mut pause = || {
@@ -878,8 +919,7 @@ impl CheckpointJob {
     fn write_files(&mut self) -> Result<(), (Reached, RecordError)> {
         if let Some((labels, mot)) = &self.texts {
             if !self.unsynced.is_empty() {
-                let failed = self.writeback_failed.load(std::sync::atomic::Ordering::Relaxed);
-                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced, failed)
+                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced, &self.writeback_failed)
                     .map_err(|e| (Reached::Nothing, e))?;
                 self.unsynced.clear();
             }
@@ -921,7 +961,7 @@ impl Recorder {
             png,
             max_level,
             written: Arc::clone(&writeback.written),
-            unnamed: std::sync::atomic::AtomicBool::new(UNNAMED_FILES),
+            unnamed: std::sync::atomic::AtomicBool::new(unnamed_files_fit(&dir.join("frames"))),
         };
         let queue = Arc::new(EncodeQueue { spec, jobs: Mutex::new(VecDeque::new()), done: done_tx });
         let mut rec = Self {
@@ -1341,6 +1381,15 @@ mod tests {
         }
         assert_eq!(std::fs::read(&path).unwrap(), bytes);
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        // made with the umask, as a file made by name (the recorder's probe says so, and leaves nothing behind)
+        assert!(unnamed_files_fit(&dir));
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        let named = dir.join("named");
+        std::fs::write(&named, b"x").unwrap();
+        let mode = |p: &Path| std::os::unix::fs::PermissionsExt::mode(&std::fs::metadata(p).unwrap().permissions());
+        assert_eq!(mode(&path), mode(&named));
+        std::fs::remove_file(&named).unwrap();
+        assert!(!unnamed_files_fit(&dir.join("missing")));
         // a pause per PAUSE_BYTES piece written and one before the link
         assert_eq!(pauses, bytes.len().div_ceil(crate::imaging::png16::PAUSE_BYTES) + 1);
         // the name taken: handed back, the file as it was, the way still on
