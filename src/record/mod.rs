@@ -1371,7 +1371,13 @@ mod tests {
         let unnamed = AtomicBool::new(true);
         let mut pauses = 0;
         let path = dir.join("000000.png");
+        // whether the file system takes unnamed files, asked directly
+        let supported = {
+            use std::os::unix::fs::OpenOptionsExt;
+            std::fs::OpenOptions::new().write(true).custom_flags(libc::O_TMPFILE).open(&dir).is_ok()
+        };
         let written = write_unnamed_pausing(&path, &bytes, &mut || pauses += 1, &unnamed);
+        assert_eq!(written.is_some(), supported);
         // where the file system has no O_TMPFILE (some do not), the way is off and nothing is left
         if written.is_none() {
             assert!(!unnamed.load(Ordering::Relaxed));
