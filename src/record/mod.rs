@@ -194,8 +194,8 @@ fn write_unnamed_pausing(
     linked.ok()
 }
 
-/// A file without a name in `dir`, open for writing (`O_TMPFILE`), made with the mode a file made there by name
-/// would get.
+/// A file without a name in `dir`, open for writing (`O_TMPFILE`), asked for with the mode a file made by name is
+/// asked for (0o666, less the umask where the kernel applies it: see [`unnamed_files_fit`]).
 #[cfg(target_os = "linux")]
 fn open_unnamed(dir: &Path) -> std::io::Result<std::fs::File> {
     use std::os::unix::fs::OpenOptionsExt;
@@ -284,8 +284,8 @@ struct Writeback {
 
 impl Writeback {
     /// Starts the thread for `dir`, passing every `period`; where `dir` is `None` (the recording could not open its
-    /// directory, so its checkpoints sync each file) or no thread can be started or no descriptor opened (or off
-    /// Linux), none runs and the checkpoints' syncs write everything.
+    /// directory) or no thread can be started or no descriptor opened (or off Linux), none runs and the checkpoints'
+    /// syncs write everything.
     fn start(dir: Option<&Path>, period: std::time::Duration) -> Self {
         let (written, passes, failed) = (Arc::default(), Arc::default(), Arc::default());
         let stop = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
