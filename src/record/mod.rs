@@ -102,8 +102,44 @@ fn io_err(path: &Path, e: impl std::fmt::Display) -> RecordError {
 /// # Errors
 /// The I/O error with the path.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
-    let tmp = path.with_extension(format!("{}.tmp", path.extension().and_then(|e| e.to_str()).unwrap_or("")));
-    write_through(&tmp, path, bytes)
+    write_through(&temporary_of(path), path, bytes)
+}
+
+/// The temporary name `path` is written under before it is renamed into place: `.tmp` added to its extension.
+fn temporary_of(path: &Path) -> PathBuf {
+    path.with_extension(format!("{}.tmp", path.extension().and_then(|e| e.to_str()).unwrap_or("")))
+}
+
+/// A name no other process or call makes: `.{stem}.{process id}.{nanoseconds since 1970}.tmp` (the shape
+/// [`is_leftover`] recognizes for `frames` and `masks`).
+fn fresh_name(stem: &str) -> String {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    format!(".{stem}.{}.{nanos}.tmp", std::process::id())
+}
+
+/// Writes `bytes` to `f`, calling `pause` before every [`PAUSE_BYTES`] of them.
+///
+/// [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
+fn write_pieces(f: &mut std::fs::File, bytes: &[u8], pause: &mut dyn FnMut()) -> std::io::Result<()> {
+    for piece in bytes.chunks(crate::imaging::png16::PAUSE_BYTES) {
+        pause();
+        f.write_all(piece)?;
+    }
+    Ok(())
+}
+
+/// Writes a recording's file `path` whole, without syncing it: unnamed and linked where `unnamed` holds
+/// ([`write_unnamed_pausing`]), else under its temporary name and renamed; `pause` as in [`write_renamed_pausing`].
+fn write_whole_pausing(
+    path: &Path,
+    bytes: &[u8],
+    pause: &mut dyn FnMut(),
+    unnamed: &std::sync::atomic::AtomicBool,
+) -> Result<(), RecordError> {
+    match write_unnamed_pausing(path, bytes, pause, unnamed) {
+        Some(()) => Ok(()),
+        None => write_renamed_pausing(&temporary_of(path), path, bytes, false, pause),
+    }
 }
 
 /// Writes `bytes` to `tmp`, syncs it and renames it to `path`; `tmp` is removed on failure.
@@ -128,10 +164,7 @@ fn write_renamed_pausing(
 ) -> Result<(), RecordError> {
     let result = (|| {
         let mut f = std::fs::File::create(tmp)?;
-        for piece in bytes.chunks(crate::imaging::png16::PAUSE_BYTES) {
-            pause();
-            f.write_all(piece)?;
-        }
+        write_pieces(&mut f, bytes, pause)?;
         if sync {
             f.sync_data()?;
         }
@@ -182,10 +215,7 @@ fn write_unnamed_pausing(
             return None;
         }
     };
-    for piece in bytes.chunks(crate::imaging::png16::PAUSE_BYTES) {
-        pause();
-        f.write_all(piece).ok()?;
-    }
+    write_pieces(&mut f, bytes, pause).ok()?;
     pause();
     let linked = link_unnamed(&f, path);
     if linked.as_ref().is_err_and(|e| e.raw_os_error() != Some(libc::EEXIST)) {
@@ -224,9 +254,7 @@ fn link_unnamed(f: &std::fs::File, path: &Path) -> std::io::Result<()> {
 #[cfg(target_os = "linux")]
 fn unnamed_files_fit(dir: &Path) -> bool {
     use std::os::unix::fs::PermissionsExt;
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
-    let [named, linked] =
-        ["named", "linked"].map(|what| dir.join(format!(".irsim-probe-{what}.{}.{nanos}.tmp", std::process::id())));
+    let [named, linked] = ["named", "linked"].map(|what| dir.join(fresh_name(&format!("irsim-probe-{what}"))));
     let mode = |p: &Path| std::fs::metadata(p).map(|m| m.permissions().mode() & 0o7777).ok();
     let fits = (|| {
         std::fs::OpenOptions::new().write(true).create_new(true).open(&named).ok()?;
@@ -269,17 +297,24 @@ const WRITEBACK_PERIOD: std::time::Duration = std::time::Duration::from_millis(1
 /// `syncfs` returned, which the next checkpoint reports too: before 5.8 a `syncfs` returned only the file system's
 /// and the device's errors, once, to whichever call came first, which may be the pass's.
 struct Writeback {
-    /// Files written so far, counted by the encoding tasks.
-    written: Arc<std::sync::atomic::AtomicU64>,
-    /// Passes made.
-    #[cfg_attr(not(test), allow(dead_code))]
-    passes: Arc<std::sync::atomic::AtomicU64>,
-    /// The OS error number of the first pass that failed; 0 while none has.
-    failed: Arc<std::sync::atomic::AtomicI32>,
+    /// What the thread shares with the encoding tasks and the checkpoints.
+    counts: Arc<WritebackCounts>,
     /// Set to stop the thread; the condition variable wakes it from its wait.
     stop: Arc<(Mutex<bool>, std::sync::Condvar)>,
     /// The thread, until it is stopped; `None` where none runs.
     thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// The counts a [`Writeback`] thread shares.
+#[derive(Debug, Default)]
+struct WritebackCounts {
+    /// Files written so far, counted by the encoding tasks.
+    written: std::sync::atomic::AtomicU64,
+    /// Passes made.
+    #[cfg_attr(not(test), allow(dead_code))]
+    passes: std::sync::atomic::AtomicU64,
+    /// The OS error number of the first pass that failed; 0 while none has.
+    failed: std::sync::atomic::AtomicI32,
 }
 
 impl Writeback {
@@ -287,24 +322,17 @@ impl Writeback {
     /// directory) or no thread can be started or no descriptor opened (or off Linux), none runs and the checkpoints'
     /// syncs write everything.
     fn start(dir: Option<&Path>, period: std::time::Duration) -> Self {
-        let (written, passes, failed) = (Arc::default(), Arc::default(), Arc::default());
+        let counts = Arc::<WritebackCounts>::default();
         let stop = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
-        let thread = dir.and_then(|dir| {
-            let shared = (Arc::clone(&written), Arc::clone(&passes), Arc::clone(&failed));
-            Self::spawn(dir, period, shared, Arc::clone(&stop))
-        });
-        Self { written, passes, failed, stop, thread }
+        let thread = dir.and_then(|dir| Self::spawn(dir, period, Arc::clone(&counts), Arc::clone(&stop)));
+        Self { counts, stop, thread }
     }
 
     #[cfg(target_os = "linux")]
     fn spawn(
         dir: &Path,
         period: std::time::Duration,
-        (written, passes, failed): (
-            Arc<std::sync::atomic::AtomicU64>,
-            Arc<std::sync::atomic::AtomicU64>,
-            Arc<std::sync::atomic::AtomicI32>,
-        ),
+        counts: Arc<WritebackCounts>,
         stop: Arc<(Mutex<bool>, std::sync::Condvar)>,
     ) -> Option<std::thread::JoinHandle<()>> {
         use std::os::fd::AsRawFd;
@@ -316,7 +344,7 @@ impl Writeback {
             let mut stopped = flag.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             while !*stopped {
                 stopped = wake.wait_timeout(stopped, period).unwrap_or_else(std::sync::PoisonError::into_inner).0;
-                let now = written.load(Ordering::Relaxed);
+                let now = counts.written.load(Ordering::Relaxed);
                 if *stopped || now == passed {
                     continue;
                 }
@@ -325,9 +353,9 @@ impl Writeback {
                 // SAFETY: `handle` is an open descriptor for the duration of the call
                 if unsafe { libc::syncfs(handle.as_raw_fd()) } != 0 {
                     let errno = std::io::Error::last_os_error().raw_os_error().unwrap_or(libc::EIO);
-                    let _ = failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed);
+                    let _ = counts.failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed);
                 }
-                passes.fetch_add(1, Ordering::Relaxed);
+                counts.passes.fetch_add(1, Ordering::Relaxed);
                 stopped = flag.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             }
         };
@@ -338,7 +366,7 @@ impl Writeback {
     fn spawn(
         _: &Path,
         _: std::time::Duration,
-        _: (Arc<std::sync::atomic::AtomicU64>, Arc<std::sync::atomic::AtomicU64>, Arc<std::sync::atomic::AtomicI32>),
+        _: Arc<WritebackCounts>,
         _: Arc<(Mutex<bool>, std::sync::Condvar)>,
     ) -> Option<std::thread::JoinHandle<()>> {
         None
@@ -549,8 +577,7 @@ fn make_subdirectory(dir: &Path, name: &str) -> Result<(), RecordError> {
     if path.is_dir() {
         return Ok(());
     }
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
-    let fresh = dir.join(format!(".{name}.{}.{nanos}.tmp", std::process::id()));
+    let fresh = dir.join(fresh_name(name));
     if std::fs::create_dir(&fresh).is_ok() && std::fs::rename(&fresh, &path).is_err() {
         let _ = std::fs::remove_dir(&fresh);
     }
@@ -611,8 +638,8 @@ struct TaskSpec {
     format: FrameFormat,
     png: PngCompression,
     max_level: u16,
-    /// Files written, for the [`Writeback`] thread.
-    written: Arc<std::sync::atomic::AtomicU64>,
+    /// The [`Writeback`] thread's counts: each file written is counted there.
+    writeback: Arc<WritebackCounts>,
     /// Whether frames are written as unnamed files and linked ([`write_unnamed_pausing`]); cleared where they cannot
     /// be.
     unnamed: std::sync::atomic::AtomicBool,
@@ -714,15 +741,8 @@ fn write_job(
     let frame_path = spec.dir.join("frames").join(format!("{:06}.{}", job.index, spec.format.extension()));
     encode_into_pausing(&job.frame, (spec.format, spec.max_level, spec.png), scratch, bytes, &mut pause);
     let mut unsynced = |path: &Path, bytes: &[u8]| {
-        let written = match write_unnamed_pausing(path, bytes, &mut pause, &spec.unnamed) {
-            Some(()) => Ok(()),
-            None => {
-                let tmp =
-                    path.with_extension(format!("{}.tmp", path.extension().and_then(|e| e.to_str()).unwrap_or("")));
-                write_renamed_pausing(&tmp, path, bytes, false, &mut pause)
-            }
-        };
-        spec.written.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let written = write_whole_pausing(path, bytes, &mut pause, &spec.unnamed);
+        spec.writeback.written.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         written
     };
     // only files that were written go on the list to sync (elsewhere than Linux each is opened to be synced)
@@ -898,8 +918,8 @@ struct CheckpointOutcome {
 struct CheckpointJob {
     dir: PathBuf,
     dir_handle: Option<Arc<std::fs::File>>,
-    /// The [`Writeback`] thread's first error ([`sync_written`]).
-    writeback_failed: Arc<std::sync::atomic::AtomicI32>,
+    /// The [`Writeback`] thread's counts, for its first error ([`sync_written`]).
+    writeback: Arc<WritebackCounts>,
     /// The frames committed: those the labels list and the manifest counts.
     frames: u64,
     /// Files to make durable before the labels that list them.
@@ -919,7 +939,7 @@ impl CheckpointJob {
     fn write_files(&mut self) -> Result<(), (Reached, RecordError)> {
         if let Some((labels, mot)) = &self.texts {
             if !self.unsynced.is_empty() {
-                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced, &self.writeback_failed)
+                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced, &self.writeback.failed)
                     .map_err(|e| (Reached::Nothing, e))?;
                 self.unsynced.clear();
             }
@@ -960,7 +980,7 @@ impl Recorder {
             format,
             png,
             max_level,
-            written: Arc::clone(&writeback.written),
+            writeback: Arc::clone(&writeback.counts),
             unnamed: std::sync::atomic::AtomicBool::new(unnamed_files_fit(&dir.join("frames"))),
         };
         let queue = Arc::new(EncodeQueue { spec, jobs: Mutex::new(VecDeque::new()), done: done_tx });
@@ -1190,7 +1210,7 @@ impl Recorder {
         CheckpointJob {
             dir: self.dir.clone(),
             dir_handle: self.dir_handle.clone(),
-            writeback_failed: Arc::clone(&self.writeback.failed),
+            writeback: Arc::clone(&self.writeback.counts),
             frames: self.committed,
             unsynced: if texts { std::mem::take(&mut self.unsynced) } else { Vec::new() },
             texts: texts.then(|| (self.labels_text.clone(), self.mot_text.clone())),
@@ -1324,19 +1344,19 @@ mod tests {
         assert!(wb.thread.is_some());
         // nothing written: no pass
         std::thread::sleep(WRITEBACK_PERIOD * 3);
-        assert_eq!(wb.passes.load(Ordering::SeqCst), 0);
+        assert_eq!(wb.counts.passes.load(Ordering::SeqCst), 0);
         // a file written: a pass within a few periods (a loaded machine may be slow to run the thread)
         std::fs::write(dir.join("f"), b"frame").unwrap();
-        wb.written.fetch_add(1, Ordering::SeqCst);
+        wb.counts.written.fetch_add(1, Ordering::SeqCst);
         let t = Instant::now();
-        while wb.passes.load(Ordering::SeqCst) == 0 && t.elapsed() < Duration::from_secs(10) {
+        while wb.counts.passes.load(Ordering::SeqCst) == 0 && t.elapsed() < Duration::from_secs(10) {
             std::thread::sleep(Duration::from_millis(5));
         }
-        assert_eq!(wb.passes.load(Ordering::SeqCst), 1);
-        assert_eq!(wb.failed.load(Ordering::SeqCst), 0);
+        assert_eq!(wb.counts.passes.load(Ordering::SeqCst), 1);
+        assert_eq!(wb.counts.failed.load(Ordering::SeqCst), 0);
         // no more writes: no more passes
         std::thread::sleep(WRITEBACK_PERIOD * 3);
-        assert_eq!(wb.passes.load(Ordering::SeqCst), 1);
+        assert_eq!(wb.counts.passes.load(Ordering::SeqCst), 1);
         drop(wb);
         // stopping wakes the thread from its wait, not a period later: with a period of a minute, a thread in
         // its wait (with files written or not) stops within seconds even on a loaded machine
@@ -1344,7 +1364,7 @@ mod tests {
         for written in [false, true] {
             let mut wb = Writeback::start(Some(&dir), long);
             if written {
-                wb.written.fetch_add(1, Ordering::SeqCst);
+                wb.counts.written.fetch_add(1, Ordering::SeqCst);
             }
             std::thread::sleep(Duration::from_millis(20));
             let t = Instant::now();
@@ -1442,7 +1462,7 @@ mod tests {
             dir: d.to_path_buf(),
             // as the recorder holds it (none where the directory is missing: the sync opens the path, and fails)
             dir_handle: std::fs::File::open(d).ok().map(Arc::new),
-            writeback_failed: Arc::default(),
+            writeback: Arc::default(),
             frames: 1,
             unsynced: vec![frame.clone()],
             texts: Some(("labels\n".into(), "mot\n".into())),
@@ -1456,7 +1476,7 @@ mod tests {
         #[cfg(target_os = "linux")]
         {
             let failing = job(&dir);
-            failing.writeback_failed.store(libc::EIO, std::sync::atomic::Ordering::Relaxed);
+            failing.writeback.failed.store(libc::EIO, std::sync::atomic::Ordering::Relaxed);
             let out = failing.write();
             let Err((Reached::Nothing, e)) = &out.result else { panic!("{:?}", out.result.err()) };
             assert!(e.to_string().contains(&std::io::Error::from_raw_os_error(libc::EIO).to_string()), "{e}");
