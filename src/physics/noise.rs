@@ -121,10 +121,11 @@ impl Readout {
     /// while the block is in the first-level cache, instead of in a pass of its own); the result is that of
     /// filling every row first.
     ///
-    /// A thermal detector whose deviates come from the `table` sampler (the `draft` preset's) takes its rows
-    /// through one AVX-512 pass where the CPU has it (`fused_row_512`): the deviates are made in
-    /// vector registers and used there, the signal, noise, ADC and rounding in one sweep, by the general path's
-    /// f32 operations in its order, so every finite radiance gives the same bits.
+    /// A noisy detector whose deviates come from the `table` sampler (the `draft` preset's) takes its rows
+    /// through one AVX-512 pass where the CPU has it (`fused_row_512`): the deviates are made in vector
+    /// registers and used there, the signal, noise, ADC and rounding in one sweep, by the general path's f32
+    /// operations in its order, so every finite radiance gives the same bits (a photon detector's block with a
+    /// signal below the Poisson threshold takes its noise pixel by pixel inside that pass, as here).
     #[allow(clippy::too_many_arguments)]
     pub fn apply(
         &self,
@@ -140,13 +141,12 @@ impl Readout {
         self.apply_rows(pixels, width, maps, noise, (seed, frame), max_level, fill, true);
     }
 
-    /// Whether a row of `width` takes the fused pass: noise on, no shot noise, read noise, the `table` sampler,
-    /// whole blocks of 64 and AVX-512.
+    /// Whether a row of `width` takes the fused pass: noise on, shot or read noise, the `table` sampler, whole
+    /// blocks of 64 and AVX-512.
     fn fuses(&self, width: usize, noise: bool) -> bool {
         #[cfg(target_arch = "x86_64")]
         if noise
-            && !self.shot_noise
-            && self.read_variance > 0.0
+            && (self.shot_noise || self.read_variance > 0.0)
             && self.normal_sampler == NormalSampler::Table
             && width.is_multiple_of(64)
         {
@@ -198,11 +198,13 @@ impl Readout {
                 let offset = maps.offset_dn.map(|o| &o[span]);
                 #[cfg(target_arch = "x86_64")]
                 if fused {
-                    // the row's normal deviates are sub-stream 2·row, as apply_row draws them
+                    // the row's normal deviates are sub-stream 2·row and its uniforms 2·row + 1, as apply_row
+                    // draws them
                     let mut normals = SplitMix64::substream(key, 2 * row as u64);
+                    let mut uniforms = SplitMix64::substream(key, 2 * row as u64 + 1);
                     let maps = [gain, offset, maps.column_dn];
                     // SAFETY: `fuses` checked for AVX-512; the row and the maps are whole blocks of 64
-                    unsafe { x86::fused_row_512(self, line, maps, &mut normals, max_level) };
+                    unsafe { x86::fused_row_512(self, line, maps, (&mut normals, &mut uniforms), max_level) };
                     continue;
                 }
                 widest(
@@ -266,25 +268,32 @@ impl Readout {
             let per_pixel = noisy && !normal;
             let shot = if self.shot_noise { 1.0 } else { 0.0 };
             if per_pixel {
-                let sd_read = self.read_variance.sqrt();
-                for (s, &z) in block.iter_mut().zip(z.iter()) {
-                    if *s >= threshold {
-                        // the shot noise's variance only where there is shot noise (a thermal detector's block
-                        // comes here only for a NaN signal, whose neighbours keep their read noise alone)
-                        *s += (s.max(0.0) * shot + self.read_variance).sqrt() * z;
-                    } else {
-                        // exact Poisson shot noise, and the pixel's normal deviate for the read noise
-                        let count =
-                            poisson(f64::from(s.max(0.0)), f64::from(self.poisson_normal_threshold), &mut uniforms);
-                        *s = count as f32 + sd_read * z;
-                    }
-                }
+                self.noise_pixel_by_pixel(block, z, threshold, &mut uniforms);
             }
             match (noisy && !per_pixel, max_level) {
                 (true, Some(top)) => self.finish_block::<true, true>(block, z, o, c, shot, top),
                 (true, None) => self.finish_block::<true, false>(block, z, o, c, shot, 0.0),
                 (false, Some(top)) => self.finish_block::<false, true>(block, z, o, c, shot, top),
                 (false, None) => self.finish_block::<false, false>(block, z, o, c, shot, 0.0),
+            }
+        }
+    }
+
+    /// The noise of a block of signals with a pixel below `threshold` (or NaN), pixel by pixel: the normal law
+    /// with deviate `z` from the threshold up, an exact Poisson count from `uniforms` plus the read noise below.
+    #[inline(always)]
+    fn noise_pixel_by_pixel(&self, block: &mut [f32], z: &[f32], threshold: f32, uniforms: &mut SplitMix64) {
+        let shot = if self.shot_noise { 1.0 } else { 0.0 };
+        let sd_read = self.read_variance.sqrt();
+        for (s, &z) in block.iter_mut().zip(z) {
+            if *s >= threshold {
+                // the shot noise's variance only where there is shot noise (a thermal detector's block comes here
+                // only for a NaN signal, whose neighbours keep their read noise alone)
+                *s += (s.max(0.0) * shot + self.read_variance).sqrt() * z;
+            } else {
+                // exact Poisson shot noise, and the pixel's normal deviate for the read noise
+                let count = poisson(f64::from(s.max(0.0)), f64::from(self.poisson_normal_threshold), uniforms);
+                *s = count as f32 + sd_read * z;
             }
         }
     }
@@ -322,13 +331,15 @@ mod x86 {
     use super::Readout;
     use crate::physics::random::{Quantiles, SplitMix64};
 
-    /// One row of a thermal detector (`line`, whole blocks of 64) read out with deviates of the `table` sampler:
-    /// per block of 64, the run's deviates as four vectors ([`Quantiles::next_run_512`]), then per vector of
-    /// sixteen the general path's f32 operations in its order: the signal `(K·g)·L + D`, plus `√(0 + σ²)·z` (a
-    /// detector without shot noise: `max(s, 0)·0` is 0 for every finite `s`), the well (`min`, which like
-    /// `f32::min` gives the well for NaN), the ADC `((offset + o) + s·(1/gain)) + c`, and
-    /// [`super::quantize_level`]'s rounding if `top` is given. `maps` are the row's gain, offset and column
-    /// offsets, each `line`'s length where given; an absent one is 1, 0 or −0 as in the general path.
+    /// One row (`line`, whole blocks of 64) read out with deviates of the `table` sampler: per block of 64, the
+    /// run's deviates as four vectors ([`Quantiles::next_run_512`]), then per vector of sixteen the general
+    /// path's f32 operations in its order: the signal `(K·g)·L + D`, plus `√(max(s, 0)·1 + σ²)·z` with shot
+    /// noise or `√(0 + σ²)·z` without (a thermal detector: `max(s, 0)·0` is 0 for every finite `s`), the well
+    /// (`min`, which like `f32::min` gives the well for NaN), the ADC `((offset + o) + s·(1/gain)) + c`, and
+    /// [`super::quantize_level`]'s rounding if `top` is given. With shot noise, a block with a signal below the
+    /// readout's Poisson threshold (or NaN) takes its noise pixel by pixel as the general path does (the same
+    /// deviates, exact counts from `uniforms`), and then the same ADC. `maps` are the row's gain, offset and
+    /// column offsets, each `line`'s length where given; an absent one is 1, 0 or −0 as in the general path.
     ///
     /// # Safety
     /// The CPU must have AVX-512 (F, DQ, BW, VL).
@@ -337,7 +348,7 @@ mod x86 {
         r: &Readout,
         line: &mut [f32],
         maps: [Option<&[f32]>; 3],
-        normals: &mut SplitMix64,
+        (normals, uniforms): (&mut SplitMix64, &mut SplitMix64),
         top: Option<f32>,
     ) {
         let n = line.len();
@@ -349,7 +360,9 @@ mod x86 {
         let ps = _mm512_set1_ps;
         let k = ps(r.signal_per_radiance);
         let dark = ps(r.dark_signal);
+        let read_variance = ps(r.read_variance);
         let sigma = ps((0.0 + r.read_variance).sqrt());
+        let threshold = ps(r.poisson_normal_threshold);
         let (well, dn, offset) = (ps(r.full_well), ps(r.dn_per_signal), ps(r.offset_dn));
         // sixteen map values from pixel i, or the absent map's constant
         let [gain, offsets, columns] = maps;
@@ -361,6 +374,21 @@ mod x86 {
         let (zero, half, one, neg_zeros) = (ps(0.0), ps(0.5), ps(1.0), ps(-0.0));
         let shift = ps(super::QUANTIZE_SHIFT);
         let top_v = ps(top.unwrap_or(0.0));
+        // the mean signal of sixteen radiances from pixel i
+        let signal = |p: __m512, i: usize| _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(k, at_or(gain, i, one)), p), dark);
+        // the ADC and rounding of sixteen signals (noise added) from pixel i
+        let adc = |s: __m512, i: usize| {
+            let v = _mm512_add_ps(offset, at_or(offsets, i, zero));
+            let v = _mm512_add_ps(v, _mm512_mul_ps(_mm512_min_ps(s, well), dn));
+            let mut v = _mm512_add_ps(v, at_or(columns, i, neg_zeros));
+            if top.is_some() {
+                // max first, whose second operand (0) is what a NaN gives, as f32::max does
+                let y = _mm512_add_ps(_mm512_min_ps(_mm512_max_ps(v, zero), top_v), half);
+                let t = _mm512_sub_ps(_mm512_add_ps(y, shift), shift);
+                v = _mm512_mask_sub_ps(t, _mm512_cmp_ps_mask::<_CMP_GT_OQ>(t, y), t, one);
+            }
+            v
+        };
         // the deviates one block ahead: the next block's polynomials are independent of this block's readout, and
         // written before it they overlap it instead of waiting in the same dependency chain
         // (an empty row draws a run it does not use, from a generator of its own)
@@ -373,24 +401,44 @@ mod x86 {
                 // SAFETY: as above
                 next = unsafe { quantiles.next_run_512(normals) };
             }
-            for (j, z) in z.into_iter().enumerate() {
-                let i = 64 * b + 16 * j;
-                // SAFETY: sixteen floats at 16·j, inside the block of 64
-                let at = unsafe { block.as_mut_ptr().add(16 * j) };
-                let p = unsafe { _mm512_loadu_ps(at) };
-                let s = _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(k, at_or(gain, i, one)), p), dark);
-                let s = _mm512_add_ps(s, _mm512_mul_ps(sigma, z));
-                let v = _mm512_add_ps(offset, at_or(offsets, i, zero));
-                let v = _mm512_add_ps(v, _mm512_mul_ps(_mm512_min_ps(s, well), dn));
-                let mut v = _mm512_add_ps(v, at_or(columns, i, neg_zeros));
-                if top.is_some() {
-                    // max first, whose second operand (0) is what a NaN gives, as f32::max does
-                    let y = _mm512_add_ps(_mm512_min_ps(_mm512_max_ps(v, zero), top_v), half);
-                    let t = _mm512_sub_ps(_mm512_add_ps(y, shift), shift);
-                    v = _mm512_mask_sub_ps(t, _mm512_cmp_ps_mask::<_CMP_GT_OQ>(t, y), t, one);
+            // sixteen floats at 16·j, inside the block of 64
+            let at = |block: &mut [f32], j: usize| block[16 * j..].as_mut_ptr();
+            if !r.shot_noise {
+                for (j, z) in z.into_iter().enumerate() {
+                    let i = 64 * b + 16 * j;
+                    // SAFETY: sixteen floats at `at`
+                    let s = signal(unsafe { _mm512_loadu_ps(at(block, j)) }, i);
+                    let s = _mm512_add_ps(s, _mm512_mul_ps(sigma, z));
+                    // SAFETY: as the load
+                    unsafe { _mm512_storeu_ps(at(block, j), adc(s, i)) };
                 }
-                // SAFETY: as the load
-                unsafe { _mm512_storeu_ps(at, v) };
+                continue;
+            }
+            // SAFETY: sixteen floats at `at`
+            let s: [__m512; 4] =
+                std::array::from_fn(|j| signal(unsafe { _mm512_loadu_ps(at(block, j)) }, 64 * b + 16 * j));
+            let normal = s.iter().all(|&s| _mm512_cmp_ps_mask::<_CMP_GE_OQ>(s, threshold) == 0xffff);
+            if normal {
+                for (j, (s, z)) in s.into_iter().zip(z).enumerate() {
+                    let sd = _mm512_sqrt_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_max_ps(s, zero), one), read_variance));
+                    let s = _mm512_add_ps(s, _mm512_mul_ps(sd, z));
+                    // SAFETY: sixteen floats at `at`
+                    unsafe { _mm512_storeu_ps(at(block, j), adc(s, 64 * b + 16 * j)) };
+                }
+                continue;
+            }
+            let mut zs = [0f32; 64];
+            for (j, (s, z)) in s.into_iter().zip(z).enumerate() {
+                // SAFETY: sixteen floats at 16·j, inside `zs`, and at `at`
+                unsafe {
+                    _mm512_storeu_ps(zs.as_mut_ptr().add(16 * j), z);
+                    _mm512_storeu_ps(at(block, j), s);
+                }
+            }
+            r.noise_pixel_by_pixel(block, &zs, r.poisson_normal_threshold, uniforms);
+            for j in 0..4 {
+                // SAFETY: sixteen floats at `at`
+                unsafe { _mm512_storeu_ps(at(block, j), adc(_mm512_loadu_ps(at(block, j)), 64 * b + 16 * j)) };
             }
         }
     }
@@ -719,10 +767,11 @@ mod tests {
     }
 
     #[test]
-    fn the_fused_thermal_pass_is_the_general_path_bit_for_bit() {
-        // a thermal detector with the table sampler: radiances below zero, across the range and past the well
-        // and the top level, widths of 4 and 10 blocks, rounded and not
-        let r = Readout {
+    fn the_fused_pass_is_the_general_path_bit_for_bit() {
+        // thermal and photon detectors with the table sampler: radiances below zero, across the range and past
+        // the well and the top level, widths of 4 and 10 blocks, rounded and not; for the photon detector, rows
+        // whose blocks are all above the Poisson threshold and rows where most blocks have a pixel below it
+        let thermal = Readout {
             shot_noise: false,
             read_variance: 9.0,
             dark_signal: 3.5,
@@ -734,28 +783,43 @@ mod tests {
         if !avx512 {
             eprintln!("no AVX-512 here (or IRSIM_SIMD caps it): the fused pass is not compared");
         }
-        for (w, h) in [(256, 9), (640, 5)] {
-            let base: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 11_000) as f32 * 0.37 - 500.0).collect();
-            assert_eq!(r.fuses(w, true), avx512);
-            let gain: Vec<f32> = (0..w * h).map(|i| 0.9 + 0.2 * ((i * 37) % 101) as f32 / 101.0).collect();
-            let offset: Vec<f32> = (0..w * h).map(|i| ((i * 53) % 17) as f32 - 8.0).collect();
-            let columns: Vec<f32> = (0..w).map(|x| (x % 5) as f32 * 0.75 - 1.5).collect();
-            let with_maps = ReadoutMaps { gain: Some(&gain), offset_dn: Some(&offset), column_dn: Some(&columns) };
-            for maps in [ReadoutMaps::default(), with_maps] {
-                for top in [Some(1023.0), None] {
-                    let mut fused = base.clone();
-                    r.apply_rows(&mut fused, w, maps, true, (7, 3), top, None, true);
-                    let mut general = base.clone();
-                    r.apply_rows(&mut general, w, maps, true, (7, 3), top, None, false);
-                    for (i, (a, b)) in fused.iter().zip(&general).enumerate() {
-                        assert_eq!(a.to_bits(), b.to_bits(), "{w}×{h}, top {top:?}, pixel {i}: {a} against {b}");
-                    }
-                    if let Some(top) = top {
-                        assert!(fused.contains(&0.0) && fused.contains(&top), "the clamps were reached");
+        for r in [thermal, Readout { shot_noise: true, ..thermal }] {
+            for (w, h) in [(256, 9), (640, 5)] {
+                let base: Vec<f32> = (0..w * h)
+                    .map(|i| {
+                        let v = ((i * 7919) % 11_000) as f32 * 0.37;
+                        if (i / w) % 2 == 0 { v + 60.0 } else { v - 500.0 }
+                    })
+                    .collect();
+                assert_eq!(r.fuses(w, true), avx512);
+                let gain: Vec<f32> = (0..w * h).map(|i| 0.9 + 0.2 * ((i * 37) % 101) as f32 / 101.0).collect();
+                let offset: Vec<f32> = (0..w * h).map(|i| ((i * 53) % 17) as f32 - 8.0).collect();
+                let columns: Vec<f32> = (0..w).map(|x| (x % 5) as f32 * 0.75 - 1.5).collect();
+                let with_maps = ReadoutMaps { gain: Some(&gain), offset_dn: Some(&offset), column_dn: Some(&columns) };
+                for maps in [ReadoutMaps::default(), with_maps] {
+                    for top in [Some(1023.0), None] {
+                        let mut fused = base.clone();
+                        r.apply_rows(&mut fused, w, maps, true, (7, 3), top, None, true);
+                        let mut general = base.clone();
+                        r.apply_rows(&mut general, w, maps, true, (7, 3), top, None, false);
+                        for (i, (a, b)) in fused.iter().zip(&general).enumerate() {
+                            let shot = r.shot_noise;
+                            assert_eq!(
+                                a.to_bits(),
+                                b.to_bits(),
+                                "shot {shot}, {w}×{h}, top {top:?}, pixel {i}: {a}, {b}"
+                            );
+                        }
+                        // (a photon detector's count is never below 0, nor its DN below the offset's)
+                        if let Some(top) = top {
+                            assert!(fused.contains(&top), "the top level was reached");
+                            assert!(r.shot_noise || fused.contains(&0.0), "the bottom level was reached");
+                        }
                     }
                 }
             }
         }
+        let r = thermal;
         // levels exactly halfway (noise far below an ulp: 1e-15 against signals of 1–1000) round up in both
         let halves = Readout {
             read_variance: 1e-30,
@@ -771,9 +835,9 @@ mod tests {
         halves.apply_rows(&mut general, 256, ReadoutMaps::default(), true, (1, 1), Some(4095.0), None, false);
         assert_eq!(fused, general);
         assert!(fused.iter().zip(&base).all(|(&v, &l)| v == l + 1.0), "x + ½ rounds to x + 1");
-        // shot noise, another sampler, a row of part blocks or no noise take the general path
-        assert!(!Readout { shot_noise: true, ..r }.fuses(256, true));
+        // another sampler, a row of part blocks, no noise or a detector without noise take the general path
         assert!(!Readout { normal_sampler: NormalSampler::BoxMuller, ..r }.fuses(256, true));
+        assert!(!Readout { read_variance: 0.0, ..r }.fuses(256, true));
         assert!(!r.fuses(200, true) && !r.fuses(256, false));
     }
 
