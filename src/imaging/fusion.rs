@@ -372,14 +372,14 @@ impl PoissonFusion {
             stats.over_budget += r.over_budget;
             stats.stopped |= r.stopped;
             if !solved {
-                store(frame, *rect, |i| sc.bg[i] + sc.u[i], 0);
+                store(frame, *rect, |y, x| sc.bg[y * w + x] + sc.u[y * w + x], 0);
             } else if w >= 3 && h >= 3 {
                 match solver {
                     Solver::Direct => {
                         let (nx, work) = (w - 2, &sc.work);
-                        store(frame, *rect, |i| work[(i / w - 1) * nx + (i % w - 1)], 1);
+                        store(frame, *rect, |y, x| work[(y - 1) * nx + (x - 1)], 1);
                     }
-                    Solver::Jacobi { .. } | Solver::Sor { .. } => store(frame, *rect, |i| sc.work[i], 1),
+                    Solver::Jacobi { .. } | Solver::Sor { .. } => store(frame, *rect, |y, x| sc.work[y * w + x], 1),
                 }
             }
         }
@@ -469,12 +469,13 @@ impl Scratch {
         self.reserve(w * h);
         let fw = frame.width();
         let px = frame.pixels();
-        for y in 0..h {
-            for x in 0..w {
-                self.bg[y * w + x] = f64::from(px[(rect.y0 + y) * fw + rect.x0 + x]);
-                self.u[y * w + x] = 0.0;
+        for (y, bg) in self.bg[..w * h].chunks_exact_mut(w).enumerate() {
+            let start = (rect.y0 + y) * fw + rect.x0;
+            for (b, &p) in bg.iter_mut().zip(&px[start..start + w]) {
+                *b = f64::from(p);
             }
         }
+        self.u[..w * h].fill(0.0);
         for p in patches {
             let pr = p.rect;
             let pw = pr.width();
@@ -492,6 +493,18 @@ impl Scratch {
         let nx = w - 2;
         let (u, bg) = (&self.u, &self.bg);
         let mixed = guidance == Guidance::Mixed;
+        if !mixed {
+            for y in 1..h - 1 {
+                let (top, bottom) = (y == 1, y == h - 2);
+                match (top, bottom) {
+                    (false, false) => self.rhs_row::<false, false>(w, y),
+                    (true, false) => self.rhs_row::<true, false>(w, y),
+                    (false, true) => self.rhs_row::<false, true>(w, y),
+                    (true, true) => self.rhs_row::<true, true>(w, y),
+                }
+            }
+            return;
+        }
         for y in 1..h - 1 {
             for x in 1..w - 1 {
                 let p = y * w + x;
@@ -513,6 +526,47 @@ impl Scratch {
                 self.work2[p] = b;
                 self.work[(y - 1) * nx + (x - 1)] = b + ring;
             }
+        }
+    }
+
+    /// Row `y` of [`Scratch::build_rhs`] with the normal guidance (`TOP`: `y` is the first interior row,
+    /// `BOTTOM` the last): the same f64 operations in the same order, written over the row's slices so that they
+    /// vectorize.
+    #[inline(always)]
+    fn rhs_row<const TOP: bool, const BOTTOM: bool>(&mut self, w: usize, y: usize) {
+        let nx = w - 2;
+        let (u, bg) = (&self.u, &self.bg);
+        let row = y * w;
+        // the interior's pixels p = row + 1 ..= row + nx, and their neighbours as slices of the same length
+        fn at(v: &[f64], first: usize, n: usize) -> &[f64] {
+            &v[first..first + n]
+        }
+        let at = |v, first| at(v, first, nx);
+        let (up, left, centre, right, down) =
+            (at(u, row + 1 - w), at(u, row), at(u, row + 1), at(u, row + 2), at(u, row + 1 + w));
+        let (bg_up, bg_down) = (at(bg, row + 1 - w), at(bg, row + 1 + w));
+        let out = &mut self.work[(y - 1) * nx..y * nx];
+        let guide = &mut self.work2[row + 1..row + 1 + nx];
+        for k in 0..nx {
+            let p = centre[k];
+            // guidance_sum's order: left, right, up, down neighbours
+            let b = 0.0 + (p - left[k]) + (p - right[k]) + (p - up[k]) + (p - down[k]);
+            // the ring's order: left, right, top, bottom
+            let mut ring = 0.0;
+            if k == 0 {
+                ring += bg[row];
+            }
+            if k == nx - 1 {
+                ring += bg[row + w - 1];
+            }
+            if TOP {
+                ring += bg_up[k];
+            }
+            if BOTTOM {
+                ring += bg_down[k];
+            }
+            guide[k] = b;
+            out[k] = b + ring;
         }
     }
 
@@ -649,22 +703,30 @@ fn grow_to_fast_size(rect: PixelRect, width: usize, height: usize) -> PixelRect 
     PixelRect { x0, y0, x1, y1 }
 }
 
-/// Writes `value(i)` (region-layout index) into `frame` on `rect`, skipping a ring of `margin` pixels.
-fn store(frame: &mut Frame, rect: PixelRect, value: impl Fn(usize) -> f64, margin: usize) {
+/// Writes `value(y, x)` (region coordinates) into `frame` on `rect`, skipping a ring of `margin` pixels.
+fn store(frame: &mut Frame, rect: PixelRect, value: impl Fn(usize, usize) -> f64, margin: usize) {
     let (w, h) = (rect.width(), rect.height());
     let fw = frame.width();
     let px = frame.pixels_mut();
     for y in margin..h - margin {
-        for x in margin..w - margin {
-            px[(rect.y0 + y) * fw + rect.x0 + x] = value(y * w + x) as f32;
+        let start = (rect.y0 + y) * fw + rect.x0;
+        for (x, p) in px[start + margin..start + w - margin].iter_mut().enumerate() {
+            *p = value(y, x + margin) as f32;
         }
     }
 }
 
+/// `dst` (`cols × rows`, row-major) = the transpose of `src` (`rows × cols`), in tiles of 8 × 8 so that both
+/// sides are read and written a cache line at a time.
 fn transpose(src: &[f64], dst: &mut [f64], cols: usize, rows: usize) {
-    for r in 0..rows {
-        for c in 0..cols {
-            dst[c * rows + r] = src[r * cols + c];
+    const TILE: usize = 8;
+    for r0 in (0..rows).step_by(TILE) {
+        for c0 in (0..cols).step_by(TILE) {
+            for r in r0..(r0 + TILE).min(rows) {
+                for c in c0..(c0 + TILE).min(cols) {
+                    dst[c * rows + r] = src[r * cols + c];
+                }
+            }
         }
     }
 }
