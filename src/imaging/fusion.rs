@@ -490,21 +490,25 @@ impl Scratch {
     /// Right-hand side on the interior: guidance divergence plus the Dirichlet ring, into `work`
     /// (interior layout `(w−2) × (h−2)`), and the guidance part alone into `work2` (region layout).
     fn build_rhs(&mut self, w: usize, h: usize, guidance: Guidance) {
+        if guidance == Guidance::Mixed {
+            return self.build_rhs_per_pixel(w, h, true);
+        }
+        for y in 1..h - 1 {
+            let (top, bottom) = (y == 1, y == h - 2);
+            match (top, bottom) {
+                (false, false) => self.rhs_row::<false, false>(w, y),
+                (true, false) => self.rhs_row::<true, false>(w, y),
+                (false, true) => self.rhs_row::<false, true>(w, y),
+                (true, true) => self.rhs_row::<true, true>(w, y),
+            }
+        }
+    }
+
+    /// [`Scratch::build_rhs`] pixel by pixel through [`guidance_sum`]: the mixed guidance's (`mixed`), and the
+    /// normal one's as [`Scratch::rhs_row`] gives it row by row.
+    fn build_rhs_per_pixel(&mut self, w: usize, h: usize, mixed: bool) {
         let nx = w - 2;
         let (u, bg) = (&self.u, &self.bg);
-        let mixed = guidance == Guidance::Mixed;
-        if !mixed {
-            for y in 1..h - 1 {
-                let (top, bottom) = (y == 1, y == h - 2);
-                match (top, bottom) {
-                    (false, false) => self.rhs_row::<false, false>(w, y),
-                    (true, false) => self.rhs_row::<true, false>(w, y),
-                    (false, true) => self.rhs_row::<false, true>(w, y),
-                    (true, true) => self.rhs_row::<true, true>(w, y),
-                }
-            }
-            return;
-        }
         for y in 1..h - 1 {
             for x in 1..w - 1 {
                 let p = y * w + x;
@@ -538,10 +542,10 @@ impl Scratch {
         let (u, bg) = (&self.u, &self.bg);
         let row = y * w;
         // the interior's pixels p = row + 1 ..= row + nx, and their neighbours as slices of the same length
-        fn at(v: &[f64], first: usize, n: usize) -> &[f64] {
+        fn run(v: &[f64], first: usize, n: usize) -> &[f64] {
             &v[first..first + n]
         }
-        let at = |v, first| at(v, first, nx);
+        let at = |v, first| run(v, first, nx);
         let (up, left, centre, right, down) =
             (at(u, row + 1 - w), at(u, row), at(u, row + 1), at(u, row + 2), at(u, row + 1 + w));
         let (bg_up, bg_down) = (at(bg, row + 1 - w), at(bg, row + 1 + w));
@@ -764,6 +768,33 @@ pub fn max_residual(fused: &Frame, rect: PixelRect, u: &[f64], bg: &[f64], guida
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_right_hand_side_row_by_row_is_the_per_pixel_one_bit_for_bit() {
+        // thin and square regions (one interior row or column included), values of both signs and −0
+        for (w, h) in [(3, 3), (3, 7), (7, 3), (4, 5), (11, 9)] {
+            let value = |i: usize, k: usize| match (i * k + 3 * i) % 11 {
+                0 => -0.0,
+                m => (m as f64 - 5.0) * 0.37 + (i as f64) * 1e-3,
+            };
+            let mut a = Scratch::default();
+            a.reserve(w * h);
+            for i in 0..w * h {
+                a.u[i] = value(i, 7);
+                a.bg[i] = value(i, 13);
+            }
+            let mut b = Scratch::default();
+            b.reserve(w * h);
+            b.u.clone_from(&a.u);
+            b.bg.clone_from(&a.bg);
+            a.build_rhs(w, h, Guidance::Normal);
+            b.build_rhs_per_pixel(w, h, false);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let n = (w - 2) * (h - 2);
+            assert_eq!(bits(&a.work[..n]), bits(&b.work[..n]), "{w}×{h}: right-hand side");
+            assert_eq!(bits(&a.work2[..w * h]), bits(&b.work2[..w * h]), "{w}×{h}: guidance");
+        }
+    }
 
     #[test]
     fn merges_touching_regions() {

@@ -791,6 +791,14 @@ mod tests {
                         if (i / w) % 2 == 0 { v + 60.0 } else { v - 500.0 }
                     })
                     .collect();
+                // for the photon detector, a NaN (whose block takes the per-pixel path in both; a thermal
+                // detector's NaN is outside the promise) and a signal exactly at the Poisson threshold without the
+                // maps ((2·1)·48.25 + 3.5 = 100), in odd rows
+                let mut base = base;
+                if r.shot_noise {
+                    base[w + 5] = f32::NAN;
+                    base[3 * w + 7] = 48.25;
+                }
                 assert_eq!(r.fuses(w, true), avx512);
                 let gain: Vec<f32> = (0..w * h).map(|i| 0.9 + 0.2 * ((i * 37) % 101) as f32 / 101.0).collect();
                 let offset: Vec<f32> = (0..w * h).map(|i| ((i * 53) % 17) as f32 - 8.0).collect();
@@ -810,7 +818,8 @@ mod tests {
                                 "shot {shot}, {w}×{h}, top {top:?}, pixel {i}: {a}, {b}"
                             );
                         }
-                        // (a photon detector's count is never below 0, nor its DN below the offset's)
+                        // (a photon detector's count is never below 0: with an offset of 100 DN, read noise of
+                        // 3 electrons at 4 per DN and maps of at most −9.5 DN, its lowest level stays above 0)
                         if let Some(top) = top {
                             assert!(fused.contains(&top), "the top level was reached");
                             assert!(r.shot_noise || fused.contains(&0.0), "the bottom level was reached");
@@ -838,6 +847,14 @@ mod tests {
         // another sampler, a row of part blocks, no noise or a detector without noise take the general path
         assert!(!Readout { normal_sampler: NormalSampler::BoxMuller, ..r }.fuses(256, true));
         assert!(!Readout { read_variance: 0.0, ..r }.fuses(256, true));
+        // a photon detector without read noise fuses, and gives the general path's bits
+        let photons = Readout { shot_noise: true, read_variance: 0.0, ..r };
+        assert_eq!(photons.fuses(256, true), avx512);
+        let base: Vec<f32> = (0..256 * 4).map(|i| ((i * 7919) % 3000) as f32 * 0.5 - 20.0).collect();
+        let (mut fused, mut general) = (base.clone(), base.clone());
+        photons.apply_rows(&mut fused, 256, ReadoutMaps::default(), true, (5, 2), Some(4095.0), None, true);
+        photons.apply_rows(&mut general, 256, ReadoutMaps::default(), true, (5, 2), Some(4095.0), None, false);
+        assert_eq!(fused, general);
         assert!(!r.fuses(200, true) && !r.fuses(256, false));
     }
 
