@@ -542,13 +542,9 @@ impl Scratch {
         let (u, bg) = (&self.u, &self.bg);
         let row = y * w;
         // the interior's pixels p = row + 1 ..= row + nx, and their neighbours as slices of the same length
-        fn run(v: &[f64], first: usize, n: usize) -> &[f64] {
-            &v[first..first + n]
-        }
-        let at = |v, first| run(v, first, nx);
-        let (up, left, centre, right, down) =
-            (at(u, row + 1 - w), at(u, row), at(u, row + 1), at(u, row + 2), at(u, row + 1 + w));
-        let (bg_up, bg_down) = (at(bg, row + 1 - w), at(bg, row + 1 + w));
+        let (up, left, centre) = (&u[row + 1 - w..][..nx], &u[row..][..nx], &u[row + 1..][..nx]);
+        let (right, down) = (&u[row + 2..][..nx], &u[row + 1 + w..][..nx]);
+        let (bg_up, bg_down) = (&bg[row + 1 - w..][..nx], &bg[row + 1 + w..][..nx]);
         let out = &mut self.work[(y - 1) * nx..y * nx];
         let guide = &mut self.work2[row + 1..row + 1 + nx];
         for k in 0..nx {

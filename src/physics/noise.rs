@@ -246,7 +246,7 @@ impl Readout {
         let mut normals = SplitMix64::substream(key, 2 * row);
         let mut uniforms = SplitMix64::substream(key, 2 * row + 1);
         let mut z = [0f32; BLOCK];
-        let threshold = if self.shot_noise { self.poisson_normal_threshold } else { f32::NEG_INFINITY };
+        let threshold = self.normal_threshold();
         for (b, block) in line.chunks_mut(BLOCK).enumerate() {
             let n = block.len();
             let at = b * BLOCK;
@@ -268,7 +268,7 @@ impl Readout {
             let per_pixel = noisy && !normal;
             let shot = if self.shot_noise { 1.0 } else { 0.0 };
             if per_pixel {
-                self.noise_pixel_by_pixel(block, z, threshold, &mut uniforms);
+                self.noise_pixel_by_pixel(block, z, &mut uniforms);
             }
             match (noisy && !per_pixel, max_level) {
                 (true, Some(top)) => self.finish_block::<true, true>(block, z, o, c, shot, top),
@@ -279,10 +279,18 @@ impl Readout {
         }
     }
 
-    /// The noise of a block of signals with a pixel below `threshold` (or NaN), pixel by pixel: the normal law
-    /// with deviate `z` from the threshold up, an exact Poisson count from `uniforms` plus the read noise below.
+    /// The signal from which a pixel's shot noise is drawn from the normal law: the Poisson threshold with shot
+    /// noise, every signal (−∞) without.
+    fn normal_threshold(&self) -> f32 {
+        if self.shot_noise { self.poisson_normal_threshold } else { f32::NEG_INFINITY }
+    }
+
+    /// The noise of a block of signals with a pixel below [`Readout::normal_threshold`] (or NaN), pixel by pixel:
+    /// the normal law with deviate `z` from the threshold up, an exact Poisson count from `uniforms` plus the read
+    /// noise below.
     #[inline(always)]
-    fn noise_pixel_by_pixel(&self, block: &mut [f32], z: &[f32], threshold: f32, uniforms: &mut SplitMix64) {
+    fn noise_pixel_by_pixel(&self, block: &mut [f32], z: &[f32], uniforms: &mut SplitMix64) {
+        let threshold = self.normal_threshold();
         let shot = if self.shot_noise { 1.0 } else { 0.0 };
         let sd_read = self.read_variance.sqrt();
         for (s, &z) in block.iter_mut().zip(z) {
@@ -362,7 +370,7 @@ mod x86 {
         let dark = ps(r.dark_signal);
         let read_variance = ps(r.read_variance);
         let sigma = ps((0.0 + r.read_variance).sqrt());
-        let threshold = ps(r.poisson_normal_threshold);
+        let threshold = ps(r.normal_threshold());
         let (well, dn, offset) = (ps(r.full_well), ps(r.dn_per_signal), ps(r.offset_dn));
         // sixteen map values from pixel i, or the absent map's constant
         let [gain, offsets, columns] = maps;
@@ -403,24 +411,18 @@ mod x86 {
             }
             // sixteen floats at 16·j, inside the block of 64
             let at = |block: &mut [f32], j: usize| block[16 * j..].as_mut_ptr();
-            if !r.shot_noise {
-                for (j, z) in z.into_iter().enumerate() {
-                    let i = 64 * b + 16 * j;
-                    // SAFETY: sixteen floats at `at`
-                    let s = signal(unsafe { _mm512_loadu_ps(at(block, j)) }, i);
-                    let s = _mm512_add_ps(s, _mm512_mul_ps(sigma, z));
-                    // SAFETY: as the load
-                    unsafe { _mm512_storeu_ps(at(block, j), adc(s, i)) };
-                }
-                continue;
-            }
             // SAFETY: sixteen floats at `at`
             let s: [__m512; 4] =
                 std::array::from_fn(|j| signal(unsafe { _mm512_loadu_ps(at(block, j)) }, 64 * b + 16 * j));
-            let normal = s.iter().all(|&s| _mm512_cmp_ps_mask::<_CMP_GE_OQ>(s, threshold) == 0xffff);
+            // (a thermal detector's threshold is −∞: its NaN signals stay in the vector path)
+            let normal = !r.shot_noise || s.iter().all(|&s| _mm512_cmp_ps_mask::<_CMP_GE_OQ>(s, threshold) == 0xffff);
             if normal {
                 for (j, (s, z)) in s.into_iter().zip(z).enumerate() {
-                    let sd = _mm512_sqrt_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_max_ps(s, zero), one), read_variance));
+                    let sd = if r.shot_noise {
+                        _mm512_sqrt_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_max_ps(s, zero), one), read_variance))
+                    } else {
+                        sigma
+                    };
                     let s = _mm512_add_ps(s, _mm512_mul_ps(sd, z));
                     // SAFETY: sixteen floats at `at`
                     unsafe { _mm512_storeu_ps(at(block, j), adc(s, 64 * b + 16 * j)) };
@@ -435,7 +437,7 @@ mod x86 {
                     _mm512_storeu_ps(at(block, j), s);
                 }
             }
-            r.noise_pixel_by_pixel(block, &zs, r.poisson_normal_threshold, uniforms);
+            r.noise_pixel_by_pixel(block, &zs, uniforms);
             for j in 0..4 {
                 // SAFETY: sixteen floats at `at`
                 unsafe { _mm512_storeu_ps(at(block, j), adc(_mm512_loadu_ps(at(block, j)), 64 * b + 16 * j)) };
@@ -785,7 +787,7 @@ mod tests {
         }
         for r in [thermal, Readout { shot_noise: true, ..thermal }] {
             for (w, h) in [(256, 9), (640, 5)] {
-                let base: Vec<f32> = (0..w * h)
+                let mut base: Vec<f32> = (0..w * h)
                     .map(|i| {
                         let v = ((i * 7919) % 11_000) as f32 * 0.37;
                         if (i / w) % 2 == 0 { v + 60.0 } else { v - 500.0 }
@@ -794,7 +796,6 @@ mod tests {
                 // for the photon detector, a NaN (whose block takes the per-pixel path in both; a thermal
                 // detector's NaN is outside the promise) and a signal exactly at the Poisson threshold without the
                 // maps ((2·1)·48.25 + 3.5 = 100), in odd rows
-                let mut base = base;
                 if r.shot_noise {
                     base[w + 5] = f32::NAN;
                     base[3 * w + 7] = 48.25;
