@@ -120,6 +120,9 @@ thread_local! {
     static BLOCK_BUFFERS: std::cell::RefCell<FftBuffers> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
+/// What [`Dst1::process_rows`] applies to a row between its two transforms: `(index, row)`.
+type RowStep<'a> = dyn Fn(usize, &mut [f64]) + Sync + 'a;
+
 /// A transform buffer and an FFT scratch.
 type FftBuffers = (Vec<Complex<f64>>, Vec<Complex<f64>>);
 
@@ -227,31 +230,56 @@ impl Dst1 {
 
     /// Transforms every row of length `n` in `rows`, two at a time; a large region's rows in parallel, in
     /// blocks of whole pairs (each row is paired as in one pass, so the result is the same), each block on its
-    /// thread's own buffers ([`BLOCK_BUFFERS`]).
-    fn process_rows(&self, rows: &mut [f64], buf: &mut [Complex<f64>], scratch: &mut [Complex<f64>]) {
+    /// thread's own buffers ([`BLOCK_BUFFERS`]). With `between`, each pair is transformed, `between(i, row)` is
+    /// applied to its rows (`i` the row's index in `rows`), and the pair is transformed again, while it is in the
+    /// cache and on the same thread.
+    fn process_rows(
+        &self,
+        rows: &mut [f64],
+        buf: &mut [Complex<f64>],
+        scratch: &mut [Complex<f64>],
+        between: Option<&RowStep<'_>>,
+    ) {
         use rayon::prelude::*;
         let pair = 2 * self.n;
         let block = pair * (PARALLEL_ROWS_BLOCK / pair).max(1);
         if rows.len() < 2 * block || rayon::current_num_threads() < 2 {
-            return self.process_rows_serial(rows, buf, scratch);
+            return self.process_rows_serial(rows, 0, buf, scratch, between);
         }
         let (buf_len, scratch_len) = (buf.len(), scratch.len());
-        rows.par_chunks_mut(block).for_each(|rows| {
+        rows.par_chunks_mut(block).enumerate().for_each(|(k, rows)| {
             BLOCK_BUFFERS.with_borrow_mut(|(buf, scratch)| {
                 let zero = Complex::new(0.0, 0.0);
                 buf.resize(buf_len.max(buf.len()), zero);
                 scratch.resize(scratch_len.max(scratch.len()), zero);
-                self.process_rows_serial(rows, &mut buf[..buf_len], &mut scratch[..scratch_len]);
+                let first = k * block / self.n;
+                self.process_rows_serial(rows, first, &mut buf[..buf_len], &mut scratch[..scratch_len], between);
             });
         });
     }
 
-    /// [`Dst1::process_rows`] on this thread.
-    fn process_rows_serial(&self, rows: &mut [f64], buf: &mut [Complex<f64>], scratch: &mut [Complex<f64>]) {
+    /// [`Dst1::process_rows`] on this thread, `rows` starting at row `first`.
+    fn process_rows_serial(
+        &self,
+        rows: &mut [f64],
+        first: usize,
+        buf: &mut [Complex<f64>],
+        scratch: &mut [Complex<f64>],
+        between: Option<&RowStep<'_>>,
+    ) {
         let mut chunks = rows.chunks_exact_mut(self.n);
+        let mut i = first;
         while let Some(a) = chunks.next() {
-            let b = chunks.next();
-            self.process_pair(a, b, buf, scratch);
+            let mut b = chunks.next();
+            self.process_pair(a, b.as_deref_mut(), buf, scratch);
+            if let Some(between) = between {
+                between(i, a);
+                if let Some(b) = b.as_deref_mut() {
+                    between(i + 1, b);
+                }
+                self.process_pair(a, b, buf, scratch);
+            }
+            i += 2;
         }
     }
 }
@@ -538,10 +566,16 @@ impl Scratch {
         self.u[..w * h].fill(0.0);
         for p in patches {
             let pr = p.rect;
-            let pw = pr.width();
+            let (x0, x1) = (pr.x0.max(rect.x0), pr.x1.min(rect.x1));
+            if x0 >= x1 {
+                continue;
+            }
+            // the patch's part of each row, added as a slice (the same sums, pixel by pixel)
             for y in pr.y0.max(rect.y0)..pr.y1.min(rect.y1) {
-                for x in pr.x0.max(rect.x0)..pr.x1.min(rect.x1) {
-                    self.u[(y - rect.y0) * w + (x - rect.x0)] += f64::from(p.values[(y - pr.y0) * pw + (x - pr.x0)]);
+                let to = &mut self.u[(y - rect.y0) * w..][x0 - rect.x0..x1 - rect.x0];
+                let from = &p.values[(y - pr.y0) * pr.width()..][x0 - pr.x0..x1 - pr.x0];
+                for (u, &v) in to.iter_mut().zip(from) {
+                    *u += f64::from(v);
                 }
             }
         }
@@ -607,16 +641,17 @@ impl Scratch {
         let (bg_up, bg_down) = (&bg[row + 1 - w..][..nx], &bg[row + 1 + w..][..nx]);
         let out = &mut self.work[(y - 1) * nx..y * nx];
         let guide = &mut self.work2[row + 1..row + 1 + nx];
-        for k in 0..nx {
+        // pixel k's guidance sum and right-hand side; `first` and `last`: k is the row's first or last pixel
+        let at = |k: usize, first: bool, last: bool| {
             let p = centre[k];
             // guidance_sum's order: left, right, up, down neighbours
             let b = 0.0 + (p - left[k]) + (p - right[k]) + (p - up[k]) + (p - down[k]);
             // the ring's order: left, right, top, bottom
             let mut ring = 0.0;
-            if k == 0 {
+            if first {
                 ring += bg[row];
             }
-            if k == nx - 1 {
+            if last {
                 ring += bg[row + w - 1];
             }
             if TOP {
@@ -625,8 +660,15 @@ impl Scratch {
             if BOTTOM {
                 ring += bg_down[k];
             }
-            guide[k] = b;
-            out[k] = b + ring;
+            (b, b + ring)
+        };
+        // the two ends, then the pixels between them in a loop without their tests (so that it vectorizes)
+        (guide[0], out[0]) = at(0, true, nx == 1);
+        if nx > 1 {
+            (guide[nx - 1], out[nx - 1]) = at(nx - 1, false, true);
+        }
+        for k in 1..nx.saturating_sub(1) {
+            (guide[k], out[k]) = at(k, false, false);
         }
     }
 
@@ -641,19 +683,20 @@ impl Scratch {
         let (buf, scratch) = (&mut self.fft_buf, &mut self.fft_scratch);
         let (sx, sy) = (dst_x.fft.get_inplace_scratch_len(), dst_y.fft.get_inplace_scratch_len());
         // rows: DST along x
-        dst_x.process_rows(work, buf, &mut scratch[..sx]);
+        dst_x.process_rows(work, buf, &mut scratch[..sx], None);
         transpose(work, tmp, nx, ny);
-        dst_y.process_rows(tmp, buf, &mut scratch[..sy]);
-        // divide by the eigenvalues λ = (2 − 2cos θx) + (2 − 2cos θy); tmp is ny-fast: index kx·ny + ky
+        // along y, dividing between the two transforms by the eigenvalues λ = (2 − 2cos θx) + (2 − 2cos θy); tmp is
+        // ny-fast: row kx, index ky
         let scale = 4.0 / ((nx + 1) * (ny + 1)) as f64;
-        for (row, &lx) in tmp.chunks_exact_mut(ny).zip(&dst_x.eigen) {
+        let divide = |kx: usize, row: &mut [f64]| {
+            let lx = dst_x.eigen[kx];
             for (v, &ly) in row.iter_mut().zip(&dst_y.eigen) {
                 *v *= scale / (lx + ly);
             }
-        }
-        dst_y.process_rows(tmp, buf, &mut scratch[..sy]);
+        };
+        dst_y.process_rows(tmp, buf, &mut scratch[..sy], Some(&divide));
         transpose(tmp, work, ny, nx);
-        dst_x.process_rows(work, buf, &mut scratch[..sx]);
+        dst_x.process_rows(work, buf, &mut scratch[..sx], None);
     }
 
     /// Jacobi (eq 20, `omega = None`) or red-black SOR on the whole region layout, starting from the
@@ -779,7 +822,8 @@ fn store(frame: &mut Frame, rect: PixelRect, value: impl Fn(usize, usize) -> f64
 /// `dst` (`cols × rows`, row-major) = the transpose of `src` (`rows × cols`), in tiles of 8 × 8, on this thread:
 /// regions are solved side by side in the pool, and the parallel [`super::fft2d::transpose_into`] in its place
 /// was no faster (the fusion stage 16–21 against 12–17 µs a frame for one 33 × 33 region, three interleaved
-/// rounds on an AMD EPYC).
+/// rounds on an AMD EPYC). Nor was a large region cut into bands of rows transposed in parallel: the fusion stage
+/// of the 256 × 256 bench case with 8 targets (one region of 256 × 73) took 109–112 against 94–96 µs a frame.
 fn transpose(src: &[f64], dst: &mut [f64], cols: usize, rows: usize) {
     const TILE: usize = 8;
     for r0 in (0..rows).step_by(TILE) {
