@@ -97,19 +97,6 @@ pub struct FusionStats {
 /// [`FusionStats::over_budget`] counting it.
 pub const MAX_SWEEP_UPDATES: u64 = 1_000_000_000;
 
-/// A planned type-I discrete sine transform of length `n`, two real rows per complex FFT of length `n + 1`.
-///
-/// `X_k = Σ_j x_j sin(π(j+1)(k+1)/(n+1))` (unnormalised; applying it twice multiplies by `(n+1)/2`). Written with
-/// `N = n + 1`, `f_J = x_{J−1}` (`f_0 = f_N = 0`) and `F_K = X_{K−1}`, the sequence
-/// `y_J = sin(πJ/N)(f_J + f_{N−J}) + ½(f_J − f_{N−J})` has the discrete Fourier transform `Y_k = R_k − i·I_k` (the
-/// FFT's sign) whose imaginary parts are the even outputs, `F_{2k} = I_k`, and whose real parts are differences of
-/// the odd ones, `R_k = F_{2k+1} − F_{2k−1}` (with `F_{−1} = −F_1`), summed from `F_1 = R_0/2`: the sine part of
-/// `y` is even about `N/2` and meets only the cosines, the rest is odd and meets only the sines. Two rows go in as
-/// the real and imaginary parts of one complex FFT of length `N`, and are told apart by the symmetry of real
-/// sequences' transforms. The odd extension of length `2N` that this replaced took an FFT twice as long: a direct
-/// solve ([`PoissonFusion::solve_dirichlet`], one thread, an AMD EPYC, three interleaved rounds) of a 254 × 71
-/// interior took 268–270 µs with it and 175–176 µs with this, of 143 × 71 102–103 and 74–75 µs, of 31 × 31 8.0–8.2
-/// and 6.2–6.3 µs.
 /// Values per block of rows that [`Dst1::process_rows`] hands to a thread (rounded to whole pairs of rows): a
 /// region transforms in parallel from two blocks up (a 190 × 95 region's rows in about ten blocks).
 const PARALLEL_ROWS_BLOCK: usize = 4096;
@@ -126,6 +113,19 @@ type RowStep<'a> = dyn Fn(usize, &mut [f64]) + Sync + 'a;
 /// A transform buffer and an FFT scratch.
 type FftBuffers = (Vec<Complex<f64>>, Vec<Complex<f64>>);
 
+/// A planned type-I discrete sine transform of length `n`, two real rows per complex FFT of length `n + 1`.
+///
+/// `X_k = Σ_j x_j sin(π(j+1)(k+1)/(n+1))` (unnormalised; applying it twice multiplies by `(n+1)/2`). Written with
+/// `N = n + 1`, `f_J = x_{J−1}` (`f_0 = f_N = 0`) and `F_K = X_{K−1}`, the sequence
+/// `y_J = sin(πJ/N)(f_J + f_{N−J}) + ½(f_J − f_{N−J})` has the discrete Fourier transform `Y_k = R_k − i·I_k` (the
+/// FFT's sign), whose imaginary parts are minus the even outputs, `F_{2k} = I_k`, and whose real parts are
+/// differences of the odd ones, `R_k = F_{2k+1} − F_{2k−1}` (with `F_{−1} = −F_1`), summed from `F_1 = R_0/2`:
+/// the sine part of `y` is even about `N/2` and meets only the cosines, the rest is odd and meets only the sines.
+/// Two rows go in as the real and imaginary parts of one complex FFT of length `N`, and are told apart by the
+/// symmetry of real sequences' transforms. The odd extension of length `2N` that this replaced took an FFT twice
+/// as long: a direct solve ([`PoissonFusion::solve_dirichlet`], one thread, an AMD EPYC, three interleaved rounds)
+/// of a 254 × 71 interior took 268–270 µs with it and 175–176 µs with this, of 143 × 71 102–103 and 74–75 µs, of
+/// 31 × 31 8.0–8.2 and 6.2–6.3 µs.
 struct Dst1 {
     n: usize,
     /// The complex FFT of length `n + 1`.
@@ -197,8 +197,8 @@ impl Dst1 {
             }
         }
         self.fft.process_with_scratch(buf, scratch);
-        // row a's transform is (Z_k + conj Z_{N−k})/2, row b's (Z_k − conj Z_{N−k})/(2i), k = 1 … ⌊n/2⌋: F_{2k}
-        // (row[2k − 1]) from the imaginary parts, F_{2k+1} (row[2k]) the running sum of the real parts
+        // the FFT of row a's y is (Z_k + conj Z_{N−k})/2, of row b's (Z_k − conj Z_{N−k})/(2i), k = 1 … ⌊n/2⌋:
+        // F_{2k} (row[2k − 1]) from their imaginary parts, F_{2k+1} (row[2k]) the running sum of their real parts
         let pairs = buf[1..=n / 2].iter().zip(buf[big_n - n / 2..].iter().rev());
         let (mut odd_a, mut odd_b) = (0.5 * buf[0].re, 0.5 * buf[0].im);
         a[0] = odd_a;
@@ -875,7 +875,9 @@ mod tests {
     fn dst1_by_definition(x: &[f64]) -> Vec<f64> {
         let n = x.len();
         let c = std::f64::consts::PI / (n + 1) as f64;
-        (0..n).map(|k| x.iter().enumerate().map(|(j, &v)| v * (c * ((j + 1) * (k + 1)) as f64).sin()).sum()).collect()
+        // the sine's argument reduced to [0, 2π) first, so that the sum is accurate to a few ulps
+        let angle = |j: usize, k: usize| c * (((j + 1) * (k + 1)) % (2 * (n + 1))) as f64;
+        (0..n).map(|k| x.iter().enumerate().map(|(j, &v)| v * angle(j, k).sin()).sum()).collect()
     }
 
     #[test]
@@ -899,7 +901,7 @@ mod tests {
                 let want = dst1_by_definition(row);
                 let scale = want.iter().fold(1.0f64, |m, v| m.max(v.abs()));
                 for (k, (g, w)) in got.iter().zip(&want).enumerate() {
-                    assert!((g - w).abs() <= 1e-12 * scale * n as f64, "n = {n}, output {k}: {g} against {w}");
+                    assert!((g - w).abs() <= 1e-14 * scale * n as f64, "n = {n}, output {k}: {g} against {w}");
                 }
             }
         }
