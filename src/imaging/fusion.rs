@@ -22,6 +22,7 @@
 //! have been seen, [`PoissonFusion::fuse`] allocates nothing.
 
 use std::collections::HashMap;
+use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -825,7 +826,8 @@ fn store(frame: &mut Frame, rect: PixelRect, value: impl Fn(usize, usize) -> f64
 /// regions are solved side by side in the pool, and the parallel [`super::fft2d::transpose_into`] in its place
 /// was no faster (the fusion stage 16–21 against 12–17 µs a frame for one 33 × 33 region, three interleaved
 /// rounds on an AMD EPYC). Nor was a large region cut into bands of rows transposed in parallel: the fusion stage
-/// of the 256 × 256 bench case with 8 targets (one region of 256 × 73) took 109–112 against 94–96 µs a frame.
+/// of the 256 × 256 bench case with 8 targets (one region of up to 256 × 73) took 109–112 against 94–96 µs a
+/// frame.
 fn transpose(src: &[f64], dst: &mut [f64], cols: usize, rows: usize) {
     assert!(src.len() >= rows * cols && dst.len() >= rows * cols, "buffers of the region's size");
     #[cfg(target_arch = "x86_64")]
@@ -833,16 +835,17 @@ fn transpose(src: &[f64], dst: &mut [f64], cols: usize, rows: usize) {
         // SAFETY: the CPU has AVX2 (every level above the baseline includes it); the lengths are checked above
         return unsafe { x86::transpose_avx2(src, dst, cols, rows) };
     }
-    transpose_tiles(src, dst, cols, rows, (0, 0));
+    transpose_tiles(src, dst, cols, rows, (0..rows, 0..cols));
 }
 
-/// [`transpose`] in 8 × 8 tiles, one value at a time, of `src`'s rows and columns from `from` (row, column) on.
-fn transpose_tiles(src: &[f64], dst: &mut [f64], cols: usize, rows: usize, from: (usize, usize)) {
+/// [`transpose`] of the part of `src` in rows `part.0` and columns `part.1`, in 8 × 8 tiles, one value at a time.
+fn transpose_tiles(src: &[f64], dst: &mut [f64], cols: usize, rows: usize, part: (Range<usize>, Range<usize>)) {
     const TILE: usize = 8;
-    for r0 in (from.0..rows).step_by(TILE) {
-        for c0 in (from.1..cols).step_by(TILE) {
-            for r in r0..(r0 + TILE).min(rows) {
-                for c in c0..(c0 + TILE).min(cols) {
+    let (row_part, col_part) = part;
+    for r0 in row_part.clone().step_by(TILE) {
+        for c0 in col_part.clone().step_by(TILE) {
+            for r in r0..(r0 + TILE).min(row_part.end) {
+                for c in c0..(c0 + TILE).min(col_part.end) {
                     dst[c * rows + r] = src[r * cols + c];
                 }
             }
@@ -884,12 +887,8 @@ mod x86 {
             }
         }
         // the columns past the last block, in the rows of whole blocks; then the rows past them, every column
-        for r in 0..rows4 {
-            for c in cols4..cols {
-                dst[c * rows + r] = src[r * cols + c];
-            }
-        }
-        super::transpose_tiles(src, dst, cols, rows, (rows4, 0));
+        super::transpose_tiles(src, dst, cols, rows, (0..rows4, cols4..cols));
+        super::transpose_tiles(src, dst, cols, rows, (rows4..rows, 0..cols));
     }
 }
 
@@ -951,7 +950,7 @@ mod tests {
             transpose(&src, &mut dst, cols, rows);
             check(&dst, "dispatched");
             let mut dst = vec![-1.0; rows * cols];
-            transpose_tiles(&src, &mut dst, cols, rows, (0, 0));
+            transpose_tiles(&src, &mut dst, cols, rows, (0..rows, 0..cols));
             check(&dst, "tiles");
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") {
