@@ -14,7 +14,10 @@
 //! Solvers: Jacobi sweeps exactly as eq 20 (the paper's, kept as a reference), red-black SOR, and the default
 //! exact direct solver: the 5-point Laplacian with Dirichlet boundaries is diagonalised by the type-I discrete
 //! sine transform, so `f = S_y S_x (Ŝ_x Ŝ_y b / λ)` with `λ_kl = 4 − 2cos(πk/(n_x+1)) − 2cos(πl/(n_y+1))`, in
-//! O(n² log n), in f64, two rows per complex FFT of the rows' length plus one.
+//! O(n² log n), in f64, two rows per complex FFT of the rows' length plus one. The same solve in f32
+//! ([`Solver::DirectF32`]) solves for the difference from the background, `f = f* + d`, whose right-hand side
+//! `Σ_q v_pq − (4 f*_p − Σ_q f*_q)` is formed in f64: `d` is the size of the target's contrast, not of the gray
+//! levels, so single precision's relative error applies to the contrast alone.
 //!
 //! Overlapping (or touching) regions of several targets are merged into one solve. Regions are clipped to the
 //! frame; a region thinner than 3 pixels has no interior and is left as it is in the solved modes. Separate
@@ -50,9 +53,13 @@ pub enum Guidance {
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", tag = "method", deny_unknown_fields)]
 pub enum Solver {
-    /// Exact direct solve by the discrete sine transform.
+    /// Exact direct solve by the discrete sine transform, in f64.
     #[default]
     Direct,
+    /// The direct solve in f32, of the difference from the background (its right-hand side formed in f64, the
+    /// sum added back in f64): transforms of twice the values per vector register, at single precision's
+    /// relative error on the target's contrast.
+    DirectF32,
     /// Jacobi sweeps (eq 20) until the largest update is below `tolerance` or `max_iterations` is reached.
     Jacobi {
         /// Stop when no pixel changes by more than this, gray levels.
@@ -104,15 +111,94 @@ const PARALLEL_ROWS_BLOCK: usize = 4096;
 
 thread_local! {
     /// Each thread's transform buffer and FFT scratch for the blocks of [`Dst1::process_rows`] (kept from call to
-    /// call: no allocation per frame).
-    static BLOCK_BUFFERS: std::cell::RefCell<FftBuffers> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+    /// call: no allocation per frame), in f64 and in f32.
+    static BLOCK_BUFFERS: std::cell::RefCell<FftBuffers<f64>> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+    static BLOCK_BUFFERS_F32: std::cell::RefCell<FftBuffers<f32>> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
 /// What [`Dst1::process_rows`] applies to a row between its two transforms: `(index, row)`.
-type RowStep<'a> = dyn Fn(usize, &mut [f64]) + Sync + 'a;
+type RowStep<'a, T> = dyn Fn(usize, &mut [T]) + Sync + 'a;
 
 /// A transform buffer and an FFT scratch.
-type FftBuffers = (Vec<Complex<f64>>, Vec<Complex<f64>>);
+type FftBuffers<T> = (Vec<Complex<T>>, Vec<Complex<T>>);
+
+/// The precisions the direct solver runs in: f64 ([`Solver::Direct`]) and f32 ([`Solver::DirectF32`]).
+trait Real: rustfft::FftNum + std::ops::AddAssign + std::ops::MulAssign {
+    /// `v` rounded to this type.
+    fn of(v: f64) -> Self;
+    /// Runs `f` on this thread's [`BLOCK_BUFFERS`] of this type.
+    fn with_block_buffers(f: impl FnOnce(&mut FftBuffers<Self>));
+    /// [`transpose`] for this type.
+    fn transpose(src: &[Self], dst: &mut [Self], cols: usize, rows: usize);
+    /// The first blocks of [`Dst1::process_pair`]'s loop before its FFT, for two rows (`rows`: row a's low and
+    /// high halves, then row b's), in explicit vector code where this type and the CPU have it: returns how many
+    /// of the `low.len()` values it did, the rest being the caller's. The same operations in the same order as
+    /// that loop.
+    fn pair_in(_sines: &[Self], _rows: [&[Self]; 4], _low: &mut [Complex<Self>], _high: &mut [Complex<Self>]) -> usize {
+        0
+    }
+    /// The same for the loop after the FFT, over its first `whole` values: row a's and b's `row[2k − 1]` and
+    /// `row[2k]` (`a` and `b` from `row[1]`) before the running sums.
+    fn pair_out(_z: [&[Complex<Self>]; 2], _whole: usize, _a: &mut [Self], _b: &mut [Self]) -> usize {
+        0
+    }
+}
+
+impl Real for f64 {
+    fn of(v: f64) -> Self {
+        v
+    }
+    fn with_block_buffers(f: impl FnOnce(&mut FftBuffers<Self>)) {
+        BLOCK_BUFFERS.with_borrow_mut(f);
+    }
+    fn transpose(src: &[Self], dst: &mut [Self], cols: usize, rows: usize) {
+        transpose(src, dst, cols, rows);
+    }
+}
+
+impl Real for f32 {
+    fn of(v: f64) -> Self {
+        v as f32
+    }
+    fn with_block_buffers(f: impl FnOnce(&mut FftBuffers<Self>)) {
+        BLOCK_BUFFERS_F32.with_borrow_mut(f);
+    }
+    fn transpose(src: &[Self], dst: &mut [Self], cols: usize, rows: usize) {
+        assert!(src.len() >= rows * cols && dst.len() >= rows * cols, "buffers of the region's size");
+        #[cfg(target_arch = "x86_64")]
+        if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
+            // SAFETY: the CPU has AVX2 (every level above the baseline includes it); the lengths are checked above
+            return unsafe { x86::transpose_avx2_f32(src, dst, cols, rows) };
+        }
+        transpose_tiles(src, dst, cols, rows, (0..rows, 0..cols));
+    }
+    fn pair_in(sines: &[Self], rows: [&[Self]; 4], low: &mut [Complex<Self>], high: &mut [Complex<Self>]) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
+            // SAFETY: the CPU has AVX2; the function checks the lengths
+            return unsafe { x86::pair_in_f32(sines, rows, low, high) };
+        }
+        let _ = (sines, rows, low, high);
+        0
+    }
+    fn pair_out(z: [&[Complex<Self>]; 2], whole: usize, a: &mut [Self], b: &mut [Self]) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
+            // SAFETY: the CPU has AVX2; the function checks the lengths
+            return unsafe { x86::pair_out_f32(z, whole, a, b) };
+        }
+        let _ = (z, whole, a, b);
+        0
+    }
+}
+
+/// `buf` grown with zeros to `len` values where it is shorter.
+fn fit<T: Real>(buf: &mut Vec<Complex<T>>, len: usize) {
+    if buf.len() < len {
+        buf.resize(len, Complex::new(T::zero(), T::zero()));
+    }
+}
 
 /// A planned type-I discrete sine transform of length `n`, two real rows per complex FFT of length `n + 1`.
 ///
@@ -127,25 +213,25 @@ type FftBuffers = (Vec<Complex<f64>>, Vec<Complex<f64>>);
 /// as long: a direct solve ([`PoissonFusion::solve_dirichlet`], one thread, an AMD EPYC, three interleaved rounds)
 /// of a 254 × 71 interior took 268–270 µs with it and 175–176 µs with this, of 143 × 71 102–103 and 74–75 µs, of
 /// 31 × 31 8.0–8.2 and 6.2–6.3 µs.
-struct Dst1 {
+struct Dst1<T: Real> {
     n: usize,
     /// The complex FFT of length `n + 1`.
-    fft: Arc<dyn Fft<f64>>,
+    fft: Arc<dyn Fft<T>>,
     /// `sin(πJ/(n+1))` for `J` = 1 … n: the weights of the rows' symmetric parts.
-    sines: Vec<f64>,
+    sines: Vec<T>,
     /// `2 − 2cos(π(k+1)/(n+1))`: this axis's share of the Laplacian's eigenvalues.
-    eigen: Vec<f64>,
+    eigen: Vec<T>,
 }
 
-impl Dst1 {
-    /// Plans the transform of length `n` (≥ 1) with `planner`.
-    fn new(n: usize, planner: &mut FftPlanner<f64>) -> Self {
+impl<T: Real> Dst1<T> {
+    /// Plans the transform of length `n` (≥ 1) with `planner` (its weights computed in f64, then rounded).
+    fn new(n: usize, planner: &mut FftPlanner<T>) -> Self {
         let c = std::f64::consts::PI / (n + 1) as f64;
         Self {
             n,
             fft: planner.plan_fft_forward(n + 1),
-            sines: (1..=n).map(|j| (c * j as f64).sin()).collect(),
-            eigen: (0..n).map(|k| 2.0 - 2.0 * (c * (k + 1) as f64).cos()).collect(),
+            sines: (1..=n).map(|j| T::of((c * j as f64).sin())).collect(),
+            eigen: (0..n).map(|k| T::of(2.0 - 2.0 * (c * (k + 1) as f64).cos())).collect(),
         }
     }
 
@@ -154,76 +240,91 @@ impl Dst1 {
         self.n + 1
     }
 
-    /// Transforms `a` and, if given, `b` in place; `buf` holds `n + 1` values, `scratch` the FFT's scratch.
-    fn process_pair(
-        &self,
-        a: &mut [f64],
-        b: Option<&mut [f64]>,
-        buf: &mut [Complex<f64>],
-        scratch: &mut [Complex<f64>],
-    ) {
+    /// Transforms `a` and, if given, `b` in place; `buf` holds `n + 1` values, `scratch` the FFT's scratch. The
+    /// loops before and after the FFT run over slices of known length, a mirrored half indexed from its end; for
+    /// a pair of f32 rows on a CPU with AVX2 their blocks of eight are explicit vector code ([`Real::pair_in`],
+    /// [`Real::pair_out`]). The odd outputs' running sums are the one serial part.
+    #[inline(always)]
+    fn process_pair(&self, a: &mut [T], b: Option<&mut [T]>, buf: &mut [Complex<T>], scratch: &mut [Complex<T>]) {
         let n = self.n;
-        let big_n = n + 1;
-        let buf = &mut buf[..big_n];
+        let (zero, half) = (T::zero(), T::of(0.5));
+        let buf = &mut buf[..n + 1];
         let a = &mut a[..n];
         let b = b.map(|b| &mut b[..n]);
-        // y_J and y_{N−J} from f_J (row[J − 1]) and f_{N−J} (row[n − J]), J = 1 … ⌈n/2⌉ (the middle one, n odd,
-        // from itself): buf[J] and buf[N − J] hold rows a and b as real and imaginary parts
-        buf[0] = Complex::new(0.0, 0.0);
-        let half = n.div_ceil(2);
-        let (low, high) = buf[1..].split_at_mut(half);
-        fn mirrored(row: &[f64], half: usize) -> impl Iterator<Item = (&f64, &f64)> {
-            row[..half].iter().zip(row[row.len() - half..].iter().rev())
-        }
-        // the middle value's mirror image, n odd: written and not read
-        let mut unused = Complex::new(0.0, 0.0);
-        let ends = low.iter_mut().zip(high.iter_mut().rev().chain(std::iter::once(&mut unused)));
-        let weights = self.sines[..half].iter();
-        match &b {
+        // y_J and y_{N−J} from f_J (row[J − 1]) and f_{N−J} (row[n − J]), J = 1 … m = ⌊n/2⌋, rows a and b as real
+        // and imaginary parts: buf[J] is low[J − 1], buf[N − J] is high[m − J]; n odd, the middle one, y_{N/2},
+        // from f_{N/2} alone
+        let m = n / 2;
+        buf[0] = Complex::new(zero, zero);
+        let (head, high) = buf.split_at_mut(n + 1 - m);
+        let low = &mut head[1..=m];
+        let sines = &self.sines[..m];
+        let (a_low, a_high) = (&a[..m], &a[n - m..]);
+        let y = |s: T, f: T, mirror: T| (s * (f + mirror), half * (f - mirror));
+        match b.as_deref() {
             Some(b) => {
-                for (((lo, hi), &s), ((&fa, &ma), (&fb, &mb))) in
-                    ends.zip(weights).zip(mirrored(a, half).zip(mirrored(b, half)))
-                {
-                    let (sa, da, sb, db) = (s * (fa + ma), 0.5 * (fa - ma), s * (fb + mb), 0.5 * (fb - mb));
-                    *lo = Complex::new(sa + da, sb + db);
-                    *hi = Complex::new(sa - da, sb - db);
-                }
+                let rows = [a_low, a_high, &b[..m], &b[n - m..]];
+                let done = T::pair_in(sines, rows, low, high);
+                pair_in_from(done, sines, rows, low, high);
             }
             None => {
-                for (((lo, hi), &s), (&fa, &ma)) in ends.zip(weights).zip(mirrored(a, half)) {
-                    let (sa, da) = (s * (fa + ma), 0.5 * (fa - ma));
-                    *lo = Complex::new(sa + da, 0.0);
-                    *hi = Complex::new(sa - da, 0.0);
+                for k in 0..m {
+                    let r = m - 1 - k;
+                    let (sa, da) = y(sines[k], a_low[k], a_high[r]);
+                    low[k] = Complex::new(sa + da, zero);
+                    high[r] = Complex::new(sa - da, zero);
                 }
             }
+        }
+        if n % 2 == 1 {
+            let s = self.sines[m];
+            let (sa, da) = y(s, a[m], a[m]);
+            let im = b.as_deref().map_or(zero, |b| {
+                let (sb, db) = y(s, b[m], b[m]);
+                sb + db
+            });
+            head[m + 1] = Complex::new(sa + da, im);
         }
         self.fft.process_with_scratch(buf, scratch);
-        // the FFT of row a's y is (Z_k + conj Z_{N−k})/2, of row b's (Z_k − conj Z_{N−k})/(2i), k = 1 … ⌊n/2⌋:
-        // F_{2k} (row[2k − 1]) from their imaginary parts, F_{2k+1} (row[2k]) the running sum of their real parts
-        let pairs = buf[1..=n / 2].iter().zip(buf[big_n - n / 2..].iter().rev());
-        let (mut odd_a, mut odd_b) = (0.5 * buf[0].re, 0.5 * buf[0].im);
-        a[0] = odd_a;
+        // the FFT of row a's y is (Z_k + conj Z_{N−k})/2, of row b's (Z_k − conj Z_{N−k})/(2i), k = 1 … m:
+        // F_{2k} (row[2k − 1]) from their imaginary parts, and row[2k] first the half real part R_k/2 that
+        // F_{2k+1} − F_{2k−1} is, then (below) their running sum from F_1 = R_0/2
+        let (z_low, z_high) = (&buf[1..=m], &buf[n + 1 - m..]);
+        // the k whose row[2k] exists: all m with n odd, the last one without with n even
+        let whole = if n % 2 == 1 { m } else { m.saturating_sub(1) };
+        a[0] = half * buf[0].re;
+        if whole < m {
+            let (zk, zm) = (z_low[m - 1], z_high[0]);
+            a[2 * m - 1] = half * (zm.im - zk.im);
+        }
         match b {
             Some(b) => {
-                b[0] = odd_b;
-                for ((zk, zm), (oa, ob)) in pairs.zip(a[1..].chunks_mut(2).zip(b[1..].chunks_mut(2))) {
-                    oa[0] = 0.5 * (zm.im - zk.im);
-                    ob[0] = 0.5 * (zk.re - zm.re);
-                    if let (Some(na), Some(nb)) = (oa.get_mut(1), ob.get_mut(1)) {
-                        odd_a += 0.5 * (zk.re + zm.re);
-                        odd_b += 0.5 * (zk.im + zm.im);
-                        *na = odd_a;
-                        *nb = odd_b;
-                    }
+                b[0] = half * buf[0].im;
+                if whole < m {
+                    let (zk, zm) = (z_low[m - 1], z_high[0]);
+                    b[2 * m - 1] = half * (zk.re - zm.re);
+                }
+                let (z, outs_a, outs_b) = ([z_low, z_high], &mut a[1..1 + 2 * whole], &mut b[1..1 + 2 * whole]);
+                let done = T::pair_out(z, whole, outs_a, outs_b);
+                pair_out_from(done, z, outs_a, outs_b);
+                // the sums kept in registers: loaded back from the rows, each would wait for its own store
+                let (mut odd_a, mut odd_b) = (a[0], b[0]);
+                for i in (2..n).step_by(2) {
+                    odd_a += a[i];
+                    odd_b += b[i];
+                    (a[i], b[i]) = (odd_a, odd_b);
                 }
             }
             None => {
-                for ((zk, zm), oa) in pairs.zip(a[1..].chunks_mut(2)) {
-                    oa[0] = 0.5 * (zm.im - zk.im);
-                    if let Some(na) = oa.get_mut(1) {
-                        odd_a += 0.5 * (zk.re + zm.re);
-                        *na = odd_a;
-                    }
+                for (k, out) in a[1..1 + 2 * whole].chunks_exact_mut(2).enumerate() {
+                    let (zk, zm) = (z_low[k], z_high[m - 1 - k]);
+                    out[0] = half * (zm.im - zk.im);
+                    out[1] = half * (zk.re + zm.re);
+                }
+                let mut odd_a = a[0];
+                for v in a.iter_mut().skip(2).step_by(2) {
+                    odd_a += *v;
+                    *v = odd_a;
                 }
             }
         }
@@ -236,10 +337,10 @@ impl Dst1 {
     /// cache and on the same thread.
     fn process_rows(
         &self,
-        rows: &mut [f64],
-        buf: &mut [Complex<f64>],
-        scratch: &mut [Complex<f64>],
-        between: Option<&RowStep<'_>>,
+        rows: &mut [T],
+        buf: &mut [Complex<T>],
+        scratch: &mut [Complex<T>],
+        between: Option<&RowStep<'_, T>>,
     ) {
         use rayon::prelude::*;
         let pair = 2 * self.n;
@@ -249,10 +350,9 @@ impl Dst1 {
         }
         let (buf_len, scratch_len) = (buf.len(), scratch.len());
         rows.par_chunks_mut(block).enumerate().for_each(|(k, rows)| {
-            BLOCK_BUFFERS.with_borrow_mut(|(buf, scratch)| {
-                let zero = Complex::new(0.0, 0.0);
-                buf.resize(buf_len.max(buf.len()), zero);
-                scratch.resize(scratch_len.max(scratch.len()), zero);
+            T::with_block_buffers(|(buf, scratch)| {
+                fit(buf, buf_len);
+                fit(scratch, scratch_len);
                 let first = k * block / self.n;
                 self.process_rows_serial(rows, first, &mut buf[..buf_len], &mut scratch[..scratch_len], between);
             });
@@ -262,11 +362,27 @@ impl Dst1 {
     /// [`Dst1::process_rows`] on this thread, `rows` starting at row `first`.
     fn process_rows_serial(
         &self,
-        rows: &mut [f64],
+        rows: &mut [T],
         first: usize,
-        buf: &mut [Complex<f64>],
-        scratch: &mut [Complex<f64>],
-        between: Option<&RowStep<'_>>,
+        buf: &mut [Complex<T>],
+        scratch: &mut [Complex<T>],
+        between: Option<&RowStep<'_, T>>,
+    ) {
+        crate::physics::simd::widest(
+            #[inline(always)]
+            || self.process_rows_inline(rows, first, buf, scratch, between),
+        );
+    }
+
+    /// [`Dst1::process_rows_serial`]'s loop, inlined into [`crate::physics::simd::widest`].
+    #[inline(always)]
+    fn process_rows_inline(
+        &self,
+        rows: &mut [T],
+        first: usize,
+        buf: &mut [Complex<T>],
+        scratch: &mut [Complex<T>],
+        between: Option<&RowStep<'_, T>>,
     ) {
         let mut chunks = rows.chunks_exact_mut(self.n);
         let mut i = first;
@@ -285,25 +401,119 @@ impl Dst1 {
     }
 }
 
+/// [`Dst1::process_pair`]'s loop before the FFT for two rows, from the `from`-th of the `m = low.len()` values:
+/// `low[k]` and `high[m − 1 − k]` from `rows` (row a's first and last `m` values, then row b's).
+#[inline(always)]
+fn pair_in_from<T: Real>(from: usize, sines: &[T], rows: [&[T]; 4], low: &mut [Complex<T>], high: &mut [Complex<T>]) {
+    let m = low.len();
+    let half = T::of(0.5);
+    let [a_low, a_high, b_low, b_high] = rows.map(|r| &r[..m]);
+    let (sines, high) = (&sines[..m], &mut high[..m]);
+    let y = |s: T, f: T, mirror: T| (s * (f + mirror), half * (f - mirror));
+    for k in from..m {
+        let r = m - 1 - k;
+        let ((sa, da), (sb, db)) = (y(sines[k], a_low[k], a_high[r]), y(sines[k], b_low[k], b_high[r]));
+        low[k] = Complex::new(sa + da, sb + db);
+        high[r] = Complex::new(sa - da, sb - db);
+    }
+}
+
+/// [`Dst1::process_pair`]'s loop after the FFT for two rows, from the `from`-th of the `whole = a.len() / 2`
+/// values: `a[2k]`, `a[2k + 1]` (and b's) from `z` (the FFT's values 1 … m and N − m … N − 1).
+#[inline(always)]
+fn pair_out_from<T: Real>(from: usize, z: [&[Complex<T>]; 2], a: &mut [T], b: &mut [T]) {
+    let half = T::of(0.5);
+    let [z_low, z_high] = z;
+    let m = z_low.len();
+    let outs = a.chunks_exact_mut(2).zip(b.chunks_exact_mut(2));
+    for (k, (oa, ob)) in (from..).zip(outs.skip(from)) {
+        let (zk, zm) = (z_low[k], z_high[m - 1 - k]);
+        oa[0] = half * (zm.im - zk.im);
+        oa[1] = half * (zk.re + zm.re);
+        ob[0] = half * (zk.re - zm.re);
+        ob[1] = half * (zk.im + zm.im);
+    }
+}
+
 /// Poisson fusion with planned transforms and reusable buffers.
 pub struct PoissonFusion {
-    planner: FftPlanner<f64>,
-    dst: HashMap<usize, Arc<Dst1>>,
+    /// The transforms of [`Solver::Direct`].
+    plans: Plans<f64>,
+    /// The transforms of [`Solver::DirectF32`].
+    plans_f32: Plans<f32>,
     rects: Vec<PixelRect>,
     /// One set of buffers per region: the regions are solved in parallel.
     scratch: Vec<Scratch>,
-    /// What every set of buffers is sized for.
-    sized_for: BufferSizes,
+    /// The largest region's area so far: what every set of buffers is sized for.
+    sized_for_area: usize,
     /// Looked at between sweeps of the iterative solvers: when set, they stop at once.
     stop: Option<Arc<AtomicBool>>,
 }
 
-/// The largest region's area, and the longest transform buffer and scratch of the planned sizes.
-#[derive(Debug, Clone, Copy, Default)]
-struct BufferSizes {
-    area: usize,
-    fft_buf: usize,
-    fft_scratch: usize,
+/// Planned sine transforms of one precision by length, and the longest transform buffer and FFT scratch they
+/// need.
+struct Plans<T: Real> {
+    planner: FftPlanner<T>,
+    dst: HashMap<usize, Arc<Dst1<T>>>,
+    buf_len: usize,
+    scratch_len: usize,
+}
+
+impl<T: Real> Plans<T> {
+    fn new() -> Self {
+        Self { planner: FftPlanner::new(), dst: HashMap::new(), buf_len: 0, scratch_len: 0 }
+    }
+
+    /// The transform of length `n`, planned when first asked for.
+    fn get(&mut self, n: usize) -> Arc<Dst1<T>> {
+        if let Some(d) = self.dst.get(&n) {
+            return Arc::clone(d);
+        }
+        let d = Arc::new(Dst1::new(n, &mut self.planner));
+        self.buf_len = self.buf_len.max(d.buffer_len());
+        self.scratch_len = self.scratch_len.max(d.fft.get_inplace_scratch_len());
+        self.dst.insert(n, Arc::clone(&d));
+        d
+    }
+
+    /// Plans the transforms of the interior of every region of `rects` that has one.
+    fn plan_regions(&mut self, rects: &[PixelRect]) {
+        for r in rects {
+            if r.width() >= 3 && r.height() >= 3 {
+                self.get(r.width() - 2);
+                self.get(r.height() - 2);
+            }
+        }
+    }
+}
+
+/// A direct solve's buffers in one precision: the right-hand side and then the solution (interior layout), its
+/// transpose, the transform buffer and the FFT scratch.
+#[derive(Default)]
+struct Spectral<T> {
+    work: Vec<T>,
+    tmp: Vec<T>,
+    buf: Vec<Complex<T>>,
+    scratch: Vec<Complex<T>>,
+}
+
+impl<T: Real> Spectral<T> {
+    /// Sizes the buffers for an interior of `area` values and the transforms of `plans` (allocating only where
+    /// one falls short).
+    fn reserve(&mut self, area: usize, plans: &Plans<T>) {
+        for b in [&mut self.work, &mut self.tmp] {
+            if b.len() < area {
+                b.resize(area, T::zero());
+            }
+        }
+        fit(&mut self.buf, plans.buf_len);
+        fit(&mut self.scratch, plans.scratch_len);
+    }
+
+    /// [`solve_sine`] on these buffers.
+    fn solve(&mut self, dst_x: &Dst1<T>, dst_y: &Dst1<T>) {
+        solve_sine(&mut self.work, &mut self.tmp, &mut self.buf, &mut self.scratch, dst_x, dst_y);
+    }
 }
 
 /// The buffers of one region's solve.
@@ -318,15 +528,21 @@ struct Scratch {
     work2: Vec<f64>,
     /// Second buffer of the Jacobi sweeps.
     next: Vec<f64>,
+    /// The direct solve's (f64: `work` and `work2` are its right-hand side and transpose).
     fft_buf: Vec<Complex<f64>>,
     fft_scratch: Vec<Complex<f64>>,
+    /// The f32 direct solve's.
+    single: Spectral<f32>,
     /// What the last solve on these buffers did.
     stats: FusionStats,
 }
 
 impl std::fmt::Debug for PoissonFusion {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PoissonFusion").field("planned_sizes", &self.dst.keys().collect::<Vec<_>>()).finish()
+        f.debug_struct("PoissonFusion")
+            .field("planned_sizes", &self.plans.dst.keys().collect::<Vec<_>>())
+            .field("planned_sizes_f32", &self.plans_f32.dst.keys().collect::<Vec<_>>())
+            .finish()
     }
 }
 
@@ -340,11 +556,11 @@ impl PoissonFusion {
     /// A fusion engine with nothing planned yet.
     pub fn new() -> Self {
         Self {
-            planner: FftPlanner::new(),
-            dst: HashMap::new(),
+            plans: Plans::new(),
+            plans_f32: Plans::new(),
             rects: Vec::new(),
             scratch: vec![Scratch::default()],
-            sized_for: BufferSizes::default(),
+            sized_for_area: 0,
             stop: None,
         }
     }
@@ -355,40 +571,35 @@ impl PoissonFusion {
         &self.rects
     }
 
-    /// Plans transforms and sizes buffers for regions up to `max_side × max_side`, so later calls with one
-    /// region do not allocate (each further region at once gets buffers of the same size when first needed).
+    /// Plans transforms and sizes buffers for regions up to `max_side × max_side` solved by
+    /// [`Solver::Direct`], so later calls with one region do not allocate (each further region at once gets
+    /// buffers of the same size when first needed).
     pub fn with_capacity(max_side: usize) -> Self {
         let mut s = Self::new();
         for n in 1..=max_side.saturating_sub(2) {
-            s.plan(n);
+            s.plans.get(n);
         }
-        s.sized_for.area = max_side * max_side;
+        s.sized_for_area = max_side * max_side;
         s.size_buffers(1);
         s.rects.reserve(64);
         s
     }
 
-    /// Gives the first `sets` sets of buffers the size in `sized_for` (allocating only where one falls short).
+    /// Gives the first `sets` sets of buffers the size of the largest region so far and of the planned
+    /// transforms (the f32 solve's only once it has been used), allocating only where one falls short.
     fn size_buffers(&mut self, sets: usize) {
         if self.scratch.len() < sets {
             self.scratch.resize_with(sets, Scratch::default);
         }
-        let size = self.sized_for;
+        let area = self.sized_for_area;
         for sc in &mut self.scratch[..sets] {
-            sc.reserve(size.area);
-            sc.fit(size.fft_buf, size.fft_scratch);
+            sc.reserve(area);
+            fit(&mut sc.fft_buf, self.plans.buf_len);
+            fit(&mut sc.fft_scratch, self.plans.scratch_len);
+            if !self.plans_f32.dst.is_empty() {
+                sc.single.reserve(area, &self.plans_f32);
+            }
         }
-    }
-
-    fn plan(&mut self, n: usize) -> Arc<Dst1> {
-        if let Some(d) = self.dst.get(&n) {
-            return Arc::clone(d);
-        }
-        let d = Arc::new(Dst1::new(n, &mut self.planner));
-        self.sized_for.fft_buf = self.sized_for.fft_buf.max(d.buffer_len());
-        self.sized_for.fft_scratch = self.sized_for.fft_scratch.max(d.fft.get_inplace_scratch_len());
-        self.dst.insert(n, Arc::clone(&d));
-        d
     }
 
     /// A flag the iterative solvers look at between sweeps: once it is set they return at once (the frame is
@@ -411,39 +622,55 @@ impl PoissonFusion {
         // the transforms are planned first (the planner is not shared); then each region is loaded and solved
         // on its own buffers, in parallel (regions do not touch, and each reads only its own pixels), and the
         // solutions are written into the frame one region after the other
-        if solved && solver == Solver::Direct {
-            for k in 0..self.rects.len() {
-                let (w, h) = (self.rects[k].width(), self.rects[k].height());
-                if w >= 3 && h >= 3 {
-                    self.plan(w - 2);
-                    self.plan(h - 2);
-                }
-            }
+        match solver {
+            Solver::Direct if solved => self.plans.plan_regions(&self.rects),
+            Solver::DirectF32 if solved => self.plans_f32.plan_regions(&self.rects),
+            _ => {}
         }
         let regions = self.rects.len();
         // every set of buffers sized for the largest region and transform so far: which region a set gets
         // changes from frame to frame, and none then allocates again
         let largest = self.rects.iter().map(|r| r.width() * r.height()).max().unwrap_or(0);
-        self.sized_for.area = self.sized_for.area.max(largest);
+        self.sized_for_area = self.sized_for_area.max(largest);
         self.size_buffers(regions);
-        let (dst, stop, rects) = (&self.dst, self.stop.as_deref(), &self.rects);
+        let (stop, rects) = (self.stop.as_deref(), &self.rects);
+        let (dst, dst_f32) = (&self.plans.dst, &self.plans_f32.dst);
         let frame_in: &Frame = frame;
         self.scratch[..regions].par_iter_mut().zip(rects.par_iter()).with_max_len(1).for_each(|(sc, &rect)| {
             let mut stats = FusionStats::default();
-            sc.load_region(frame_in, rect, patches);
+            // the loading and the right-hand sides' loops compiled for the CPU's widest vectors (f64 adds and
+            // subtracts: the same results on every path)
+            crate::physics::simd::widest(
+                #[inline(always)]
+                || sc.load_region(frame_in, rect, patches),
+            );
             let (w, h) = (rect.width(), rect.height());
             if !solved || w < 3 || h < 3 {
                 sc.stats = stats;
                 return;
             }
             stats.unknowns = (w - 2) * (h - 2);
-            sc.build_rhs(w, h, guidance);
             match solver {
-                Solver::Direct => sc.solve_direct(&dst[&(w - 2)], &dst[&(h - 2)]),
+                Solver::Direct => {
+                    crate::physics::simd::widest(
+                        #[inline(always)]
+                        || sc.build_rhs(w, h, guidance),
+                    );
+                    sc.solve_direct(&dst[&(w - 2)], &dst[&(h - 2)]);
+                }
+                Solver::DirectF32 => {
+                    crate::physics::simd::widest(
+                        #[inline(always)]
+                        || sc.build_difference_rhs(w, h, guidance),
+                    );
+                    sc.single.solve(&dst_f32[&(w - 2)], &dst_f32[&(h - 2)]);
+                }
                 Solver::Jacobi { tolerance, max_iterations } => {
+                    sc.build_rhs(w, h, guidance);
                     stats.iterations = sc.solve_iterative(w, h, tolerance, max_iterations, None, stop, &mut stats);
                 }
                 Solver::Sor { tolerance, max_iterations } => {
+                    sc.build_rhs(w, h, guidance);
                     let n = (w - 2).max(h - 2) as f64;
                     let omega = 2.0 / (1.0 + (std::f64::consts::PI / (n + 1.0)).sin());
                     let it = sc.solve_iterative(w, h, tolerance, max_iterations, Some(omega), stop, &mut stats);
@@ -460,15 +687,32 @@ impl PoissonFusion {
             stats.iterations = stats.iterations.max(r.iterations);
             stats.over_budget += r.over_budget;
             stats.stopped |= r.stopped;
+            // each row of the region (its interior's, in the solved modes) from the buffers' row y
+            let (nx, bg) = (w.saturating_sub(2), &sc.bg);
             if !solved {
-                store(frame, *rect, |y, x| sc.bg[y * w + x] + sc.u[y * w + x], 0);
+                store(frame, *rect, 0, |y, out| {
+                    for ((o, &b), &u) in out.iter_mut().zip(&bg[y * w..][..w]).zip(&sc.u[y * w..][..w]) {
+                        *o = (b + u) as f32;
+                    }
+                });
             } else if w >= 3 && h >= 3 {
                 match solver {
-                    Solver::Direct => {
-                        let (nx, work) = (w - 2, &sc.work);
-                        store(frame, *rect, |y, x| work[(y - 1) * nx + (x - 1)], 1);
-                    }
-                    Solver::Jacobi { .. } | Solver::Sor { .. } => store(frame, *rect, |y, x| sc.work[y * w + x], 1),
+                    Solver::Direct => store(frame, *rect, 1, |y, out| {
+                        for (o, &v) in out.iter_mut().zip(&sc.work[(y - 1) * nx..][..nx]) {
+                            *o = v as f32;
+                        }
+                    }),
+                    Solver::DirectF32 => store(frame, *rect, 1, |y, out| {
+                        let d = &sc.single.work[(y - 1) * nx..][..nx];
+                        for ((o, &b), &d) in out.iter_mut().zip(&bg[y * w + 1..][..nx]).zip(d) {
+                            *o = (b + f64::from(d)) as f32;
+                        }
+                    }),
+                    Solver::Jacobi { .. } | Solver::Sor { .. } => store(frame, *rect, 1, |y, out| {
+                        for (o, &v) in out.iter_mut().zip(&sc.work[y * w + 1..][..nx]) {
+                            *o = v as f32;
+                        }
+                    }),
                 }
             }
         }
@@ -523,7 +767,7 @@ impl PoissonFusion {
         if rhs.is_empty() {
             return;
         }
-        let (dst_x, dst_y) = (self.plan(nx), self.plan(ny));
+        let (dst_x, dst_y) = (self.plans.get(nx), self.plans.get(ny));
         let sc = &mut self.scratch[0];
         sc.reserve(rhs.len());
         sc.work[..rhs.len()].copy_from_slice(rhs);
@@ -533,17 +777,6 @@ impl PoissonFusion {
 }
 
 impl Scratch {
-    /// Sizes the transforms' buffers: `buf` and `scratch` complex values at least.
-    fn fit(&mut self, buf: usize, scratch: usize) {
-        let zero = Complex::new(0.0, 0.0);
-        if self.fft_scratch.len() < scratch {
-            self.fft_scratch.resize(scratch, zero);
-        }
-        if self.fft_buf.len() < buf {
-            self.fft_buf.resize(buf, zero);
-        }
-    }
-
     fn reserve(&mut self, area: usize) {
         for b in [&mut self.u, &mut self.bg, &mut self.work, &mut self.work2] {
             if b.len() < area {
@@ -553,6 +786,7 @@ impl Scratch {
     }
 
     /// Loads the background and the summed guidance patch on `rect`.
+    #[inline(always)]
     fn load_region(&mut self, frame: &Frame, rect: PixelRect, patches: &[Patch<'_>]) {
         let (w, h) = (rect.width(), rect.height());
         self.reserve(w * h);
@@ -584,6 +818,7 @@ impl Scratch {
 
     /// Right-hand side on the interior: guidance divergence plus the Dirichlet ring, into `work`
     /// (interior layout `(w−2) × (h−2)`), and the guidance part alone into `work2` (region layout).
+    #[inline(always)]
     fn build_rhs(&mut self, w: usize, h: usize, guidance: Guidance) {
         if guidance == Guidance::Mixed {
             return self.build_rhs_per_pixel(w, h, true);
@@ -673,31 +908,44 @@ impl Scratch {
         }
     }
 
-    /// Solves `(4I − adjacency) x = work` on an `nx × ny` grid with zero Dirichlet boundary, in place.
-    fn solve_direct(&mut self, dst_x: &Dst1, dst_y: &Dst1) {
-        let (nx, ny) = (dst_x.n, dst_y.n);
-        for d in [dst_x, dst_y] {
-            self.fit(d.buffer_len(), d.fft.get_inplace_scratch_len());
-        }
-        let n = nx * ny;
-        let (work, tmp) = (&mut self.work[..n], &mut self.work2[..n]);
-        let (buf, scratch) = (&mut self.fft_buf, &mut self.fft_scratch);
-        let (sx, sy) = (dst_x.fft.get_inplace_scratch_len(), dst_y.fft.get_inplace_scratch_len());
-        // rows: DST along x
-        dst_x.process_rows(work, buf, &mut scratch[..sx], None);
-        transpose(work, tmp, nx, ny);
-        // along y, dividing between the two transforms by the eigenvalues λ = (2 − 2cos θx) + (2 − 2cos θy); tmp is
-        // ny-fast: row kx, index ky
-        let scale = 4.0 / ((nx + 1) * (ny + 1)) as f64;
-        let divide = |kx: usize, row: &mut [f64]| {
-            let lx = dst_x.eigen[kx];
-            for (v, &ly) in row.iter_mut().zip(&dst_y.eigen) {
-                *v *= scale / (lx + ly);
+    /// The right-hand side of [`Solver::DirectF32`]'s difference `d = f − f*` on the interior, into
+    /// `single.work` (interior layout): the guidance sum less the background's own, `Σ_q v_pq − Σ_q (f*_p − f*_q)`,
+    /// formed in f64 and then rounded (the ring's values drop out: `d` is zero on it). The buffers are sized for
+    /// the region ([`PoissonFusion::size_buffers`]).
+    #[inline(always)]
+    fn build_difference_rhs(&mut self, w: usize, h: usize, guidance: Guidance) {
+        let nx = w - 2;
+        let (u, bg) = (&self.u, &self.bg);
+        for (y, out) in (1..h - 1).zip(self.single.work[..nx * (h - 2)].chunks_exact_mut(nx)) {
+            let row = y * w;
+            if guidance == Guidance::Mixed {
+                for (k, o) in out.iter_mut().enumerate() {
+                    let p = row + 1 + k;
+                    *o = (guidance_sum(u, bg, p, w, true) - guidance_sum(bg, bg, p, w, false)) as f32;
+                }
+                continue;
             }
-        };
-        dst_y.process_rows(tmp, buf, &mut scratch[..sy], Some(&divide));
-        transpose(tmp, work, ny, nx);
-        dst_x.process_rows(work, buf, &mut scratch[..sx], None);
+            // the normal guidance's less the background's, over the difference e = u − f*: Σ_q (e_p − e_q), over
+            // the row's slices so that it vectorizes
+            fn window(v: &[f64], start: usize, n: usize) -> &[f64] {
+                &v[start..][..n]
+            }
+            let at = |v, start| window(v, start, nx);
+            let (uc, ul, ur, uu, ud) =
+                (at(u, row + 1), at(u, row), at(u, row + 2), at(u, row + 1 - w), at(u, row + 1 + w));
+            let (bc, bl, br, bu, bd) =
+                (at(bg, row + 1), at(bg, row), at(bg, row + 2), at(bg, row + 1 - w), at(bg, row + 1 + w));
+            for (k, o) in out.iter_mut().enumerate() {
+                let e = uc[k] - bc[k];
+                let sum = (e - (ul[k] - bl[k])) + (e - (ur[k] - br[k])) + (e - (uu[k] - bu[k])) + (e - (ud[k] - bd[k]));
+                *o = sum as f32;
+            }
+        }
+    }
+
+    /// [`solve_sine`] on `work`, with `work2` as its transpose.
+    fn solve_direct(&mut self, dst_x: &Dst1<f64>, dst_y: &Dst1<f64>) {
+        solve_sine(&mut self.work, &mut self.work2, &mut self.fft_buf, &mut self.fft_scratch, dst_x, dst_y);
     }
 
     /// Jacobi (eq 20, `omega = None`) or red-black SOR on the whole region layout, starting from the
@@ -770,6 +1018,42 @@ impl Scratch {
     }
 }
 
+/// Solves `(4I − adjacency) x = work` on an `nx × ny` grid with zero Dirichlet boundary (`nx`, `ny` the lengths
+/// of `dst_x` and `dst_y`), in place in `work`'s first `nx·ny` values, with `tmp` as the transpose and `buf`
+/// and `scratch` grown to the transforms' needs.
+fn solve_sine<T: Real>(
+    work: &mut [T],
+    tmp: &mut [T],
+    buf: &mut Vec<Complex<T>>,
+    scratch: &mut Vec<Complex<T>>,
+    dst_x: &Dst1<T>,
+    dst_y: &Dst1<T>,
+) {
+    let (nx, ny) = (dst_x.n, dst_y.n);
+    for d in [dst_x, dst_y] {
+        fit(buf, d.buffer_len());
+        fit(scratch, d.fft.get_inplace_scratch_len());
+    }
+    let n = nx * ny;
+    let (work, tmp) = (&mut work[..n], &mut tmp[..n]);
+    let (sx, sy) = (dst_x.fft.get_inplace_scratch_len(), dst_y.fft.get_inplace_scratch_len());
+    // rows: DST along x
+    dst_x.process_rows(work, buf, &mut scratch[..sx], None);
+    T::transpose(work, tmp, nx, ny);
+    // along y, dividing between the two transforms by the eigenvalues λ = (2 − 2cos θx) + (2 − 2cos θy); tmp is
+    // ny-fast: row kx, index ky
+    let scale = T::of(4.0 / ((nx + 1) * (ny + 1)) as f64);
+    let divide = |kx: usize, row: &mut [T]| {
+        let lx = dst_x.eigen[kx];
+        for (v, &ly) in row.iter_mut().zip(&dst_y.eigen) {
+            *v *= scale / (lx + ly);
+        }
+    };
+    dst_y.process_rows(tmp, buf, &mut scratch[..sy], Some(&divide));
+    T::transpose(tmp, work, ny, nx);
+    dst_x.process_rows(work, buf, &mut scratch[..sx], None);
+}
+
 /// True if `n` is `2^a·3^b`: FFT lengths `2n` that rustfft runs fastest.
 fn is_smooth(mut n: usize) -> bool {
     if n == 0 {
@@ -807,17 +1091,22 @@ fn grow_to_fast_size(rect: PixelRect, width: usize, height: usize) -> PixelRect 
     PixelRect { x0, y0, x1, y1 }
 }
 
-/// Writes `value(y, x)` (region coordinates) into `frame` on `rect`, skipping a ring of `margin` pixels.
-fn store(frame: &mut Frame, rect: PixelRect, value: impl Fn(usize, usize) -> f64, margin: usize) {
+/// Writes `frame` on `rect`, skipping a ring of `margin` pixels: `fill(y, row)` fills the part of the region's
+/// row `y` inside the ring. Run inside [`crate::physics::simd::widest`], so that `fill`'s loops (inlined)
+/// vectorize as wide as the CPU allows.
+fn store(frame: &mut Frame, rect: PixelRect, margin: usize, fill: impl Fn(usize, &mut [f32])) {
     let (w, h) = (rect.width(), rect.height());
     let fw = frame.width();
     let px = frame.pixels_mut();
-    for y in margin..h - margin {
-        let start = (rect.y0 + y) * fw + rect.x0;
-        for (x, p) in px[start + margin..start + w - margin].iter_mut().enumerate() {
-            *p = value(y, x + margin) as f32;
-        }
-    }
+    crate::physics::simd::widest(
+        #[inline(always)]
+        || {
+            for y in margin..h - margin {
+                let start = (rect.y0 + y) * fw + rect.x0;
+                fill(y, &mut px[start + margin..start + w - margin]);
+            }
+        },
+    );
 }
 
 /// `dst` (`cols × rows`, row-major) = the transpose of `src` (`rows × cols`), in tiles of 8 × 8 (with AVX2, of
@@ -839,7 +1128,7 @@ fn transpose(src: &[f64], dst: &mut [f64], cols: usize, rows: usize) {
 }
 
 /// [`transpose`] of the part of `src` in rows `part.0` and columns `part.1`, in 8 × 8 tiles, one value at a time.
-fn transpose_tiles(src: &[f64], dst: &mut [f64], cols: usize, rows: usize, part: (Range<usize>, Range<usize>)) {
+fn transpose_tiles<T: Copy>(src: &[T], dst: &mut [T], cols: usize, rows: usize, part: (Range<usize>, Range<usize>)) {
     const TILE: usize = 8;
     let (row_part, col_part) = part;
     for r0 in row_part.clone().step_by(TILE) {
@@ -889,6 +1178,144 @@ mod x86 {
         // the columns past the last block, in the rows of whole blocks; then the rows past them, every column
         super::transpose_tiles(src, dst, cols, rows, (0..rows4, cols4..cols));
         super::transpose_tiles(src, dst, cols, rows, (rows4..rows, 0..cols));
+    }
+
+    /// [`super::transpose`] of f32 values in 8 × 8 blocks of AVX2 registers (unpacks, shuffles and lane
+    /// permutes); the rows and columns past the last whole block one value at a time.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2, and `src` and `dst` must hold `rows · cols` values.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn transpose_avx2_f32(src: &[f32], dst: &mut [f32], cols: usize, rows: usize) {
+        let (rows8, cols8) = (rows / 8 * 8, cols / 8 * 8);
+        let (s, d) = (src.as_ptr(), dst.as_mut_ptr());
+        for r in (0..rows8).step_by(8) {
+            for c in (0..cols8).step_by(8) {
+                // SAFETY: rows r … r + 7 and columns c … c + 7 are inside both buffers (r + 7 < rows,
+                // c + 7 < cols, and the caller's lengths)
+                unsafe {
+                    let at = |k: usize| _mm256_loadu_ps(s.add((r + k) * cols + c));
+                    // pairs of rows interleaved, then quarters of columns gathered: column j's first four rows
+                    // in lane j % 4 of q[j / 4 …], its last four in the same place of q[… + 4]
+                    let t = [0, 2, 4, 6]
+                        .map(|k| (_mm256_unpacklo_ps(at(k), at(k + 1)), _mm256_unpackhi_ps(at(k), at(k + 1))));
+                    let q = [
+                        _mm256_shuffle_ps::<0x44>(t[0].0, t[1].0),
+                        _mm256_shuffle_ps::<0xEE>(t[0].0, t[1].0),
+                        _mm256_shuffle_ps::<0x44>(t[0].1, t[1].1),
+                        _mm256_shuffle_ps::<0xEE>(t[0].1, t[1].1),
+                        _mm256_shuffle_ps::<0x44>(t[2].0, t[3].0),
+                        _mm256_shuffle_ps::<0xEE>(t[2].0, t[3].0),
+                        _mm256_shuffle_ps::<0x44>(t[2].1, t[3].1),
+                        _mm256_shuffle_ps::<0xEE>(t[2].1, t[3].1),
+                    ];
+                    for j in 0..4 {
+                        _mm256_storeu_ps(d.add((c + j) * rows + r), _mm256_permute2f128_ps::<0x20>(q[j], q[j + 4]));
+                        _mm256_storeu_ps(d.add((c + j + 4) * rows + r), _mm256_permute2f128_ps::<0x31>(q[j], q[j + 4]));
+                    }
+                }
+            }
+        }
+        super::transpose_tiles(src, dst, cols, rows, (0..rows8, cols8..cols));
+        super::transpose_tiles(src, dst, cols, rows, (rows8..rows, 0..cols));
+    }
+
+    /// Eight complex values at `p` as their real and imaginary parts.
+    ///
+    /// # Safety
+    /// AVX2, and 16 f32 values readable at `p`.
+    #[target_feature(enable = "avx2")]
+    unsafe fn load_complex(p: *const f32) -> (__m256, __m256) {
+        // SAFETY: the caller's
+        let (x0, x1) = unsafe { (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8))) };
+        // per lane: re 0 1 4 5 | 2 3 6 7, then the 64-bit pairs put in order
+        let order = |v: __m256| _mm256_castpd_ps(_mm256_permute4x64_pd::<0xD8>(_mm256_castps_pd(v)));
+        (order(_mm256_shuffle_ps::<0x88>(x0, x1)), order(_mm256_shuffle_ps::<0xDD>(x0, x1)))
+    }
+
+    /// `first` and `second` interleaved, `first[0], second[0], first[1], …`, into the 16 f32 values at `p`.
+    ///
+    /// # Safety
+    /// AVX2, and 16 f32 values writable at `p`.
+    #[target_feature(enable = "avx2")]
+    unsafe fn store_interleaved(p: *mut f32, first: __m256, second: __m256) {
+        let (lo, hi) = (_mm256_unpacklo_ps(first, second), _mm256_unpackhi_ps(first, second));
+        // SAFETY: the caller's
+        unsafe {
+            _mm256_storeu_ps(p, _mm256_permute2f128_ps::<0x20>(lo, hi));
+            _mm256_storeu_ps(p.add(8), _mm256_permute2f128_ps::<0x31>(lo, hi));
+        }
+    }
+
+    /// `v`'s eight values in reverse order.
+    #[target_feature(enable = "avx2")]
+    fn reversed(v: __m256) -> __m256 {
+        _mm256_permutevar8x32_ps(v, _mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0))
+    }
+
+    /// [`super::Real::pair_in`] for f32 in blocks of eight.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn pair_in_f32(
+        sines: &[f32],
+        rows: [&[f32]; 4],
+        low: &mut [super::Complex<f32>],
+        high: &mut [super::Complex<f32>],
+    ) -> usize {
+        let m = low.len();
+        assert!(high.len() == m && sines.len() >= m && rows.iter().all(|r| r.len() == m), "halves of m values");
+        let [al, ah, bl, bh] = rows.map(<[f32]>::as_ptr);
+        let (lo, hi) = (low.as_mut_ptr().cast::<f32>(), high.as_mut_ptr().cast::<f32>());
+        let half = _mm256_set1_ps(0.5);
+        for c in 0..m / 8 {
+            // values k0 … k0 + 7 of the low halves, and their mirror images r = m − 1 − k: the high halves'
+            // r0 … r0 + 7, reversed
+            let (k0, r0) = (8 * c, m - 8 * (c + 1));
+            // SAFETY: k0 + 7 and r0 + 7 are below m, the length of every slice (a complex value is two f32)
+            unsafe {
+                let s = _mm256_loadu_ps(sines.as_ptr().add(k0));
+                let y = |low: *const f32, high: *const f32| {
+                    let (f, mirror) = (_mm256_loadu_ps(low.add(k0)), reversed(_mm256_loadu_ps(high.add(r0))));
+                    (_mm256_mul_ps(s, _mm256_add_ps(f, mirror)), _mm256_mul_ps(half, _mm256_sub_ps(f, mirror)))
+                };
+                let ((sa, da), (sb, db)) = (y(al, ah), y(bl, bh));
+                store_interleaved(lo.add(2 * k0), _mm256_add_ps(sa, da), _mm256_add_ps(sb, db));
+                store_interleaved(hi.add(2 * r0), reversed(_mm256_sub_ps(sa, da)), reversed(_mm256_sub_ps(sb, db)));
+            }
+        }
+        m / 8 * 8
+    }
+
+    /// [`super::Real::pair_out`] for f32 in blocks of eight.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn pair_out_f32(z: [&[super::Complex<f32>]; 2], whole: usize, a: &mut [f32], b: &mut [f32]) -> usize {
+        let [z_low, z_high] = z;
+        let m = z_low.len();
+        assert!(z_high.len() == m && whole <= m && a.len().min(b.len()) >= 2 * whole, "halves of m values");
+        let (zl, zh) = (z_low.as_ptr().cast::<f32>(), z_high.as_ptr().cast::<f32>());
+        let (pa, pb) = (a.as_mut_ptr(), b.as_mut_ptr());
+        let half = _mm256_set1_ps(0.5);
+        for c in 0..whole / 8 {
+            // Z_k for k0 … k0 + 7, and Z_{N−k}: z_high's m − 8 − k0 … m − 1 − k0, reversed
+            let k0 = 8 * c;
+            // SAFETY: k0 + 7 < whole ≤ m, so both blocks of z are inside it, and a and b hold 2·whole values
+            unsafe {
+                let (zkr, zki) = load_complex(zl.add(2 * k0));
+                let (zmr, zmi) = load_complex(zh.add(2 * (m - 8 - k0)));
+                let (zmr, zmi) = (reversed(zmr), reversed(zmi));
+                let (even_a, step_a) = (_mm256_sub_ps(zmi, zki), _mm256_add_ps(zkr, zmr));
+                let (even_b, step_b) = (_mm256_sub_ps(zkr, zmr), _mm256_add_ps(zki, zmi));
+                let h = |v| _mm256_mul_ps(half, v);
+                store_interleaved(pa.add(2 * k0), h(even_a), h(step_a));
+                store_interleaved(pb.add(2 * k0), h(even_b), h(step_b));
+            }
+        }
+        whole / 8 * 8
     }
 }
 
@@ -959,6 +1386,92 @@ mod tests {
                 unsafe { x86::transpose_avx2(&src, &mut dst, cols, rows) };
                 check(&dst, "avx2");
             }
+            // f32, whose vector transpose moves 8 × 8 blocks
+            let src32: Vec<f32> = src.iter().map(|&v| v as f32).collect();
+            let check32 = |dst: &[f32], what: &str| {
+                let wide: Vec<f64> = dst.iter().map(|&v| f64::from(v)).collect();
+                check(&wide, what);
+            };
+            let mut dst = vec![-1.0; rows * cols];
+            <f32 as Real>::transpose(&src32, &mut dst, cols, rows);
+            check32(&dst, "f32, dispatched");
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
+                let mut dst = vec![-1.0; rows * cols];
+                // SAFETY: the CPU has AVX2; both buffers hold rows · cols values
+                unsafe { x86::transpose_avx2_f32(&src32, &mut dst, cols, rows) };
+                check32(&dst, "f32, avx2");
+            }
+        }
+    }
+
+    #[test]
+    fn the_vector_loops_around_the_f32_transform_are_the_scalar_ones_bit_for_bit() {
+        let zero = Complex::new(0.0f32, 0.0);
+        for m in [1usize, 7, 8, 9, 15, 16, 17, 35, 71, 127] {
+            // four rows unlike each other and their mirror images, of mixed signs and magnitudes
+            let rows: Vec<Vec<f32>> = (0..4)
+                .map(|r| {
+                    (0..m).map(|j| (((j * 37 + r * 11) % 17) as f32 - 8.3) * (1.0 + (j % 5) as f32 * 0.71)).collect()
+                })
+                .collect();
+            let rows = [&rows[0][..], &rows[1][..], &rows[2][..], &rows[3][..]];
+            let sines: Vec<f32> = (0..m).map(|k| ((k + 1) as f32 * 0.093).sin()).collect();
+            let bits = |v: &[Complex<f32>]| v.iter().map(|z| (z.re.to_bits(), z.im.to_bits())).collect::<Vec<_>>();
+            let (mut low, mut high) = (vec![zero; m], vec![zero; m]);
+            pair_in_from(0, &sines, rows, &mut low, &mut high);
+            let (mut vlow, mut vhigh) = (vec![zero; m], vec![zero; m]);
+            let done = <f32 as Real>::pair_in(&sines, rows, &mut vlow, &mut vhigh);
+            pair_in_from(done, &sines, rows, &mut vlow, &mut vhigh);
+            assert_eq!((bits(&vlow), bits(&vhigh)), (bits(&low), bits(&high)), "before the FFT, m = {m}");
+            #[cfg(target_arch = "x86_64")]
+            if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
+                assert_eq!(done, m / 8 * 8, "the vector loop ran");
+            }
+            // the same values standing in for an FFT's, with either count of whole outputs
+            for whole in [m, m - 1] {
+                let z = [&low[..], &high[..]];
+                let (mut a, mut b) = (vec![0.0f32; 2 * whole], vec![0.0f32; 2 * whole]);
+                pair_out_from(0, z, &mut a, &mut b);
+                let (mut va, mut vb) = (vec![0.0f32; 2 * whole], vec![0.0f32; 2 * whole]);
+                let done = <f32 as Real>::pair_out(z, whole, &mut va, &mut vb);
+                pair_out_from(done, z, &mut va, &mut vb);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!((bits(&va), bits(&vb)), (bits(&a), bits(&b)), "after the FFT, m = {m}, {whole} whole");
+            }
+        }
+    }
+
+    #[test]
+    fn the_f32_solve_of_the_difference_is_the_f64_solve_within_two_hundredths_of_a_gray_level() {
+        // a bright, steep, textured sky (15 000 … 60 000 DN) and a target 20 000 DN above it; a region 193 × 97
+        // (transform lengths 191 and 95, neither smooth) and one as wide as the frame
+        let (w, h) = (240, 140);
+        let bg: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                15_000.0 + 180.0 * x + 12.0 * y + ((i as u32).wrapping_mul(2_654_435_761) >> 24) as f32
+            })
+            .collect();
+        for rect in [PixelRect { x0: 20, y0: 20, x1: 213, y1: 117 }, PixelRect { x0: 0, y0: 30, x1: w, y1: 101 }] {
+            let (pw, ph) = (rect.width(), rect.height());
+            let vals: Vec<f32> = (0..pw * ph)
+                .map(|i| {
+                    let (x, y) = ((i % pw) as f32 - pw as f32 / 2.0, (i / pw) as f32 - ph as f32 / 2.0);
+                    20_000.0 * (-(x * x + 4.0 * y * y) / 200.0).exp()
+                })
+                .collect();
+            for guidance in [Guidance::Normal, Guidance::Mixed] {
+                let fuse = |solver| {
+                    let mut frame = Frame::from_pixels(w, h, bg.clone());
+                    PoissonFusion::new().fuse(&mut frame, &[Patch { rect, values: &vals }], guidance, solver);
+                    frame
+                };
+                let (double, single) = (fuse(Solver::Direct), fuse(Solver::DirectF32));
+                let worst = double.pixels().iter().zip(single.pixels()).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+                assert!(worst <= 0.02, "{guidance:?} on {rect:?}: {worst} DN apart");
+                assert!(double.pixels().iter().zip(&bg).any(|(a, b)| (a - b).abs() > 100.0), "the target is there");
+            }
         }
     }
 
@@ -966,6 +1479,7 @@ mod tests {
     fn the_sine_transform_is_its_definition_on_rows_of_every_length() {
         let mut planner = FftPlanner::new();
         let lengths = (1..=40).chain([71, 142, 242, 254, 255]);
+        let mut planner32 = FftPlanner::new();
         for n in lengths {
             let d = Dst1::new(n, &mut planner);
             let mut buf = vec![Complex::new(0.0, 0.0); d.buffer_len()];
@@ -984,6 +1498,22 @@ mod tests {
                 let scale = want.iter().fold(1.0f64, |m, v| m.max(v.abs()));
                 for (k, (g, w)) in got.iter().zip(&want).enumerate() {
                     assert!((g - w).abs() <= 1e-14 * scale * n as f64, "n = {n}, output {k}: {g} against {w}");
+                }
+            }
+            // in f32 (the vector loops around its FFT from n = 16 up), to single precision's rounding
+            let d = Dst1::<f32>::new(n, &mut planner32);
+            let mut buf = vec![Complex::new(0.0, 0.0); d.buffer_len()];
+            let mut scratch = vec![Complex::new(0.0, 0.0); d.fft.get_inplace_scratch_len()];
+            let rows32: Vec<Vec<f32>> = rows.iter().map(|r| r.iter().map(|&v| v as f32).collect()).collect();
+            let (mut a, mut b, mut single) = (rows32[0].clone(), rows32[1].clone(), rows32[2].clone());
+            d.process_pair(&mut a, Some(&mut b), &mut buf, &mut scratch);
+            d.process_pair(&mut single, None, &mut buf, &mut scratch);
+            for (got, row) in [(&a, &rows32[0]), (&b, &rows32[1]), (&single, &rows32[2])] {
+                let want = dst1_by_definition(&row.iter().map(|&v| f64::from(v)).collect::<Vec<_>>());
+                let scale = want.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+                for (k, (&g, w)) in got.iter().zip(&want).enumerate() {
+                    let err = (f64::from(g) - w).abs() / scale;
+                    assert!(err <= 2e-7 * n as f64, "f32, n = {n}, output {k}: {g} against {w}");
                 }
             }
         }
@@ -1037,19 +1567,22 @@ mod tests {
         let rect = PixelRect { x0: 20, y0: 20, x1: 213, y1: 117 };
         let vals: Vec<f32> =
             (0..rect.width() * rect.height()).map(|i| ((i as u32).wrapping_mul(40_503) >> 20) as f32).collect();
-        let solve = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            pool.install(|| {
-                let mut frame = Frame::from_pixels(w, h, bg.clone());
-                let mut f = PoissonFusion::new();
-                f.fuse(&mut frame, &[Patch { rect, values: &vals }], Guidance::Normal, Solver::Direct);
-                frame
-            })
-        };
-        let one = solve(1);
-        assert_ne!(one.pixels(), &bg[..]);
-        for threads in [2, 3] {
-            assert!(one.pixels().iter().zip(solve(threads).pixels()).all(|(a, b)| a.to_bits() == b.to_bits()));
+        for solver in [Solver::Direct, Solver::DirectF32] {
+            let solve = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                pool.install(|| {
+                    let mut frame = Frame::from_pixels(w, h, bg.clone());
+                    let mut f = PoissonFusion::new();
+                    f.fuse(&mut frame, &[Patch { rect, values: &vals }], Guidance::Normal, solver);
+                    frame
+                })
+            };
+            let one = solve(1);
+            assert_ne!(one.pixels(), &bg[..]);
+            for threads in [2, 3] {
+                let same = one.pixels().iter().zip(solve(threads).pixels()).all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "{solver:?} on {threads} threads");
+            }
         }
     }
 

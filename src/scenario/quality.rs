@@ -143,7 +143,8 @@ pub struct Quality {
     /// (vectorized, within 1e-6 of the exact transform, the tail cut at 5.77 σ) or the quantile picked by 16
     /// bits, from a polynomial per octave (`table`: cheaper, within 6.4e-5 σ, the tail cut at 4.32 σ).
     pub normal_sampler: NormalSampler,
-    /// How the Poisson fusion equation is solved.
+    /// How the Poisson fusion equation is solved (`draft`: the direct solve in f32, of the difference from the
+    /// background).
     pub fusion_solver: Solver,
     /// A target whose peak is below this many noise σ (at its background) is added to the frame instead of
     /// fused (0: every target fused).
@@ -210,8 +211,8 @@ impl Quality {
             atmosphere_tolerance: STANDARD_ATMOSPHERE_TOLERANCE,
             atmosphere_steps: steps(PathSteps::STANDARD),
         };
-        // the other two say where they differ from it (the fusion solver and guidance and the reflection geometry
-        // are the same in all three)
+        // the other two say where they differ from it (the fusion guidance and the reflection geometry are the
+        // same in all three)
         match p {
             QualityPreset::Standard => standard,
             QualityPreset::Reference => Self {
@@ -242,6 +243,7 @@ impl Quality {
                 radiance_table_step_k: 0.1,
                 psf_energy_cutoff: 0.1,
                 fusion_skip_below_sigma: DRAFT_FUSION_SKIP_BELOW_SIGMA,
+                fusion_solver: Solver::DirectF32,
                 psf_skip_below_dn: 1.0,
                 sky_blur: SkyBlur::Auto,
                 prefilter_tolerance: 0.2,
@@ -599,7 +601,7 @@ impl QualitySpec {
         }
         range("poisson_normal_threshold_e", q.poisson_normal_threshold_e, 0.0, MAX_POISSON_THRESHOLD_E, " e⁻")?;
         match q.fusion_solver {
-            Solver::Direct => {}
+            Solver::Direct | Solver::DirectF32 => {}
             Solver::Jacobi { tolerance, max_iterations } | Solver::Sor { tolerance, max_iterations } => {
                 if !(tolerance > 0.0 && tolerance.is_finite()) {
                     return Err(fe(

@@ -285,6 +285,9 @@ fn quality_panel(ui: &mut egui::Ui, q: &mut QualitySpec) {
         if ui.selectable_label(s == Solver::Direct, "direct").clicked() {
             s = Solver::Direct;
         }
+        if ui.selectable_label(s == Solver::DirectF32, "direct f32").clicked() {
+            s = Solver::DirectF32;
+        }
         if ui.selectable_label(matches!(s, Solver::Sor { .. }), "SOR").clicked() && !matches!(s, Solver::Sor { .. }) {
             s = Solver::Sor { tolerance: ITERATIVE_TOLERANCE_DN, max_iterations: 2000 };
         }
