@@ -347,12 +347,16 @@ fn direct_solver_satisfies_the_discrete_equation_in_f64() {
 
 #[test]
 fn fusion_solves_the_equation_keeps_the_boundary_and_touches_nothing_else() {
-    for guidance in [Guidance::Normal, Guidance::Mixed] {
+    // the f64 solve to the f32 frame's rounding; the f32 one (of the difference from the background) to its own
+    let cases = [Guidance::Normal, Guidance::Mixed]
+        .into_iter()
+        .flat_map(|g| [(g, Solver::Direct, 1e-4), (g, Solver::DirectF32, RESIDUAL_F32)]);
+    for (guidance, solver, bound) in cases {
         let (mut frame, blob) = scene(64, 48, 1);
         let before = frame.clone();
         let (patch_rect, patch) = region(&frame, &blob);
         let mut fusion = PoissonFusion::new();
-        fusion.fuse(&mut frame, &[Patch { rect: patch_rect, values: &patch }], guidance, Solver::Direct);
+        fusion.fuse(&mut frame, &[Patch { rect: patch_rect, values: &patch }], guidance, solver);
         let rect = fusion.regions()[0];
         assert!(
             rect.x0 <= patch_rect.x0
@@ -370,7 +374,7 @@ fn fusion_solves_the_equation_keeps_the_boundary_and_touches_nothing_else() {
         }
         let bg = region_values(&before, rect);
         let res = max_residual(&frame, rect, &u, &bg, guidance);
-        assert!(res <= 1e-4, "{guidance:?}: f32 residual {res}");
+        assert!(res <= bound, "{guidance:?}, {solver:?}: residual {res}");
         for y in 0..48 {
             for x in 0..64 {
                 let inside = x > rect.x0 && x + 1 < rect.x1 && y > rect.y0 && y + 1 < rect.y1;
@@ -380,6 +384,38 @@ fn fusion_solves_the_equation_keeps_the_boundary_and_touches_nothing_else() {
             }
         }
         assert_ne!(frame, before);
+    }
+}
+
+/// Largest residual of the fused equation that [`Solver::DirectF32`] may leave on the test scene (measured
+/// 5.1e-7 with the normal guidance, 2.8e-7 with the mixed; the f64 solve 1.2e-7 and 1.5e-7).
+const RESIDUAL_F32: f64 = 1e-5;
+
+#[test]
+fn one_fusion_engine_gives_each_frame_what_a_fresh_one_does_with_either_direct_solver() {
+    // regions growing and shrinking from frame to frame, two at once (solved side by side on their own buffers),
+    // the two direct solvers in turn on one engine
+    let (w, h) = (120, 90);
+    let bg: Vec<f32> = (0..w * h).map(|i| 500.0 + ((i * 7919) % 613) as f32).collect();
+    let mut engine = PoissonFusion::new();
+    for (k, size) in [9usize, 17, 33, 12, 40, 40].into_iter().enumerate() {
+        let solver = if k % 2 == 0 { Solver::DirectF32 } else { Solver::Direct };
+        let patches: Vec<(PixelRect, Vec<f32>)> = [(5, 5), (60, 40)]
+            .into_iter()
+            .map(|(x0, y0)| {
+                let rect = PixelRect { x0, y0, x1: x0 + size, y1: y0 + size };
+                (rect, (0..size * size).map(|i| ((i * 31) % 97) as f32).collect())
+            })
+            .collect();
+        let list: Vec<Patch<'_>> = patches.iter().map(|(rect, values)| Patch { rect: *rect, values }).collect();
+        let mut reused = Frame::from_pixels(w, h, bg.clone());
+        let stats = engine.fuse(&mut reused, &list, Guidance::Normal, solver);
+        assert_eq!(stats.regions, 2, "two regions, size {size}");
+        let mut fresh = Frame::from_pixels(w, h, bg.clone());
+        PoissonFusion::new().fuse(&mut fresh, &list, Guidance::Normal, solver);
+        assert_ne!(reused.pixels(), &bg[..]);
+        let same = reused.pixels().iter().zip(fresh.pixels()).all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "frame {k}: {solver:?} on a reused engine, size {size}");
     }
 }
 

@@ -16,8 +16,9 @@
 //! sine transform, so `f = S_y S_x (Ŝ_x Ŝ_y b / λ)` with `λ_kl = 4 − 2cos(πk/(n_x+1)) − 2cos(πl/(n_y+1))`, in
 //! O(n² log n), in f64, two rows per complex FFT of the rows' length plus one. The same solve in f32
 //! ([`Solver::DirectF32`]) solves for the difference from the background, `f = f* + d`, whose right-hand side
-//! `Σ_q v_pq − (4 f*_p − Σ_q f*_q)` is formed in f64: `d` is the size of the target's contrast, not of the gray
-//! levels, so single precision's relative error applies to the contrast alone.
+//! `Σ_q v_pq − (4 f*_p − Σ_q f*_q)` is formed in f64: `d` is the size of the target's contrast and of the sky's
+//! structure the solve replaces under it, not of the gray levels, so single precision's relative error applies to
+//! those alone.
 //!
 //! Overlapping (or touching) regions of several targets are merged into one solve. Regions are clipped to the
 //! frame; a region thinner than 3 pixels has no interior and is left as it is in the solved modes. Separate
@@ -129,8 +130,12 @@ trait Real: rustfft::FftNum + std::ops::AddAssign + std::ops::MulAssign {
     fn of(v: f64) -> Self;
     /// Runs `f` on this thread's [`BLOCK_BUFFERS`] of this type.
     fn with_block_buffers(f: impl FnOnce(&mut FftBuffers<Self>));
-    /// [`transpose`] for this type.
-    fn transpose(src: &[Self], dst: &mut [Self], cols: usize, rows: usize);
+    /// [`transpose`]'s AVX2 kernel for this type.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2, and `src` and `dst` must hold `rows · cols` values.
+    #[cfg(target_arch = "x86_64")]
+    unsafe fn transpose_avx2(src: &[Self], dst: &mut [Self], cols: usize, rows: usize);
     /// The first blocks of [`Dst1::process_pair`]'s loop before its FFT, for two rows (`rows`: row a's low and
     /// high halves, then row b's), in explicit vector code where this type and the CPU have it: returns how many
     /// of the `low.len()` values it did, the rest being the caller's. The same operations in the same order as
@@ -152,8 +157,10 @@ impl Real for f64 {
     fn with_block_buffers(f: impl FnOnce(&mut FftBuffers<Self>)) {
         BLOCK_BUFFERS.with_borrow_mut(f);
     }
-    fn transpose(src: &[Self], dst: &mut [Self], cols: usize, rows: usize) {
-        transpose(src, dst, cols, rows);
+    #[cfg(target_arch = "x86_64")]
+    unsafe fn transpose_avx2(src: &[Self], dst: &mut [Self], cols: usize, rows: usize) {
+        // SAFETY: the caller's
+        unsafe { x86::transpose_avx2(src, dst, cols, rows) }
     }
 }
 
@@ -164,18 +171,14 @@ impl Real for f32 {
     fn with_block_buffers(f: impl FnOnce(&mut FftBuffers<Self>)) {
         BLOCK_BUFFERS_F32.with_borrow_mut(f);
     }
-    fn transpose(src: &[Self], dst: &mut [Self], cols: usize, rows: usize) {
-        assert!(src.len() >= rows * cols && dst.len() >= rows * cols, "buffers of the region's size");
-        #[cfg(target_arch = "x86_64")]
-        if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
-            // SAFETY: the CPU has AVX2 (every level above the baseline includes it); the lengths are checked above
-            return unsafe { x86::transpose_avx2_f32(src, dst, cols, rows) };
-        }
-        transpose_tiles(src, dst, cols, rows, (0..rows, 0..cols));
+    #[cfg(target_arch = "x86_64")]
+    unsafe fn transpose_avx2(src: &[Self], dst: &mut [Self], cols: usize, rows: usize) {
+        // SAFETY: the caller's
+        unsafe { x86::transpose_avx2_f32(src, dst, cols, rows) }
     }
     fn pair_in(sines: &[Self], rows: [&[Self]; 4], low: &mut [Complex<Self>], high: &mut [Complex<Self>]) -> usize {
         #[cfg(target_arch = "x86_64")]
-        if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
+        if avx2() {
             // SAFETY: the CPU has AVX2; the function checks the lengths
             return unsafe { x86::pair_in_f32(sines, rows, low, high) };
         }
@@ -184,13 +187,26 @@ impl Real for f32 {
     }
     fn pair_out(z: [&[Complex<Self>]; 2], whole: usize, a: &mut [Self], b: &mut [Self]) -> usize {
         #[cfg(target_arch = "x86_64")]
-        if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
+        if avx2() {
             // SAFETY: the CPU has AVX2; the function checks the lengths
             return unsafe { x86::pair_out_f32(z, whole, a, b) };
         }
         let _ = (z, whole, a, b);
         0
     }
+}
+
+/// True where explicit AVX2 code may run: the CPU has it (every level above the baseline includes it), and
+/// `IRSIM_SIMD` does not hold the crate to the baseline.
+fn avx2() -> bool {
+    cfg!(target_arch = "x86_64") && crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline
+}
+
+/// The symmetric part `s·(f + mirror)` and the antisymmetric part `½(f − mirror)` of a row's value `f` and its
+/// mirror image, weighted by the sine `s`: what [`Dst1::process_pair`] adds and subtracts.
+#[inline(always)]
+fn parts<T: Real>(s: T, f: T, mirror: T) -> (T, T) {
+    (s * (f + mirror), T::of(0.5) * (f - mirror))
 }
 
 /// `buf` grown with zeros to `len` values where it is shorter.
@@ -260,7 +276,6 @@ impl<T: Real> Dst1<T> {
         let low = &mut head[1..=m];
         let sines = &self.sines[..m];
         let (a_low, a_high) = (&a[..m], &a[n - m..]);
-        let y = |s: T, f: T, mirror: T| (s * (f + mirror), half * (f - mirror));
         match b.as_deref() {
             Some(b) => {
                 let rows = [a_low, a_high, &b[..m], &b[n - m..]];
@@ -270,7 +285,7 @@ impl<T: Real> Dst1<T> {
             None => {
                 for k in 0..m {
                     let r = m - 1 - k;
-                    let (sa, da) = y(sines[k], a_low[k], a_high[r]);
+                    let (sa, da) = parts(sines[k], a_low[k], a_high[r]);
                     low[k] = Complex::new(sa + da, zero);
                     high[r] = Complex::new(sa - da, zero);
                 }
@@ -278,30 +293,30 @@ impl<T: Real> Dst1<T> {
         }
         if n % 2 == 1 {
             let s = self.sines[m];
-            let (sa, da) = y(s, a[m], a[m]);
+            let (sa, da) = parts(s, a[m], a[m]);
             let im = b.as_deref().map_or(zero, |b| {
-                let (sb, db) = y(s, b[m], b[m]);
+                let (sb, db) = parts(s, b[m], b[m]);
                 sb + db
             });
             head[m + 1] = Complex::new(sa + da, im);
         }
         self.fft.process_with_scratch(buf, scratch);
         // the FFT of row a's y is (Z_k + conj Z_{N−k})/2, of row b's (Z_k − conj Z_{N−k})/(2i), k = 1 … m:
-        // F_{2k} (row[2k − 1]) from their imaginary parts, and row[2k] first the half real part R_k/2 that
-        // F_{2k+1} − F_{2k−1} is, then (below) their running sum from F_1 = R_0/2
+        // F_{2k} (row[2k − 1]) from their imaginary parts, and row[2k] first the real part R_k, which is
+        // F_{2k+1} − F_{2k−1}, then (below) their running sum from F_1 = R_0/2
         let (z_low, z_high) = (&buf[1..=m], &buf[n + 1 - m..]);
         // the k whose row[2k] exists: all m with n odd, the last one without with n even
         let whole = if n % 2 == 1 { m } else { m.saturating_sub(1) };
+        // n even: the last k's F_{2k} alone
+        let last = (whole < m).then(|| (z_low[m - 1], z_high[0]));
         a[0] = half * buf[0].re;
-        if whole < m {
-            let (zk, zm) = (z_low[m - 1], z_high[0]);
+        if let Some((zk, zm)) = last {
             a[2 * m - 1] = half * (zm.im - zk.im);
         }
         match b {
             Some(b) => {
                 b[0] = half * buf[0].im;
-                if whole < m {
-                    let (zk, zm) = (z_low[m - 1], z_high[0]);
+                if let Some((zk, zm)) = last {
                     b[2 * m - 1] = half * (zk.re - zm.re);
                 }
                 let (z, outs_a, outs_b) = ([z_low, z_high], &mut a[1..1 + 2 * whole], &mut b[1..1 + 2 * whole]);
@@ -406,13 +421,11 @@ impl<T: Real> Dst1<T> {
 #[inline(always)]
 fn pair_in_from<T: Real>(from: usize, sines: &[T], rows: [&[T]; 4], low: &mut [Complex<T>], high: &mut [Complex<T>]) {
     let m = low.len();
-    let half = T::of(0.5);
     let [a_low, a_high, b_low, b_high] = rows.map(|r| &r[..m]);
     let (sines, high) = (&sines[..m], &mut high[..m]);
-    let y = |s: T, f: T, mirror: T| (s * (f + mirror), half * (f - mirror));
     for k in from..m {
         let r = m - 1 - k;
-        let ((sa, da), (sb, db)) = (y(sines[k], a_low[k], a_high[r]), y(sines[k], b_low[k], b_high[r]));
+        let ((sa, da), (sb, db)) = (parts(sines[k], a_low[k], a_high[r]), parts(sines[k], b_low[k], b_high[r]));
         low[k] = Complex::new(sa + da, sb + db);
         high[r] = Complex::new(sa - da, sb - db);
     }
@@ -697,19 +710,16 @@ impl PoissonFusion {
                 });
             } else if w >= 3 && h >= 3 {
                 match solver {
-                    Solver::Direct => store(frame, *rect, 1, |y, out| {
-                        for (o, &v) in out.iter_mut().zip(&sc.work[(y - 1) * nx..][..nx]) {
-                            *o = v as f32;
-                        }
-                    }),
                     Solver::DirectF32 => store(frame, *rect, 1, |y, out| {
                         let d = &sc.single.work[(y - 1) * nx..][..nx];
                         for ((o, &b), &d) in out.iter_mut().zip(&bg[y * w + 1..][..nx]).zip(d) {
                             *o = (b + f64::from(d)) as f32;
                         }
                     }),
-                    Solver::Jacobi { .. } | Solver::Sor { .. } => store(frame, *rect, 1, |y, out| {
-                        for (o, &v) in out.iter_mut().zip(&sc.work[y * w + 1..][..nx]) {
+                    // the solution: the direct solve's on the interior's layout, the iterative ones' on the region's
+                    _ => store(frame, *rect, 1, |y, out| {
+                        let start = if solver == Solver::Direct { (y - 1) * nx } else { y * w + 1 };
+                        for (o, &v) in out.iter_mut().zip(&sc.work[start..][..nx]) {
                             *o = v as f32;
                         }
                     }),
@@ -1039,7 +1049,7 @@ fn solve_sine<T: Real>(
     let (sx, sy) = (dst_x.fft.get_inplace_scratch_len(), dst_y.fft.get_inplace_scratch_len());
     // rows: DST along x
     dst_x.process_rows(work, buf, &mut scratch[..sx], None);
-    T::transpose(work, tmp, nx, ny);
+    transpose(work, tmp, nx, ny);
     // along y, dividing between the two transforms by the eigenvalues λ = (2 − 2cos θx) + (2 − 2cos θy); tmp is
     // ny-fast: row kx, index ky
     let scale = T::of(4.0 / ((nx + 1) * (ny + 1)) as f64);
@@ -1050,7 +1060,7 @@ fn solve_sine<T: Real>(
         }
     };
     dst_y.process_rows(tmp, buf, &mut scratch[..sy], Some(&divide));
-    T::transpose(tmp, work, ny, nx);
+    transpose(tmp, work, ny, nx);
     dst_x.process_rows(work, buf, &mut scratch[..sx], None);
 }
 
@@ -1117,12 +1127,12 @@ fn store(frame: &mut Frame, rect: PixelRect, margin: usize, fill: impl Fn(usize,
 /// rounds on an AMD EPYC). Nor was a large region cut into bands of rows transposed in parallel: the fusion stage
 /// of the 256 × 256 bench case with 8 targets (one region of up to 256 × 73) took 109–112 against 94–96 µs a
 /// frame.
-fn transpose(src: &[f64], dst: &mut [f64], cols: usize, rows: usize) {
+fn transpose<T: Real>(src: &[T], dst: &mut [T], cols: usize, rows: usize) {
     assert!(src.len() >= rows * cols && dst.len() >= rows * cols, "buffers of the region's size");
     #[cfg(target_arch = "x86_64")]
-    if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
-        // SAFETY: the CPU has AVX2 (every level above the baseline includes it); the lengths are checked above
-        return unsafe { x86::transpose_avx2(src, dst, cols, rows) };
+    if avx2() {
+        // SAFETY: the CPU has AVX2; the lengths are checked above
+        return unsafe { T::transpose_avx2(src, dst, cols, rows) };
     }
     transpose_tiles(src, dst, cols, rows, (0..rows, 0..cols));
 }
@@ -1195,8 +1205,8 @@ mod x86 {
                 // c + 7 < cols, and the caller's lengths)
                 unsafe {
                     let at = |k: usize| _mm256_loadu_ps(s.add((r + k) * cols + c));
-                    // pairs of rows interleaved, then quarters of columns gathered: column j's first four rows
-                    // in lane j % 4 of q[j / 4 …], its last four in the same place of q[… + 4]
+                    // pairs of rows interleaved, then quarters of columns gathered: column j's first four rows in
+                    // q[j % 4], its last four in q[j % 4 + 4], in their 128-bit half j / 4
                     let t = [0, 2, 4, 6]
                         .map(|k| (_mm256_unpacklo_ps(at(k), at(k + 1)), _mm256_unpackhi_ps(at(k), at(k + 1))));
                     let q = [
@@ -1393,7 +1403,7 @@ mod tests {
                 check(&wide, what);
             };
             let mut dst = vec![-1.0; rows * cols];
-            <f32 as Real>::transpose(&src32, &mut dst, cols, rows);
+            transpose(&src32, &mut dst, cols, rows);
             check32(&dst, "f32, dispatched");
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") {
@@ -1404,6 +1414,11 @@ mod tests {
             }
         }
     }
+
+    /// [`Real::pair_in`] for f32, or its AVX2 kernel.
+    type PairIn = fn(&[f32], [&[f32]; 4], &mut [Complex<f32>], &mut [Complex<f32>]) -> usize;
+    /// [`Real::pair_out`] for f32, or its AVX2 kernel.
+    type PairOut = fn([&[Complex<f32>]; 2], usize, &mut [f32], &mut [f32]) -> usize;
 
     #[test]
     fn the_vector_loops_around_the_f32_transform_are_the_scalar_ones_bit_for_bit() {
@@ -1420,30 +1435,49 @@ mod tests {
             let bits = |v: &[Complex<f32>]| v.iter().map(|z| (z.re.to_bits(), z.im.to_bits())).collect::<Vec<_>>();
             let (mut low, mut high) = (vec![zero; m], vec![zero; m]);
             pair_in_from(0, &sines, rows, &mut low, &mut high);
-            let (mut vlow, mut vhigh) = (vec![zero; m], vec![zero; m]);
-            let done = <f32 as Real>::pair_in(&sines, rows, &mut vlow, &mut vhigh);
-            pair_in_from(done, &sines, rows, &mut vlow, &mut vhigh);
-            assert_eq!((bits(&vlow), bits(&vhigh)), (bits(&low), bits(&high)), "before the FFT, m = {m}");
+            // the dispatched loop (AVX2 where IRSIM_SIMD allows it), and the AVX2 one where the CPU has it
+            let mut vector_ins: Vec<(&str, PairIn)> = vec![("dispatched", <f32 as Real>::pair_in)];
             #[cfg(target_arch = "x86_64")]
-            if crate::physics::simd::Level::detect() != crate::physics::simd::Level::Baseline {
-                assert_eq!(done, m / 8 * 8, "the vector loop ran");
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2
+                vector_ins.push(("avx2", |s, r, l, h| unsafe { x86::pair_in_f32(s, r, l, h) }));
+            }
+            for (what, pair_in) in vector_ins {
+                let (mut vlow, mut vhigh) = (vec![zero; m], vec![zero; m]);
+                let done = pair_in(&sines, rows, &mut vlow, &mut vhigh);
+                pair_in_from(done, &sines, rows, &mut vlow, &mut vhigh);
+                assert_eq!((bits(&vlow), bits(&vhigh)), (bits(&low), bits(&high)), "{what}, before the FFT, m = {m}");
+                if what == "avx2" {
+                    assert_eq!(done, m / 8 * 8, "the vector loop ran");
+                }
             }
             // the same values standing in for an FFT's, with either count of whole outputs
             for whole in [m, m - 1] {
                 let z = [&low[..], &high[..]];
                 let (mut a, mut b) = (vec![0.0f32; 2 * whole], vec![0.0f32; 2 * whole]);
                 pair_out_from(0, z, &mut a, &mut b);
-                let (mut va, mut vb) = (vec![0.0f32; 2 * whole], vec![0.0f32; 2 * whole]);
-                let done = <f32 as Real>::pair_out(z, whole, &mut va, &mut vb);
-                pair_out_from(done, z, &mut va, &mut vb);
-                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                assert_eq!((bits(&va), bits(&vb)), (bits(&a), bits(&b)), "after the FFT, m = {m}, {whole} whole");
+                let mut vector_outs: Vec<(&str, PairOut)> = vec![("dispatched", <f32 as Real>::pair_out)];
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the CPU has AVX2
+                    vector_outs.push(("avx2", |z, w, a, b| unsafe { x86::pair_out_f32(z, w, a, b) }));
+                }
+                for (what, pair_out) in vector_outs {
+                    let (mut va, mut vb) = (vec![0.0f32; 2 * whole], vec![0.0f32; 2 * whole]);
+                    let done = pair_out(z, whole, &mut va, &mut vb);
+                    pair_out_from(done, z, &mut va, &mut vb);
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!((bits(&va), bits(&vb)), (bits(&a), bits(&b)), "{what}, after the FFT, m = {m}, {whole}");
+                    if what == "avx2" {
+                        assert_eq!(done, whole / 8 * 8, "the vector loop ran");
+                    }
+                }
             }
         }
     }
 
     #[test]
-    fn the_f32_solve_of_the_difference_is_the_f64_solve_within_two_hundredths_of_a_gray_level() {
+    fn the_f32_solve_of_the_difference_is_the_f64_solve_within_four_hundredths_of_a_gray_level() {
         // a bright, steep, textured sky (15 000 … 60 000 DN) and a target 20 000 DN above it; a region 193 × 97
         // (transform lengths 191 and 95, neither smooth) and one as wide as the frame
         let (w, h) = (240, 140);
@@ -1469,7 +1503,10 @@ mod tests {
                 };
                 let (double, single) = (fuse(Solver::Direct), fuse(Solver::DirectF32));
                 let worst = double.pixels().iter().zip(single.pixels()).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
-                assert!(worst <= 0.02, "{guidance:?} on {rect:?}: {worst} DN apart");
+                // measured 0.0117 (normal) and 0.0156 DN (mixed), 3 and 4 steps of f32 at these levels (2⁻⁸ DN
+                // below 65 536); the bound leaves room for another FFT plan's rounding (rustfft picks its code
+                // by the CPU)
+                assert!(worst <= 0.04, "{guidance:?} on {rect:?}: {worst} DN apart");
                 assert!(double.pixels().iter().zip(&bg).any(|(a, b)| (a - b).abs() > 100.0), "the target is there");
             }
         }
@@ -1500,7 +1537,8 @@ mod tests {
                     assert!((g - w).abs() <= 1e-14 * scale * n as f64, "n = {n}, output {k}: {g} against {w}");
                 }
             }
-            // in f32 (the vector loops around its FFT from n = 16 up), to single precision's rounding
+            // in f32 (the vector loops around its FFT run from n = 16 before it and n = 17 after), to single
+            // precision's rounding
             let d = Dst1::<f32>::new(n, &mut planner32);
             let mut buf = vec![Complex::new(0.0, 0.0); d.buffer_len()];
             let mut scratch = vec![Complex::new(0.0, 0.0); d.fft.get_inplace_scratch_len()];
