@@ -145,6 +145,39 @@ miss = { mode = "edge" }
 }
 
 #[test]
+fn a_key_beside_a_tag_that_takes_no_fields_is_refused_where_it_stands() {
+    // serde reads such a variant from its tag alone and would ignore the key; every tagged table with such
+    // variants is read so that it is refused, with the line, column and whole path of the key
+    for (table, key) in [
+        ("fusion_solver = { method = \"direct\", tolerance = 1 }", "quality.fusion_solver.tolerance"),
+        ("fusion_solver = { method = \"direct_f32\", max_iterations = 10 }", "quality.fusion_solver.max_iterations"),
+        (
+            "fusion_solver = { method = \"sor\", tolerance = 1e-3, max_iterations = 10, omega = 1 }",
+            "quality.fusion_solver.omega",
+        ),
+        ("planck = { method = \"series\", points = 4 }", "quality.planck.points"),
+        ("sky_sampling = { mode = \"bilinear\", n = 3 }", "quality.sky_sampling.n"),
+        ("sky_sampling = { mode = \"nearest\", n = 3 }", "quality.sky_sampling.n"),
+        ("blob_sampling = { mode = \"point\", n = 4 }", "quality.blob_sampling.n"),
+        ("blob_sampling = { mode = \"auto\", n = 4 }", "quality.blob_sampling.n"),
+    ] {
+        let e = refused(load_toml(&format!("{BASE}[quality]\n{table}\n")), key);
+        assert!(e.to_string().contains("unknown field"), "{e}");
+    }
+    let sky = "\n[sky]\ngenerate = { kind = \"clear\", seed = 1 }\nanchor_m = [0, 20000, 2000]\nwidth_m = 4000\nheight_m = 2000\n";
+    refused(load_toml(&format!("{BASE}{sky}miss = {{ mode = \"zero\", value = 3 }}\n")), "sky.miss.value");
+    load_toml(&format!("{BASE}{sky}miss = {{ mode = \"constant\", value = 3 }}\n")).unwrap();
+    // the same tables without the key are read
+    for table in [
+        "fusion_solver = { method = \"direct_f32\" }",
+        "planck = { method = \"series\" }",
+        "blob_sampling = { mode = \"point\" }",
+    ] {
+        load_toml(&format!("{BASE}[quality]\n{table}\n")).unwrap();
+    }
+}
+
+#[test]
 fn iterative_solvers_are_bounded_and_stop_on_request() {
     let text = |it: &str| {
         format!(

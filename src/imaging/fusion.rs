@@ -52,7 +52,7 @@ pub enum Guidance {
 
 /// How the Poisson equation is solved.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case", tag = "method", deny_unknown_fields)]
+#[serde(rename_all = "snake_case", tag = "method", deny_unknown_fields, from = "SolverFields")]
 pub enum Solver {
     /// Exact direct solve by the discrete sine transform, in f64.
     #[default]
@@ -75,6 +75,29 @@ pub enum Solver {
         /// Upper bound on sweeps.
         max_iterations: u32,
     },
+}
+
+/// [`Solver`] as a scenario writes it, every variant a table of its fields: serde reads a variant without fields
+/// from the tag alone and ignores any key beside it (`{ method = "direct", tolerance = 1 }` would pass), so [`Solver`] is read through this and
+/// such a key is refused as unknown.
+#[derive(Deserialize)]
+#[serde(rename_all = "snake_case", tag = "method", deny_unknown_fields)]
+enum SolverFields {
+    Direct {},
+    DirectF32 {},
+    Jacobi { tolerance: f64, max_iterations: u32 },
+    Sor { tolerance: f64, max_iterations: u32 },
+}
+
+impl From<SolverFields> for Solver {
+    fn from(s: SolverFields) -> Self {
+        match s {
+            SolverFields::Direct {} => Self::Direct,
+            SolverFields::DirectF32 {} => Self::DirectF32,
+            SolverFields::Jacobi { tolerance, max_iterations } => Self::Jacobi { tolerance, max_iterations },
+            SolverFields::Sor { tolerance, max_iterations } => Self::Sor { tolerance, max_iterations },
+        }
+    }
 }
 
 /// A target patch `u` on a pixel rectangle (row-major, `rect.width()` wide).

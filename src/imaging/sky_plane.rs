@@ -187,7 +187,7 @@ fn load_gray_tiff(path: &Path) -> Result<Option<SkyImage>, String> {
 
 /// How a ray's hit point is turned into a value.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields, from = "SamplingFields")]
 pub enum Sampling {
     /// The image pixel containing the hit point.
     Nearest,
@@ -203,7 +203,7 @@ pub enum Sampling {
 
 /// What a ray that misses the image gets.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields, from = "MissFillFields")]
 pub enum MissFill {
     /// The clear sky and ground along the ray's own direction (the simulation fills these; a render marks
     /// them NaN).
@@ -218,6 +218,50 @@ pub enum MissFill {
     },
     /// The nearest edge pixel of the image (the image extends to infinity).
     Edge,
+}
+
+/// [`Sampling`] as a scenario writes it, every variant a table of its fields: serde reads a variant without fields
+/// from the tag alone and ignores any key beside it (`{ mode = "bilinear", n = 3 }` would pass), so [`Sampling`] is read through this and
+/// such a key is refused as unknown.
+#[derive(Deserialize)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+enum SamplingFields {
+    Nearest {},
+    Bilinear {},
+    Supersample { n: u32 },
+}
+
+impl From<SamplingFields> for Sampling {
+    fn from(s: SamplingFields) -> Self {
+        match s {
+            SamplingFields::Nearest {} => Self::Nearest,
+            SamplingFields::Bilinear {} => Self::Bilinear,
+            SamplingFields::Supersample { n } => Self::Supersample { n },
+        }
+    }
+}
+
+/// [`MissFill`] as a scenario writes it, every variant a table of its fields: serde reads a variant without fields
+/// from the tag alone and ignores any key beside it (`{ mode = "zero", value = 3 }` would pass), so [`MissFill`] is read through this and
+/// such a key is refused as unknown.
+#[derive(Deserialize)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+enum MissFillFields {
+    Dome {},
+    Zero {},
+    Constant { value: f32 },
+    Edge {},
+}
+
+impl From<MissFillFields> for MissFill {
+    fn from(m: MissFillFields) -> Self {
+        match m {
+            MissFillFields::Dome {} => Self::Dome,
+            MissFillFields::Zero {} => Self::Zero,
+            MissFillFields::Constant { value } => Self::Constant { value },
+            MissFillFields::Edge {} => Self::Edge,
+        }
+    }
 }
 
 /// Where and how the sky image sits in the world.

@@ -205,7 +205,7 @@ pub struct GeneralizedGaussian {
 
 /// How the blob is evaluated on pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields, from = "BlobSamplingFields")]
 pub enum BlobSampling {
     /// The value at each pixel centre.
     Point,
@@ -217,6 +217,27 @@ pub enum BlobSampling {
     /// Adaptive default: integrated with 4 × 4 where the blob is narrower than 2 px, point otherwise.
     #[default]
     Auto,
+}
+
+/// [`BlobSampling`] as a scenario writes it, every variant a table of its fields: serde reads a variant without fields
+/// from the tag alone and ignores any key beside it (`{ mode = "point", n = 4 }` would pass), so [`BlobSampling`] is read through this and
+/// such a key is refused as unknown.
+#[derive(Deserialize)]
+#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+enum BlobSamplingFields {
+    Point {},
+    Integrated { n: u32 },
+    Auto {},
+}
+
+impl From<BlobSamplingFields> for BlobSampling {
+    fn from(s: BlobSamplingFields) -> Self {
+        match s {
+            BlobSamplingFields::Point {} => Self::Point,
+            BlobSamplingFields::Integrated { n } => Self::Integrated { n },
+            BlobSamplingFields::Auto {} => Self::Auto,
+        }
+    }
 }
 
 /// An axis-aligned pixel rectangle `[x0, x1) × [y0, y1)`.

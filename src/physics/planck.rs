@@ -490,7 +490,7 @@ fn legendre_and_derivative(n: usize, x: f64) -> (f64, f64) {
 /// How a band radiance is evaluated: the exact series, or a quadrature of Planck's law in wavelength (cheaper
 /// for few nodes, with an error that `irsim bench report` measures).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields, from = "PlanckMethodFields")]
 pub enum PlanckMethod {
     /// [`band_radiance_in`]: exact to rounding.
     #[default]
@@ -505,6 +505,27 @@ pub enum PlanckMethod {
         /// Nodes over the band.
         points: usize,
     },
+}
+
+/// [`PlanckMethod`] as a scenario writes it, every variant a table of its fields: serde reads a variant without fields
+/// from the tag alone and ignores any key beside it (`{ method = "series", points = 4 }` would pass), so [`PlanckMethod`] is read through this and
+/// such a key is refused as unknown.
+#[derive(Deserialize)]
+#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields)]
+enum PlanckMethodFields {
+    Series {},
+    Simpson { intervals: usize },
+    GaussLegendre { points: usize },
+}
+
+impl From<PlanckMethodFields> for PlanckMethod {
+    fn from(m: PlanckMethodFields) -> Self {
+        match m {
+            PlanckMethodFields::Series {} => Self::Series,
+            PlanckMethodFields::Simpson { intervals } => Self::Simpson { intervals },
+            PlanckMethodFields::GaussLegendre { points } => Self::GaussLegendre { points },
+        }
+    }
 }
 
 /// The most nodes (Gauss–Legendre) or sub-intervals (Simpson) a [`PlanckMethod`] may ask for.
