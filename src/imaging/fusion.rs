@@ -148,7 +148,7 @@ type RowStep<'a, T> = dyn Fn(usize, &mut [T]) + Sync + 'a;
 type FftBuffers<T> = (Vec<Complex<T>>, Vec<Complex<T>>);
 
 /// The precisions the direct solver runs in: f64 ([`Solver::Direct`]) and f32 ([`Solver::DirectF32`]).
-trait Real: rustfft::FftNum + std::ops::AddAssign + std::ops::MulAssign {
+trait Real: rustfft::FftNum + Default + std::ops::AddAssign + std::ops::MulAssign {
     /// `v` rounded to this type.
     fn of(v: f64) -> Self;
     /// Runs `f` on this thread's [`BLOCK_BUFFERS`] of this type.
@@ -233,9 +233,9 @@ fn parts<T: Real>(s: T, f: T, mirror: T) -> (T, T) {
 }
 
 /// `buf` grown with zeros to `len` values where it is shorter.
-fn fit<T: Real>(buf: &mut Vec<Complex<T>>, len: usize) {
+fn fit<V: Clone + Default>(buf: &mut Vec<V>, len: usize) {
     if buf.len() < len {
-        buf.resize(len, Complex::new(T::zero(), T::zero()));
+        buf.resize(len, V::default());
     }
 }
 
@@ -406,36 +406,26 @@ impl<T: Real> Dst1<T> {
         scratch: &mut [Complex<T>],
         between: Option<&RowStep<'_, T>>,
     ) {
+        // the loop inlined into `widest`, so that process_pair's loops are compiled for the CPU's vectors
         crate::physics::simd::widest(
             #[inline(always)]
-            || self.process_rows_inline(rows, first, buf, scratch, between),
-        );
-    }
-
-    /// [`Dst1::process_rows_serial`]'s loop, inlined into [`crate::physics::simd::widest`].
-    #[inline(always)]
-    fn process_rows_inline(
-        &self,
-        rows: &mut [T],
-        first: usize,
-        buf: &mut [Complex<T>],
-        scratch: &mut [Complex<T>],
-        between: Option<&RowStep<'_, T>>,
-    ) {
-        let mut chunks = rows.chunks_exact_mut(self.n);
-        let mut i = first;
-        while let Some(a) = chunks.next() {
-            let mut b = chunks.next();
-            self.process_pair(a, b.as_deref_mut(), buf, scratch);
-            if let Some(between) = between {
-                between(i, a);
-                if let Some(b) = b.as_deref_mut() {
-                    between(i + 1, b);
+            || {
+                let mut chunks = rows.chunks_exact_mut(self.n);
+                let mut i = first;
+                while let Some(a) = chunks.next() {
+                    let mut b = chunks.next();
+                    self.process_pair(a, b.as_deref_mut(), buf, scratch);
+                    if let Some(between) = between {
+                        between(i, a);
+                        if let Some(b) = b.as_deref_mut() {
+                            between(i + 1, b);
+                        }
+                        self.process_pair(a, b, buf, scratch);
+                    }
+                    i += 2;
                 }
-                self.process_pair(a, b, buf, scratch);
-            }
-            i += 2;
-        }
+            },
+        );
     }
 }
 
@@ -537,11 +527,8 @@ impl<T: Real> Spectral<T> {
     /// Sizes the buffers for an interior of `area` values and the transforms of `plans` (allocating only where
     /// one falls short).
     fn reserve(&mut self, area: usize, plans: &Plans<T>) {
-        for b in [&mut self.work, &mut self.tmp] {
-            if b.len() < area {
-                b.resize(area, T::zero());
-            }
-        }
+        fit(&mut self.work, area);
+        fit(&mut self.tmp, area);
         fit(&mut self.buf, plans.buf_len);
         fit(&mut self.scratch, plans.scratch_len);
     }
@@ -812,9 +799,7 @@ impl PoissonFusion {
 impl Scratch {
     fn reserve(&mut self, area: usize) {
         for b in [&mut self.u, &mut self.bg, &mut self.work, &mut self.work2] {
-            if b.len() < area {
-                b.resize(area, 0.0);
-            }
+            fit(b, area);
         }
     }
 
