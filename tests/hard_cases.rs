@@ -167,6 +167,9 @@ fn a_key_beside_a_tag_that_takes_no_fields_is_refused_where_it_stands() {
     let sky = "\n[sky]\ngenerate = { kind = \"clear\", seed = 1 }\nanchor_m = [0, 20000, 2000]\nwidth_m = 4000\nheight_m = 2000\n";
     refused(load_toml(&format!("{BASE}{sky}miss = {{ mode = \"zero\", value = 3 }}\n")), "sky.miss.value");
     load_toml(&format!("{BASE}{sky}miss = {{ mode = \"constant\", value = 3 }}\n")).unwrap();
+    // a value that is not a table says what it should be, not the name of the type that reads it
+    let e = refused(load_toml(&format!("{BASE}[quality]\nfusion_solver = \"direct_f32\"\n")), "quality.fusion_solver");
+    assert!(e.to_string().contains("expected a table with `method`: direct, direct_f32, jacobi or sor"), "{e}");
     // the same tables without the key are read
     for table in [
         "fusion_solver = { method = \"direct_f32\" }",

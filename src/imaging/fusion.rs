@@ -81,7 +81,12 @@ pub enum Solver {
 /// from the tag alone and ignores any key beside it (`{ method = "direct", tolerance = 1 }` would pass), so [`Solver`] is read through this and
 /// such a key is refused as unknown.
 #[derive(Deserialize)]
-#[serde(rename_all = "snake_case", tag = "method", deny_unknown_fields)]
+#[serde(
+    rename_all = "snake_case",
+    tag = "method",
+    deny_unknown_fields,
+    expecting = "a table with `method`: direct, direct_f32, jacobi or sor"
+)]
 enum SolverFields {
     Direct {},
     DirectF32 {},

@@ -224,7 +224,12 @@ pub enum MissFill {
 /// from the tag alone and ignores any key beside it (`{ mode = "bilinear", n = 3 }` would pass), so [`Sampling`] is read through this and
 /// such a key is refused as unknown.
 #[derive(Deserialize)]
-#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+#[serde(
+    rename_all = "snake_case",
+    tag = "mode",
+    deny_unknown_fields,
+    expecting = "a table with `mode`: nearest, bilinear or supersample"
+)]
 enum SamplingFields {
     Nearest {},
     Bilinear {},
@@ -245,7 +250,12 @@ impl From<SamplingFields> for Sampling {
 /// from the tag alone and ignores any key beside it (`{ mode = "zero", value = 3 }` would pass), so [`MissFill`] is read through this and
 /// such a key is refused as unknown.
 #[derive(Deserialize)]
-#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+#[serde(
+    rename_all = "snake_case",
+    tag = "mode",
+    deny_unknown_fields,
+    expecting = "a table with `mode`: dome, zero, constant or edge"
+)]
 enum MissFillFields {
     Dome {},
     Zero {},

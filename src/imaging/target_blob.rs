@@ -223,7 +223,12 @@ pub enum BlobSampling {
 /// from the tag alone and ignores any key beside it (`{ mode = "point", n = 4 }` would pass), so [`BlobSampling`] is read through this and
 /// such a key is refused as unknown.
 #[derive(Deserialize)]
-#[serde(rename_all = "snake_case", tag = "mode", deny_unknown_fields)]
+#[serde(
+    rename_all = "snake_case",
+    tag = "mode",
+    deny_unknown_fields,
+    expecting = "a table with `mode`: point, integrated or auto"
+)]
 enum BlobSamplingFields {
     Point {},
     Integrated { n: u32 },

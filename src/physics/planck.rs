@@ -511,7 +511,12 @@ pub enum PlanckMethod {
 /// from the tag alone and ignores any key beside it (`{ method = "series", points = 4 }` would pass), so [`PlanckMethod`] is read through this and
 /// such a key is refused as unknown.
 #[derive(Deserialize)]
-#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(
+    tag = "method",
+    rename_all = "snake_case",
+    deny_unknown_fields,
+    expecting = "a table with `method`: series, simpson or gauss_legendre"
+)]
 enum PlanckMethodFields {
     Series {},
     Simpson { intervals: usize },
