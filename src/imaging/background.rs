@@ -258,7 +258,7 @@ impl BackgroundRenderer {
     }
 }
 
-/// Rows of tiles a task of [`classify`] takes at least (40 tiles a row at 640 × 512, ~4 µs).
+/// Rows of tiles a task of [`classify`] takes at least (40 tiles a row at 640 × 512, ~4 µs a row).
 const CLASSIFY_ROWS_PER_TASK: usize = 4;
 
 /// Marks in `clean` (row-major tiles) the tiles a prefiltered texture can serve; returns the texture's key and
@@ -272,6 +272,7 @@ fn classify(
     (width, height): (usize, usize),
     clean: &mut Vec<bool>,
 ) -> Option<(JacobianKey, [f64; 4])> {
+    use rayon::prelude::*;
     let t = BLUR_TILE_PX;
     let (tw, th) = (width.div_ceil(t), height.div_ceil(t));
     let image = plane.image();
@@ -305,13 +306,13 @@ fn classify(
     let norm = |m: DMat2| m.to_cols_array().iter().map(|v| v * v).sum::<f64>().sqrt();
     let limit = tolerance * norm(reference);
     // rows of tiles side by side (a 640 × 512 frame's 1280 tiles took ~0.14 ms on one thread, every frame); the
-    // box of the image points read is a min and max over the tiles, the same whatever the order
-    use rayon::prelude::*;
+    // box of the image points read (finite, inside the image) is a min and max over the tiles, the same whatever
+    // the order
     const EMPTY: [f64; 4] = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
     let join = |a: [f64; 4], b: [f64; 4]| [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])];
     clean.resize(tw * th, false);
     let need = clean
-        .par_chunks_mut(tw)
+        .par_chunks_mut(tw.max(1))
         .enumerate()
         .with_min_len(CLASSIFY_ROWS_PER_TASK)
         .map(|(ty, row)| {
