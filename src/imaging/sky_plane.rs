@@ -1186,10 +1186,11 @@ mod tests {
         // and along rows, where the texels are fetched by windows (`physics::simd::texel_windows`): sixteen lanes
         // in one (1.31 texels a pixel), in two of eight (2.7), either way along the row, and on the last rows,
         // where the windows of the later blocks would end past the image and those blocks are gathered (the
-        // last path nearest only: its bilinear samples would read the row below the image)
+        // last path nearest only: its bilinear samples would read the row below the image); and along rows that
+        // cross to the next image row inside a block of sixteen, at its fourth lane or its ninth (two windows)
         let both = [(true, false), (true, true), (false, false), (false, true)];
         let nearest = [(false, false), (false, true)];
-        let paths: [(_, _, _, &[(bool, bool)]); 8] = [
+        let paths: [(_, _, _, &[(bool, bool)]); 10] = [
             ([10.37, 150.2], [0.731, -0.52], [0.0013, -0.0007], &both),
             ([280.9, 20.6], [-1.9, 0.41], [-0.002, 0.003], &both),
             ([5.2, 10.3], [1.31, 0.0004], [0.0001, 0.0], &both),
@@ -1198,6 +1199,8 @@ mod tests {
             ([290.1, 60.5], [-2.7, 0.0003], [0.0, 0.0], &both),
             ([250.3, 198.4], [0.4, 0.0], [0.0, 0.0], &both),
             ([250.3, 199.4], [0.4, 0.0], [0.0, 0.0], &nearest),
+            ([5.2, 20.975], [1.31, 0.01], [0.0, 0.0], &both),
+            ([280.2, 40.925], [-1.31, 0.01], [0.0, 0.0], &both),
         ];
         for (start, step, bend, modes) in paths {
             for len in 1..=100 {

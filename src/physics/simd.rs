@@ -220,11 +220,15 @@ pub fn bilinear_mix16(
 }
 
 /// Whether sixteen lanes' texels at `index` (those in `mask`) in a row-major f32 image `width` wide and `len`
-/// long lie within 32 consecutive floats, or lanes 0–7's within 32 and lanes 8–15's within 32 (and, `bilinear`,
-/// their right neighbours too, and the same floats one row down; every window inside the image): then two
-/// loads and a permute per window and row fetch them, in place of a gather's sixteen loads per texel. Returns
-/// the first float of lanes 0–7's window and of lanes 8–15's (the same where one window holds all sixteen),
-/// and each lane's index relative to its window.
+/// long lie within two windows of 32 consecutive floats (and, `bilinear`, their right neighbours too, and the
+/// same floats one row down; every window inside the image): then two loads and a permute per window and row
+/// fetch them, in place of a gather's sixteen loads per texel. The first window starts at the lowest index; the
+/// lanes it cannot hold go to a second window, from the lowest index among them. So a row of a view at up to
+/// two texels a pixel, or at up to four split near the middle, or one crossing from one image row to the next
+/// anywhere in its sixteen pixels (a view turned a little against the image: with a cross-row gather there, a
+/// 0.3° turn sent a sixth of a 256-px row's blocks to the gathers), is read by windows. Returns the first
+/// float of each window (the same twice where one holds all sixteen), each lane's index relative to its
+/// window, and the lanes of the second window.
 ///
 /// # Safety
 /// Callable only on a CPU with AVX-512 (F, DQ, BW, VL).
@@ -237,7 +241,7 @@ pub fn texel_windows(
     bilinear: bool,
     width: usize,
     len: usize,
-) -> Option<([usize; 2], std::arch::x86_64::__m512i)> {
+) -> Option<([usize; 2], std::arch::x86_64::__m512i, std::arch::x86_64::__mmask16)> {
     use std::arch::x86_64::*;
     // the right neighbour's index is rel + 1, and a permute reaches 32 floats
     let last = _mm512_set1_epi32(if bilinear { 30 } else { 31 });
@@ -245,22 +249,20 @@ pub fn texel_windows(
     let inside = |first: i32| first >= 0 && first as usize + rows + 32 <= len;
     let first = _mm512_mask_reduce_min_epi32(mask, index);
     let rel = _mm512_sub_epi32(index, _mm512_set1_epi32(first));
-    if _mm512_mask_cmpgt_epu32_mask(mask, rel, last) == 0 {
-        return inside(first).then_some(([first as usize; 2], rel));
+    // every lane's index is at least `first`, so `rel` ≥ 0 and the unsigned compare is the signed one
+    let far = _mm512_mask_cmpgt_epu32_mask(mask, rel, last);
+    if far == 0 {
+        return inside(first).then_some(([first as usize; 2], rel, 0));
     }
-    let (mask_lo, mask_hi) = (mask & 0x00ff, mask & 0xff00);
-    if mask_lo == 0 || mask_hi == 0 {
-        return None;
-    }
-    let (lo, hi) = (_mm512_mask_reduce_min_epi32(mask_lo, index), _mm512_mask_reduce_min_epi32(mask_hi, index));
-    let rel = _mm512_sub_epi32(index, _mm512_mask_blend_epi32(0xff00, _mm512_set1_epi32(lo), _mm512_set1_epi32(hi)));
-    (_mm512_mask_cmpgt_epu32_mask(mask, rel, last) == 0 && inside(lo) && inside(hi))
-        .then_some(([lo as usize, hi as usize], rel))
+    let second = _mm512_mask_reduce_min_epi32(far, index);
+    let rel = _mm512_mask_sub_epi32(rel, far, index, _mm512_set1_epi32(second));
+    let fits = _mm512_mask_cmpgt_epu32_mask(far, rel, last) == 0 && inside(first) && inside(second);
+    fits.then_some(([first as usize, second as usize], rel, far))
 }
 
-/// The floats at `windows[0] + at[k]` (lanes 0–7) and `windows[1] + at[k]` (lanes 8–15) from `base`: two loads
-/// and a permute per window ([`texel_windows`]'s windows, `at` its lanes' indices relative to them, each in
-/// 0 … 31), one window where both are the same.
+/// The floats at `windows[0] + at[k]` (the lanes not in `second`) and `windows[1] + at[k]` (those in `second`)
+/// from `base`: two loads and a permute per window ([`texel_windows`]'s windows, `at` its lanes' indices
+/// relative to them, each in 0 … 31), one window where both are the same.
 ///
 /// # Safety
 /// The CPU must have AVX-512F; the 32 floats from `base + windows[i]` must lie inside one buffer, for both `i`.
@@ -271,6 +273,7 @@ pub unsafe fn window_fetch16(
     base: *const f32,
     windows: [usize; 2],
     at: std::arch::x86_64::__m512i,
+    second: std::arch::x86_64::__mmask16,
 ) -> std::arch::x86_64::__m512 {
     use std::arch::x86_64::*;
     // SAFETY: the caller guarantees both windows' 32 floats are inside the buffer
@@ -279,7 +282,7 @@ pub unsafe fn window_fetch16(
         _mm512_permutex2var_ps(_mm512_loadu_ps(p), at, _mm512_loadu_ps(p.add(16)))
     };
     let low = window(windows[0]);
-    if windows[1] == windows[0] { low } else { _mm512_mask_blend_ps(0xff00, low, window(windows[1])) }
+    if windows[1] == windows[0] { low } else { _mm512_mask_blend_ps(second, low, window(windows[1])) }
 }
 
 /// Sixteen samples of a row-major f32 image `width` wide, bilinear ([`bilinear16_avx512`]'s) or nearest (the
@@ -305,11 +308,10 @@ pub unsafe fn sample16_avx512(
     use std::arch::x86_64::*;
     let base = px.as_ptr();
     match texel_windows(index, mask, bilinear, width, px.len()) {
-        Some(([lo, hi], rel)) => {
-            // the lanes' texels `offset` floats on from their index (lanes 8–15 from their own window where it is
-            // not lanes 0–7's)
+        Some((windows, rel, second)) => {
+            // the lanes' texels `offset` floats on from their index (the lanes in `second` from the second window)
             // SAFETY: `texel_windows` checked that every window (one row down included) ends inside `px`
-            let fetch = |offset: usize, at: __m512i| unsafe { window_fetch16(base.add(offset), [lo, hi], at) };
+            let fetch = |offset: usize, at: __m512i| unsafe { window_fetch16(base.add(offset), windows, at, second) };
             if bilinear {
                 let right = _mm512_add_epi32(rel, _mm512_set1_epi32(1));
                 let (tl, tr) = (fetch(0, rel), fetch(0, right));
@@ -390,48 +392,54 @@ mod tests {
         let near = |lanes: &dyn Fn(i32) -> i32, mask: u16, bilinear: bool, len: usize| {
             let v: [i32; 16] = std::array::from_fn(|k| lanes(k as i32));
             // SAFETY: AVX-512 checked above; 64 bytes read from a 16-lane array
-            let (route, rel) = unsafe {
+            let (route, rel, second) = unsafe {
                 let i = _mm512_loadu_si512(v.as_ptr().cast());
                 match texel_windows(i, mask, bilinear, w, len) {
-                    Some((first, rel)) => {
+                    Some((first, rel, second)) => {
                         let mut out = [0i32; 16];
                         _mm512_storeu_si512(out.as_mut_ptr().cast(), rel);
-                        (Some(first), out)
+                        (Some(first), out, second)
                     }
-                    None => (None, [0; 16]),
+                    None => (None, [0; 16], 0),
                 }
             };
-            // each lane's index is its window's first float plus its relative index
-            if let Some([lo, hi]) = route {
+            // each lane's index is its window's first float plus its relative index, which the window (with the
+            // right neighbour, bilinear) holds; only lanes in the mask are in the second window
+            if let Some(windows) = route {
+                assert_eq!(second & !mask, 0);
                 for k in (0..16).filter(|k| mask >> k & 1 == 1) {
-                    let first = if k < 8 { lo } else { hi };
+                    let first = windows[usize::from(second >> k & 1 == 1)];
                     assert_eq!(first as i32 + rel[k], v[k], "lane {k}");
+                    assert!((0..=if bilinear { 30 } else { 31 }).contains(&rel[k]), "lane {k}");
                 }
             }
             route
         };
         // 2 texels a pixel: one window (the last lane's right neighbour is its 32nd float)
         assert_eq!(near(&|k| 100 + 2 * k, 0xffff, true, len), Some([100, 100]));
-        // one float wider: one window for nearest samples, two for bilinear ones
+        // one float wider: one window for nearest samples, two for bilinear ones (the last lane's its own)
         let wide = |k: i32| 100 + 2 * k + i32::from(k == 15);
         assert_eq!(near(&wide, 0xffff, false, len), Some([100, 100]));
-        assert_eq!(near(&wide, 0xffff, true, len), Some([100, 116]));
-        // two windows, each on its own row
+        assert_eq!(near(&wide, 0xffff, true, len), Some([100, 131]));
+        // two windows, each on its own row, the row changing at the middle lane or at any other
         assert_eq!(near(&|k| if k < 8 { 100 + k } else { 400 + k }, 0xffff, true, len), Some([100, 408]));
-        // 5 texels a pixel, or a row changing inside a half: gathered
+        assert_eq!(near(&|k| if k < 3 { 100 + 2 * k } else { 400 + 2 * k }, 0xffff, true, len), Some([100, 406]));
+        assert_eq!(near(&|k| if k < 13 { 100 + k } else { 400 + k }, 0xffff, false, len), Some([100, 413]));
+        // 5 texels a pixel, or three rows: gathered
         assert_eq!(near(&|k| 100 + 5 * k, 0xffff, true, len), None);
-        assert_eq!(near(&|k| if k < 4 { 100 + k } else { 400 + k }, 0xffff, true, len), None);
+        assert_eq!(near(&|k| [100, 400, 700][k as usize / 6] + k, 0xffff, false, len), None);
         // lanes outside the mask do not count
         assert_eq!(near(&|k| if k < 10 { 100 + k } else { 50_000 }, 0x03ff, true, len), Some([100, 100]));
         // the windows (one row down, bilinear) must end inside the image
         assert_eq!(near(&|k| 100 + k, 0xffff, true, 100 + w + 32), Some([100, 100]));
         assert_eq!(near(&|k| 100 + k, 0xffff, true, 100 + w + 31), None);
         assert_eq!(near(&|k| 100 + k, 0xffff, false, 100 + 31), None);
-        // along a row backwards: the window starts at the last lane's texel, or each half's at its own last
+        // along a row backwards: the first window starts at the last lane's texel, the second at the lowest of
+        // the lanes the first cannot hold
         assert_eq!(near(&|k| 200 - 2 * k, 0xffff, true, len), Some([170, 170]));
-        assert_eq!(near(&|k| 200 - 3 * k, 0xffff, true, len), Some([179, 155]));
-        // one half's window ending past the image is enough to gather
-        assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 100 + 24 + 31), None);
-        assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 100 + 24 + 32), Some([100, 124]));
+        assert_eq!(near(&|k| 200 - 3 * k, 0xffff, true, len), Some([155, 188]));
+        // the second window ending past the image is enough to gather
+        assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 133 + 31), None);
+        assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 133 + 32), Some([100, 133]));
     }
 }

@@ -428,13 +428,13 @@ mod x86 {
             // the samples by loads and permutes where the sixteen rays' lie close together (along a row that is
             // about level, as a camera's rows mostly are), else gathered: the same values either way
             let (lo, hi) = match crate::physics::simd::texel_windows(i, 0xffff, true, 0, table.len()) {
-                Some((windows, rel)) => {
+                Some((windows, rel, second)) => {
                     use crate::physics::simd::window_fetch16;
                     // SAFETY: `texel_windows` checked that both 32-float windows end inside the table (and that
                     // every lane's index + 1 is inside its window)
                     unsafe {
                         let next = _mm512_add_epi32(rel, _mm512_set1_epi32(1));
-                        (window_fetch16(t, windows, rel), window_fetch16(t, windows, next))
+                        (window_fetch16(t, windows, rel, second), window_fetch16(t, windows, next, second))
                     }
                 }
                 // SAFETY: 0 ≤ i ≤ TABLE_SAMPLES − 2, so i and i + 1 are inside the table
