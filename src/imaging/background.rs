@@ -530,41 +530,51 @@ mod tests {
     fn the_tile_classes_and_the_box_they_read_do_not_depend_on_the_threads() {
         let plane = plane();
         let r_px = psf().radius_px();
-        // a 320 × 256 view across the image's top edge, rolled: tiles of both kinds, in rows split among tasks
-        let intrinsics = Intrinsics::try_new(320, 256, 0.1, 17e-6).unwrap();
-        let cam =
-            Camera::look_at(intrinsics, DVec3::new(0.0, 0.0, 8000.0), plane.world_point(DVec2::new(256.0, 40.0)), 7.0)
-                .unwrap();
-        let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            let mut clean = vec![true; 3];
-            let got = pool.install(|| classify(&plane, &cam, r_px, 0.05, (320, 256), &mut clean));
-            (got.map(|(key, need)| (key, need.map(f64::to_bits))), clean)
-        };
-        let (one, clean) = run(1);
-        let t = BLUR_TILE_PX;
-        let tw = 320 / t;
-        assert_eq!(clean.len(), tw * (256 / t));
-        let served = clean.iter().filter(|&&c| c).count();
-        assert!(served > 0 && served < clean.len(), "a mixed frame ({served} of {} tiles)", clean.len());
-        for threads in [2, 3] {
-            assert_eq!(run(threads), (one, clean.clone()), "{threads} threads");
-        }
-        // the box holds every served tile's footprint corners, and each of its sides is one of them
-        let need = one.unwrap().1.map(f64::from_bits);
-        let projection = plane.projection(&cam);
-        let m = (r_px + 1) as f64;
-        let mut sides = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
-        for (i, _) in clean.iter().enumerate().filter(|(_, c)| **c) {
-            let (x0, y0) = (((i % tw) * t) as f64 - m, ((i / tw) * t) as f64 - m);
-            let (x1, y1) = (x0 + (t as f64 + 2.0 * m), y0 + (t as f64 + 2.0 * m));
-            for (x, y) in [(x0, y0), (x1, y0), (x0, y1), (x1, y1)] {
-                let q = projection.image_point(DVec2::new(x, y)).unwrap();
-                assert!(need[0] <= q.x && need[1] <= q.y && q.x <= need[2] && q.y <= need[3], "{q} outside {need:?}");
-                sides = [sides[0].min(q.x), sides[1].min(q.y), sides[2].max(q.x), sides[3].max(q.y)];
+        // a view across the image's top edge, rolled: tiles of both kinds, in rows split among tasks; at 320 × 256
+        // whole tiles, at 310 × 250 a last column 6 px wide and a last row 10 px high
+        for (width, height) in [(320, 256), (310, 250)] {
+            let intrinsics = Intrinsics::try_new(width as u32, height as u32, 0.1, 17e-6).unwrap();
+            let look = plane.world_point(DVec2::new(256.0, 40.0));
+            let cam = Camera::look_at(intrinsics, DVec3::new(0.0, 0.0, 8000.0), look, 7.0).unwrap();
+            let run = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let mut clean = vec![true; 3];
+                let got = pool.install(|| classify(&plane, &cam, r_px, 0.05, (width, height), &mut clean));
+                (got.map(|(key, need)| (key, need.map(f64::to_bits))), clean)
+            };
+            let (one, clean) = run(1);
+            let t = BLUR_TILE_PX;
+            let tw = width.div_ceil(t);
+            assert_eq!(clean.len(), tw * height.div_ceil(t));
+            let served = clean.iter().filter(|&&c| c).count();
+            assert!(served > 0 && served < clean.len(), "a mixed frame ({served} of {} tiles)", clean.len());
+            for threads in [2, 3] {
+                assert_eq!(run(threads), (one, clean.clone()), "{width} × {height}, {threads} threads");
+            }
+            // the box holds every served tile's footprint corners (a tile cut by the frame's edge ends there),
+            // and each of its sides is one of them
+            let need = one.unwrap().1.map(f64::from_bits);
+            let projection = plane.projection(&cam);
+            let m = (r_px + 1) as f64;
+            let mut sides = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+            let mut cut = 0;
+            for (i, _) in clean.iter().enumerate().filter(|(_, c)| **c) {
+                let (tx, ty) = (i % tw, i / tw);
+                let (x0, y0) = ((tx * t) as f64 - m, (ty * t) as f64 - m);
+                let (x1, y1) = (((tx + 1) * t).min(width) as f64 + m, ((ty + 1) * t).min(height) as f64 + m);
+                cut += usize::from((tx + 1) * t > width || (ty + 1) * t > height);
+                for (x, y) in [(x0, y0), (x1, y0), (x0, y1), (x1, y1)] {
+                    let q = projection.image_point(DVec2::new(x, y)).unwrap();
+                    let inside = need[0] <= q.x && need[1] <= q.y && q.x <= need[2] && q.y <= need[3];
+                    assert!(inside, "{width} × {height}: {q} outside {need:?}");
+                    sides = [sides[0].min(q.x), sides[1].min(q.y), sides[2].max(q.x), sides[3].max(q.y)];
+                }
+            }
+            assert_eq!(need, sides, "{width} × {height}");
+            if width % t != 0 {
+                assert!(cut > 0, "{width} × {height}: served tiles cut by the frame's edge");
             }
         }
-        assert_eq!(need, sides);
     }
 
     #[test]
