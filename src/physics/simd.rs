@@ -223,12 +223,10 @@ pub fn bilinear_mix16(
 /// long lie within two windows of 32 consecutive floats (and, `bilinear`, their right neighbours too, and the
 /// same floats one row down; every window inside the image): then two loads and a permute per window and row
 /// fetch them, in place of a gather's sixteen loads per texel. The first window starts at the lowest index; the
-/// lanes it cannot hold go to a second window, from the lowest index among them. So a row of a view at up to
-/// two texels a pixel, or at up to four split near the middle, or one crossing from one image row to the next
-/// anywhere in its sixteen pixels (a view turned a little against the image: with a cross-row gather there, a
-/// 0.3° turn sent a sixth of a 256-px row's blocks to the gathers), is read by windows. Returns the first
-/// float of each window (the same twice where one holds all sixteen), each lane's index relative to its
-/// window, and the lanes of the second window.
+/// lanes it cannot hold go to a second window, from the lowest index among them: a row of a view at up to two
+/// texels a pixel fits, and so does one that crosses to the next image row at any of its sixteen pixels (a view
+/// turned a little against the image). Returns the first float of each window (the same twice where one holds
+/// all sixteen), each lane's index relative to its window, and the lanes of the second window.
 ///
 /// # Safety
 /// Callable only on a CPU with AVX-512 (F, DQ, BW, VL).
