@@ -416,9 +416,6 @@ mod x86 {
         len: &[u32; SYMBOLS],
         w: &mut BitWriter<'_>,
     ) {
-        let blocks = data.chunks_exact(64);
-        let tail = blocks.remainder();
-        let mut chain = Chain::start(w, (data.len() - tail.len()) * MAX_CODE_BITS as usize);
         // SAFETY: each table is 256 bytes, four rows of 64
         let rows = |t: &[u8; 256]| {
             let p = t.as_ptr();
@@ -434,7 +431,7 @@ mod x86 {
         let zero = _mm512_setzero_si512();
         // the eights in order: lane k of the even eights is eight 2k, of the odd ones 2k + 1
         let order = _mm512_setr_epi64(0, 8, 2, 10, 4, 12, 6, 14);
-        for block in blocks {
+        let eights = |block: &[u8]| {
             // SAFETY: `block` is 64 bytes
             let x = unsafe { _mm512_loadu_si512(block.as_ptr().cast()) };
             let (l8, c0, c1) = (lookup(x, &tl), lookup(x, &tc0), lookup(x, &tc1));
@@ -443,13 +440,10 @@ mod x86 {
                 join(_mm512_unpacklo_epi8(c0, c1), _mm512_unpacklo_epi8(l8, zero)),
                 join(_mm512_unpackhi_epi8(c0, c1), _mm512_unpackhi_epi8(l8, zero)),
             );
-            let c = _mm512_permutex2var_epi64(even.0, order, odd.0);
-            let l = _mm512_permutex2var_epi64(even.1, order, odd.1);
-            // SAFETY: the block's bytes, each coded once
-            unsafe { put_eights(&mut chain, block, c, l, code, len) };
-        }
-        chain.finish(w);
-        super::code_bytes(tail, code, len, w);
+            (_mm512_permutex2var_epi64(even.0, order, odd.0), _mm512_permutex2var_epi64(even.1, order, odd.1))
+        };
+        // SAFETY: the CPU has AVX-512 F (the caller's promise)
+        unsafe { code_blocks(data, code, len, w, eights) };
     }
 
     /// [`code_bytes`](super::code_bytes), the same bits, on CPUs with AVX-512 but not VBMI: each 32 bytes
@@ -468,9 +462,6 @@ mod x86 {
         len: &[u32; SYMBOLS],
         w: &mut BitWriter<'_>,
     ) {
-        let blocks = data.chunks_exact(64);
-        let tail = blocks.remainder();
-        let mut chain = Chain::start(w, (data.len() - tail.len()) * MAX_CODE_BITS as usize);
         // SAFETY: each table is 256 words, eight rows of 32
         let rows = |t: &[u16; 256]| {
             let p = t.as_ptr();
@@ -494,11 +485,35 @@ mod x86 {
         };
         // the low halves of the first 32 bytes' lanes, then the second's
         let order = _mm512_setr_epi64(0, 2, 4, 6, 8, 10, 12, 14);
-        for block in blocks {
+        let block_eights = |block: &[u8]| {
             let (first, second) = (eights(&block[..32]), eights(&block[32..]));
-            let c = _mm512_permutex2var_epi64(first.0, order, second.0);
-            let l = _mm512_permutex2var_epi64(first.1, order, second.1);
-            // SAFETY: the block's bytes, each coded once
+            (_mm512_permutex2var_epi64(first.0, order, second.0), _mm512_permutex2var_epi64(first.1, order, second.1))
+        };
+        // SAFETY: the CPU has AVX-512 F (the caller's promise)
+        unsafe { code_blocks(data, code, len, w, block_eights) };
+    }
+
+    /// What both vector coders share: `data`'s whole blocks of 64 bytes, each block's eight joined codes and
+    /// lengths in order from `eights` (as [`join`] leaves them, one eight to a 64-bit lane), onto one chain of
+    /// stores ([`put_eights`]), and the tail short of 64 bytes to the scalar coder. Always inlined into the
+    /// coder, so that its tables stay in vector registers.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 F.
+    #[inline(always)]
+    unsafe fn code_blocks(
+        data: &[u8],
+        code: &[u64; SYMBOLS],
+        len: &[u32; SYMBOLS],
+        w: &mut BitWriter<'_>,
+        eights: impl Fn(&[u8]) -> (__m512i, __m512i),
+    ) {
+        let blocks = data.chunks_exact(64);
+        let tail = blocks.remainder();
+        let mut chain = Chain::start(w, (data.len() - tail.len()) * MAX_CODE_BITS as usize);
+        for block in blocks {
+            let (c, l) = eights(block);
+            // SAFETY: the block's bytes, each coded once; the caller's promise for the CPU
             unsafe { put_eights(&mut chain, block, c, l, code, len) };
         }
         chain.finish(w);
