@@ -8,8 +8,8 @@
 //! dynamic Huffman table made for the frame from a count of its bytes on a sample of its rows, written 8 codes
 //! to a 64-bit store where they fit. With AVX-512 the codes are looked up and joined in vector registers: with
 //! VBMI by byte permutes (51–53 against 63–64 µs a noisy 256² frame, AMD EPYC), without it by AVX-512 BW's word
-//! permutes (a whole noisy 256² frame encoded in 181–209 µs against 262–295 µs by the scalar coder, 1.39–1.45×,
-//! on a 2-vCPU Intel Xeon without VBMI, the two interleaved in one process). Any inflater reads the result: it is
+//! permutes (a whole noisy 256² frame encoded in 164–201 µs against 223–283 µs by the scalar coder, 1.2–1.5×,
+//! on a 2-vCPU Intel Xeon without VBMI, the two interleaved in one process; docs/accuracy.md). Any inflater reads the result: it is
 //! an ordinary zlib stream (RFC 1950/1951) inside an ordinary PNG (one IHDR, one IDAT, IEND).
 //!
 //! Where the table would code the frame in more bytes than storing it (no frame a sensor makes, but any input
@@ -538,9 +538,8 @@ mod x86 {
     }
 
     /// The eight joined codes `c` and lengths `l` of the 64 bytes of `block`, in order, onto the chain: one store
-    /// each where every eight fits one (at most 56 bits), else an eight that does not as two fours. (The scalar
-    /// part is a function of its own that is always inlined: a call here would spill the coder's tables, held
-    /// in vector registers, at every block.)
+    /// each where every eight fits one (at most 56 bits), else an eight that does not as two fours. Always
+    /// inlined: a call here would spill the coder's tables, held in vector registers, at every block.
     ///
     /// # Safety
     /// As [`Chain::put`]: the block's bytes must be among those the chain was started for. The CPU must have
