@@ -330,8 +330,11 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
     super::say(
         "size      threads | store bilinear normal readout  fused | render  noise  frame | render/bilinear noise/readout frame/fused",
     )?;
+    // each row's share of steal time, from the end of the row before
+    let mut since = super::steal::CpuTicks::now();
     measure_limits(frames, &mut |row| {
         eprintln!("  the pipeline's normal samplers alone, µs per frame: {}", row.samplers.join(", "));
+
         let cols: Vec<String> = row.bounds.iter().map(|b| format!("{b:.0}")).collect();
         let [render, noise, frame] = row.ratios();
         let line = format!(
@@ -347,7 +350,12 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
             row.noise_us,
             row.frame_us,
         );
-        super::say(&line)
+        super::say(&line)?;
+        if let Some(note) = super::steal::steal_note(since) {
+            eprintln!("{note}");
+        }
+        since = super::steal::CpuTicks::now();
+        Ok(())
     })?;
     super::say("(µs per frame; a frame's time includes every stage and the schedule's own)")
 }

@@ -9,6 +9,7 @@ pub mod limits;
 pub mod opencv;
 pub mod report;
 pub mod run;
+pub mod steal;
 
 use std::ffi::OsString;
 use std::io::Write;

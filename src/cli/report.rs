@@ -635,6 +635,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     }
     card::register_plot_font();
     let started = Instant::now();
+    let steal_since = super::steal::CpuTicks::now();
     let mut scenario_paths: Vec<PathBuf> = std::fs::read_dir(&a.scenarios)
         .map_err(|e| CliError::Invalid(format!("{}: {e}", a.scenarios.display())))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -985,7 +986,17 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     super::opencv::section(&mut md, &plan.opencv_sides);
     progress("atmosphere");
     super::atmosphere::section(&mut md);
-    let _ = writeln!(md, "The report took {:.0} s.", started.elapsed().as_secs_f64());
+    let steal = steal_since.zip(super::steal::CpuTicks::now()).and_then(|(a, b)| a.steal_share(&b));
+    let _ = writeln!(
+        md,
+        "The report took {:.0} s{}.",
+        started.elapsed().as_secs_f64(),
+        steal.map_or_else(String::new, |s| format!(
+            ", and its host took {:.1} % of this machine's CPU time meanwhile (steal time, /proc/stat; the more it \
+             took, the less its times are this machine's own)",
+            100.0 * s
+        ))
+    );
     write_atomic(&md_path, md.as_bytes()).map_err(failed)?;
     super::say(&format!("wrote {}", md_path.display()))?;
     Ok(())

@@ -753,7 +753,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             };
             let scenario = with_quality(scenario, a.quality)?;
             let planned = scenario.spec.run.frames;
+            let before = super::steal::CpuTicks::now();
             let (fps, mut details) = time_headless(&scenario, frames, own)?;
+            details.extend(super::steal::steal_note(before));
             if let Some(why) = planned_short {
                 details.insert(0, format!("  not planned for {frames}: a run that long would fail ({why})"));
             }
@@ -777,7 +779,8 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         std::fs::write(&path, bench_scenario(w, h, n)).map_err(|e| CliError::Failed(e.to_string()))?;
         let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
         let scenario = with_quality(scenario, a.quality)?;
-        let (fps, details) = if recording {
+        let before = super::steal::CpuTicks::now();
+        let (fps, mut details) = if recording {
             // the rate without disk writes timed again just before and just after the recording, so that the
             // ratio compares runs seconds apart, not the first case's run, two cases earlier, on a machine whose
             // speed drifts
@@ -797,6 +800,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             if n > 1 { "s" } else { "" },
             if recording { ", png16 recording" } else { ", no disk" }
         );
+        details.extend(super::steal::steal_note(before));
         super::say(&format!("{case:<40} {fps:>9.1} frames/s"))?;
         details.iter().for_each(|d| eprintln!("{d}"));
     }
