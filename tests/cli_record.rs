@@ -61,6 +61,11 @@ fn record_writes_frames_labels_mot_and_manifest() {
     assert_eq!(manifest["seed"], 9);
     assert!(manifest["timings"]["stage_ms_per_frame"]["render"].is_number());
     assert!(manifest["timings"]["setup_s"].as_f64().is_some_and(|s| s > 0.0));
+    // where the system counts steal time, its share during the recording
+    if std::path::Path::new("/proc/stat").exists() {
+        let share = manifest["timings"]["host_steal_share"].as_f64();
+        assert!(share.is_some_and(|s| (0.0..=1.0).contains(&s)), "{:?}", manifest["timings"]);
+    }
     assert_eq!(std::fs::read_dir(out.join("masks")).unwrap().count(), 6);
     let mask = image::open(out.join("masks/000000.png")).unwrap().into_luma8();
     assert!(mask.pixels().any(|p| p.0[0] == 1));

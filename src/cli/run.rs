@@ -266,6 +266,9 @@ pub fn record(a: &RecordArgs) -> Result<(), CliError> {
     bar.finish_and_clear();
     let done = done?;
     eprintln!("{}", done.summary);
+    if let Some(note) = done.steal_share.and_then(super::steal::note_for_share) {
+        eprintln!("{note}");
+    }
     if done.interrupted {
         return Err(CliError::Interrupted);
     }
@@ -333,6 +336,9 @@ pub struct RecordDone {
     /// Frames written per second of the recording loop (from the first frame to the last file in place; the
     /// scenario's set-up not counted, as `irsim bench` does not count it for a run without disk writes).
     pub frames_per_s: f64,
+    /// The share of the machine's CPU time its host took during the recording loop (steal time, 0 to 1), where
+    /// the system counts it.
+    pub steal_share: Option<f64>,
 }
 
 /// What `irsim record` with `a` writes, for a run of `frames` frames.
@@ -421,14 +427,21 @@ pub fn record_scenario(
     // frames at 256 × 256 (930 sleeps in 4000 frames) and stayed idle until the next frame woke it
     let idle = rec.idle_work();
     let started = Instant::now();
+    let steal_since = super::steal::CpuTicks::now();
     let interrupted = with_workers_awake_and(idle.as_ref(), || {
         record_frames(&mut app, &mut rec, (plan.format, frames), stop, progress)
     });
     let elapsed = started.elapsed().as_secs_f64();
+    // the share of the CPU time the machine's host took meanwhile (steal time; absent where not measured)
+    let steal = steal_since.zip(super::steal::CpuTicks::now()).and_then(|(a, b)| a.steal_share(&b));
     if let Some(t) = app.world().get_resource::<StageTimings>().filter(|_| !plan.reproducible) {
         let stages: serde_json::Map<String, serde_json::Value> =
             t.mean_ms().into_iter().map(|(k, v)| (k.to_owned(), json!(v))).collect();
-        rec.set_manifest("timings", json!({ "setup_s": setup_s, "wall_s": elapsed, "stage_ms_per_frame": stages }));
+        let mut timings = json!({ "setup_s": setup_s, "wall_s": elapsed, "stage_ms_per_frame": stages });
+        if let Some(share) = steal {
+            timings["host_steal_share"] = json!(share);
+        }
+        rec.set_manifest("timings", timings);
     }
     let progress = rec.finish(interrupted).map_err(|e| CliError::Failed(format!("recording stopped: {e}")))?;
     // the rate counts the files still in the encoders' hands and the last sync
@@ -441,7 +454,8 @@ pub fn record_scenario(
         plan.out.display(),
         progress.frames_written as f64 / elapsed.max(1e-9)
     );
-    Ok(RecordDone { summary, interrupted, frames_per_s: progress.frames_written as f64 / elapsed.max(1e-9) })
+    let frames_per_s = progress.frames_written as f64 / elapsed.max(1e-9);
+    Ok(RecordDone { summary, interrupted, frames_per_s, steal_share: steal })
 }
 
 /// `irsim sky`: writes a generated 16-bit sky.
