@@ -334,7 +334,6 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
     let mut since = super::steal::CpuTicks::now();
     measure_limits(frames, &mut |row| {
         eprintln!("  the pipeline's normal samplers alone, µs per frame: {}", row.samplers.join(", "));
-
         let cols: Vec<String> = row.bounds.iter().map(|b| format!("{b:.0}")).collect();
         let [render, noise, frame] = row.ratios();
         let line = format!(

@@ -986,14 +986,16 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     super::opencv::section(&mut md, &plan.opencv_sides);
     progress("atmosphere");
     super::atmosphere::section(&mut md);
-    let steal = steal_since.zip(super::steal::CpuTicks::now()).and_then(|(a, b)| a.steal_share(&b));
+    // said only where the host took some of the time (a machine that is not virtual has no steal time)
+    let steal =
+        steal_since.zip(super::steal::CpuTicks::now()).and_then(|(a, b)| a.steal_share(&b)).filter(|&s| s > 0.0);
     let _ = writeln!(
         md,
         "The report took {:.0} s{}.",
         started.elapsed().as_secs_f64(),
         steal.map_or_else(String::new, |s| format!(
-            ", and its host took {:.1} % of this machine's CPU time meanwhile (steal time, /proc/stat; the more it \
-             took, the less its times are this machine's own)",
+            ", and this machine's host took {:.1} % of its CPU time meanwhile (steal time, /proc/stat; the more it \
+             took, the less the times above are this machine's own)",
             100.0 * s
         ))
     );

@@ -432,12 +432,17 @@ pub fn record_scenario(
         record_frames(&mut app, &mut rec, (plan.format, frames), stop, progress)
     });
     let elapsed = started.elapsed().as_secs_f64();
-    // the share of the CPU time the machine's host took meanwhile (steal time; absent where not measured)
-    let steal = steal_since.zip(super::steal::CpuTicks::now()).and_then(|(a, b)| a.steal_share(&b));
+    // the CPU time the machine's host took meanwhile (steal time; absent where not counted)
+    let ticks = steal_since.zip(super::steal::CpuTicks::now());
+    let steal = ticks.and_then(|(a, b)| a.steal_share(&b));
     if let Some(t) = app.world().get_resource::<StageTimings>().filter(|_| !plan.reproducible) {
         let stages: serde_json::Map<String, serde_json::Value> =
             t.mean_ms().into_iter().map(|(k, v)| (k.to_owned(), json!(v))).collect();
         let mut timings = json!({ "setup_s": setup_s, "wall_s": elapsed, "stage_ms_per_frame": stages });
+        if let Some((a, b)) = ticks {
+            let counted = a.elapsed(&b);
+            timings["host_cpu_ticks"] = json!({ "total": counted.total, "steal": counted.steal });
+        }
         if let Some(share) = steal {
             timings["host_steal_share"] = json!(share);
         }
