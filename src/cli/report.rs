@@ -987,8 +987,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     progress("atmosphere");
     super::atmosphere::section(&mut md);
     // said only where the host took some of the time (a machine that is not virtual has no steal time)
-    let steal =
-        steal_since.zip(super::steal::CpuTicks::now()).and_then(|(a, b)| a.steal_share(&b)).filter(|&s| s > 0.0);
+    let steal = super::steal::CpuTicks::since(steal_since).and_then(|c| c.share()).filter(|&s| s > 0.0);
     let _ = writeln!(
         md,
         "The report took {:.0} s{}.",

@@ -433,15 +433,14 @@ pub fn record_scenario(
     });
     let elapsed = started.elapsed().as_secs_f64();
     // the CPU time the machine's host took meanwhile (steal time; absent where not counted)
-    let ticks = steal_since.zip(super::steal::CpuTicks::now());
-    let steal = ticks.and_then(|(a, b)| a.steal_share(&b));
+    let counted = super::steal::CpuTicks::since(steal_since);
+    let steal = counted.and_then(|c| c.share());
     if let Some(t) = app.world().get_resource::<StageTimings>().filter(|_| !plan.reproducible) {
         let stages: serde_json::Map<String, serde_json::Value> =
             t.mean_ms().into_iter().map(|(k, v)| (k.to_owned(), json!(v))).collect();
         let mut timings = json!({ "setup_s": setup_s, "wall_s": elapsed, "stage_ms_per_frame": stages });
-        if let Some((a, b)) = ticks {
-            let counted = a.elapsed(&b);
-            timings["host_cpu_ticks"] = json!({ "total": counted.total, "steal": counted.steal });
+        if let Some(c) = counted {
+            timings["host_cpu_ticks"] = json!({ "total": c.total, "steal": c.steal });
         }
         if let Some(share) = steal {
             timings["host_steal_share"] = json!(share);
@@ -451,15 +450,14 @@ pub fn record_scenario(
     let progress = rec.finish(interrupted).map_err(|e| CliError::Failed(format!("recording stopped: {e}")))?;
     // the rate counts the files still in the encoders' hands and the last sync
     let elapsed = started.elapsed().as_secs_f64();
+    let frames_per_s = progress.frames_written as f64 / elapsed.max(1e-9);
     let summary = format!(
-        "{}: {} of {} frames written to {} ({:.1} frames/s, after {setup_s:.2} s of set-up)",
+        "{}: {} of {} frames written to {} ({frames_per_s:.1} frames/s, after {setup_s:.2} s of set-up)",
         progress.status,
         progress.frames_written,
         progress.frames_requested,
         plan.out.display(),
-        progress.frames_written as f64 / elapsed.max(1e-9)
     );
-    let frames_per_s = progress.frames_written as f64 / elapsed.max(1e-9);
     Ok(RecordDone { summary, interrupted, frames_per_s, steal_share: steal })
 }
 

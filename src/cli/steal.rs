@@ -47,11 +47,21 @@ impl CpuTicks {
         Self { total, steal: later.steal.saturating_sub(self.steal).min(total) }
     }
 
-    /// The share of the CPU time between `self` and `later` that the host took, 0 to 1 ([`CpuTicks::elapsed`];
-    /// `None` when no tick was counted in between, as when the counters went back).
+    /// The ticks counted from `before` (read earlier, if it could be) to now.
+    pub fn since(before: Option<Self>) -> Option<Self> {
+        Some(before?.elapsed(&Self::now()?))
+    }
+
+    /// Of ticks counted over a span ([`CpuTicks::elapsed`]), the share the host took, 0 to 1 (`None` when no
+    /// tick was counted).
+    pub fn share(&self) -> Option<f64> {
+        (self.total > 0).then(|| self.steal as f64 / self.total as f64)
+    }
+
+    /// The share of the CPU time between `self` and `later` that the host took, 0 to 1 (`None` when no tick was
+    /// counted in between, as when the counters went back).
     pub fn steal_share(&self, later: &Self) -> Option<f64> {
-        let counted = self.elapsed(later);
-        (counted.total > 0).then(|| counted.steal as f64 / counted.total as f64)
+        self.elapsed(later).share()
     }
 }
 
@@ -63,7 +73,7 @@ pub const STEAL_NOTE_FROM: f64 = 0.05;
 /// A line for a timing that ran from `before` to now, where the host took at least [`STEAL_NOTE_FROM`] of the
 /// CPU time ([`note_for_share`]).
 pub fn steal_note(before: Option<CpuTicks>) -> Option<String> {
-    note_for_share(before?.steal_share(&CpuTicks::now()?)?)
+    note_for_share(CpuTicks::since(before)?.share()?)
 }
 
 /// The line for a timing during which the host took `share` (0 to 1) of the CPU time: its share, and that the
