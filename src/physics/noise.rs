@@ -141,14 +141,14 @@ impl Readout {
         self.apply_rows(pixels, width, maps, noise, (seed, frame), max_level, fill, true);
     }
 
-    /// Whether a row of `width` takes the fused pass: noise on, shot or read noise, the `table` sampler, whole
-    /// blocks of 64 and AVX-512.
+    /// Whether a row of `width` takes the fused pass: noise on, shot or read noise, the `table` sampler, a row
+    /// of at least one pixel and AVX-512.
     fn fuses(&self, width: usize, noise: bool) -> bool {
         #[cfg(target_arch = "x86_64")]
         if noise
             && (self.shot_noise || self.read_variance > 0.0)
             && self.normal_sampler == NormalSampler::Table
-            && width.is_multiple_of(64)
+            && width > 0
         {
             return super::simd::Level::detect() == super::simd::Level::Avx512;
         }
@@ -203,8 +203,20 @@ impl Readout {
                     let mut normals = SplitMix64::substream(key, 2 * row as u64);
                     let mut uniforms = SplitMix64::substream(key, 2 * row as u64 + 1);
                     let maps = [gain, offset, maps.column_dn];
-                    // SAFETY: `fuses` checked for AVX-512; the row and the maps are whole blocks of 64
-                    unsafe { x86::fused_row_512(self, line, maps, (&mut normals, &mut uniforms), max_level) };
+                    // whole blocks of 64, then a part block (whose run is the next one drawn, as in apply_row)
+                    let whole = width - width % 64;
+                    let (line, part) = line.split_at_mut(whole);
+                    // SAFETY: `fuses` checked for AVX-512; whole blocks and a part block, maps of their lengths
+                    unsafe {
+                        if whole > 0 {
+                            let maps = maps.map(|m| m.map(|m| &m[..whole]));
+                            x86::fused_row_512(self, line, maps, (&mut normals, &mut uniforms), max_level);
+                        }
+                        if !part.is_empty() {
+                            let maps = maps.map(|m| m.map(|m| &m[whole..]));
+                            x86::fused_part_block_512(self, part, maps, (&mut normals, &mut uniforms), max_level);
+                        }
+                    }
                     continue;
                 }
                 widest(
@@ -443,6 +455,42 @@ mod x86 {
                 unsafe { _mm512_storeu_ps(at(block, j), adc(_mm512_loadu_ps(at(block, j)), 64 * b + 16 * j)) };
             }
         }
+    }
+
+    /// A part block (`block`, fewer than 64 pixels, the end of a row whose whole blocks [`fused_row_512`] read out
+    /// with the same generators) read out the same way: in a block of 64 whose other lanes repeat its last pixel,
+    /// so that they change no block's path, and are dropped. Its deviates are the first of the next run, which
+    /// are those the general path draws for a part block ([`Quantiles::fill`]), and its pixels draw their exact
+    /// counts' uniforms before the copies do. `maps` are the block's gain, offset and column offsets, each
+    /// `block`'s length where given.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, DQ, BW, VL).
+    #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
+    pub unsafe fn fused_part_block_512(
+        r: &Readout,
+        block: &mut [f32],
+        maps: [Option<&[f32]>; 3],
+        rngs: (&mut SplitMix64, &mut SplitMix64),
+        top: Option<f32>,
+    ) {
+        const BLOCK: usize = 64;
+        let n = block.len();
+        assert!(n > 0 && n < BLOCK && maps.iter().flatten().all(|m| m.len() == n), "a part block, maps of its length");
+        // the values in a block of 64, the last repeated
+        fn pad<'a>(values: &[f32], to: &'a mut [f32; BLOCK]) -> &'a mut [f32] {
+            to.fill(values[values.len() - 1]);
+            to[..values.len()].copy_from_slice(values);
+            to
+        }
+        let mut padded = [[0f32; BLOCK]; 4];
+        let [whole, g, o, c] = &mut padded;
+        let whole = pad(block, whole);
+        let [gain, offsets, columns] = maps;
+        let maps = [gain.map(|m| &*pad(m, g)), offsets.map(|m| &*pad(m, o)), columns.map(|m| &*pad(m, c))];
+        // SAFETY: the CPU has AVX-512 (the caller's promise); a whole block, maps of its length
+        unsafe { fused_row_512(r, whole, maps, rngs, top) };
+        block.copy_from_slice(&whole[..n]);
     }
 }
 
@@ -771,8 +819,9 @@ mod tests {
     #[test]
     fn the_fused_pass_is_the_general_path_bit_for_bit() {
         // thermal and photon detectors with the table sampler: radiances below zero, across the range and past
-        // the well and the top level, widths of 4 and 10 blocks, rounded and not; for the photon detector, rows
-        // whose blocks are all above the Poisson threshold and rows where most blocks have a pixel below it
+        // the well and the top level, widths of 4 and 10 blocks and widths that end in a part block (160, 650)
+        // or are less than one (17), rounded and not; for the photon detector, rows whose blocks are all above
+        // the Poisson threshold and rows where most blocks have a pixel below it
         let thermal = Readout {
             shot_noise: false,
             read_variance: 9.0,
@@ -786,7 +835,7 @@ mod tests {
             eprintln!("no AVX-512 here (or IRSIM_SIMD caps it): the fused pass is not compared");
         }
         for r in [thermal, Readout { shot_noise: true, ..thermal }] {
-            for (w, h) in [(256, 9), (640, 5)] {
+            for (w, h) in [(256, 9), (640, 5), (160, 7), (650, 5), (17, 6)] {
                 let mut base: Vec<f32> = (0..w * h)
                     .map(|i| {
                         let v = ((i * 7919) % 11_000) as f32 * 0.37;
@@ -795,10 +844,12 @@ mod tests {
                     .collect();
                 // for the photon detector, a NaN (whose block takes the per-pixel path in both; a thermal
                 // detector's NaN is outside the promise) and a signal exactly at the Poisson threshold without the
-                // maps ((2·1)·48.25 + 3.5 = 100), in odd rows
+                // maps ((2·1)·48.25 + 3.5 = 100), in odd rows; and a NaN as the last pixel of row 4 (in a part
+                // block where the width has one)
                 if r.shot_noise {
                     base[w + 5] = f32::NAN;
                     base[3 * w + 7] = 48.25;
+                    base[5 * w - 1] = f32::NAN;
                 }
                 assert_eq!(r.fuses(w, true), avx512);
                 let gain: Vec<f32> = (0..w * h).map(|i| 0.9 + 0.2 * ((i * 37) % 101) as f32 / 101.0).collect();
@@ -845,7 +896,7 @@ mod tests {
         halves.apply_rows(&mut general, 256, ReadoutMaps::default(), true, (1, 1), Some(4095.0), None, false);
         assert_eq!(fused, general);
         assert!(fused.iter().zip(&base).all(|(&v, &l)| v == l + 1.0), "x + ½ rounds to x + 1");
-        // another sampler, a row of part blocks, no noise or a detector without noise take the general path
+        // another sampler, an empty row, no noise or a detector without noise take the general path
         assert!(!Readout { normal_sampler: NormalSampler::BoxMuller, ..r }.fuses(256, true));
         assert!(!Readout { read_variance: 0.0, ..r }.fuses(256, true));
         // a photon detector without read noise fuses, and gives the general path's bits
@@ -856,7 +907,7 @@ mod tests {
         photons.apply_rows(&mut fused, 256, ReadoutMaps::default(), true, (5, 2), Some(4095.0), None, true);
         photons.apply_rows(&mut general, 256, ReadoutMaps::default(), true, (5, 2), Some(4095.0), None, false);
         assert_eq!(fused, general);
-        assert!(!r.fuses(200, true) && !r.fuses(256, false));
+        assert!(!r.fuses(0, true) && !r.fuses(256, false));
     }
 
     #[test]
