@@ -411,7 +411,8 @@ mod x86 {
         };
         // the deviates one block ahead: the next block's polynomials are independent of this block's readout, and
         // written before it they overlap it instead of waiting in the same dependency chain
-        // (an empty row draws a run it does not use, from a generator of its own)
+        // (a row of n > 0 pixels draws n/64 runs, one a block, so a part block read after it takes the next run;
+        // an empty row draws one it does not use)
         let blocks = n / 64;
         // SAFETY: the CPU has AVX-512 (the caller's promise)
         let mut next = unsafe { quantiles.next_run_512(normals) };
@@ -458,11 +459,13 @@ mod x86 {
     }
 
     /// A part block (`block`, fewer than 64 pixels, the end of a row whose whole blocks [`fused_row_512`] read out
-    /// with the same generators) read out the same way: in a block of 64 whose other lanes repeat its last pixel,
-    /// so that they change no block's path, and are dropped. Its deviates are the first of the next run, which
-    /// are those the general path draws for a part block ([`Quantiles::fill`]), and its pixels draw their exact
-    /// counts' uniforms before the copies do. `maps` are the block's gain, offset and column offsets, each
-    /// `block`'s length where given.
+    /// with the same generators) read out the same way: in a block of 64 whose other lanes repeat its last pixel
+    /// and are dropped. Its deviates are the first of the next run, which are those the general path draws for a
+    /// part block ([`Quantiles::fill`]). The copies come after its pixels, so its pixels draw their exact counts'
+    /// uniforms first, and a pixel's value does not depend on the path its block takes (above the Poisson
+    /// threshold the per-pixel and the vector noise are the same operations): what the copies hold changes none
+    /// of its bits (repeating the last pixel keeps the block's path that of its own pixels). `maps` are the
+    /// block's gain, offset and column offsets, each `block`'s length where given.
     ///
     /// # Safety
     /// The CPU must have AVX-512 (F, DQ, BW, VL).
