@@ -57,12 +57,6 @@ impl CpuTicks {
     pub fn share(&self) -> Option<f64> {
         (self.total > 0).then(|| self.steal as f64 / self.total as f64)
     }
-
-    /// The share of the CPU time between `self` and `later` that the host took, 0 to 1 (`None` when no tick was
-    /// counted in between, as when the counters went back).
-    pub fn steal_share(&self, later: &Self) -> Option<f64> {
-        self.elapsed(later).share()
-    }
 }
 
 /// The share of steal time from which [`steal_note`] speaks. An idle 2-CPU virtual machine (Intel Xeon, KVM) counted 0–1 %
@@ -103,10 +97,10 @@ mod tests {
         assert_eq!(before.total, 4705 + 356 + 584 + 3_699_176 + 23_060 + 277 + 1200);
         // 1000 ticks later, 300 of them stolen
         let later = CpuTicks { total: before.total + 1000, steal: before.steal + 300 };
-        assert_eq!(before.steal_share(&later), Some(0.3));
+        assert_eq!(before.elapsed(&later).share(), Some(0.3));
         // nothing counted, or counters that went back: no share
-        assert_eq!(before.steal_share(&before), None);
-        assert_eq!(later.steal_share(&before), None);
+        assert_eq!(before.elapsed(&before).share(), None);
+        assert_eq!(later.elapsed(&before).share(), None);
         // the ticks in between, and none for counters that went back
         assert_eq!(before.elapsed(&later), CpuTicks { total: 1000, steal: 300 });
         assert_eq!(later.elapsed(&before), CpuTicks { total: 0, steal: 0 });

@@ -204,7 +204,7 @@ impl Readout {
                     let mut uniforms = SplitMix64::substream(key, 2 * row as u64 + 1);
                     let maps = [gain, offset, maps.column_dn];
                     // whole blocks of 64, then a part block (whose run is the next one drawn, as in apply_row)
-                    let whole = width - width % 64;
+                    let whole = width - width % BLOCK;
                     let (line, part) = line.split_at_mut(whole);
                     // SAFETY: `fuses` checked for AVX-512; whole blocks and a part block, maps of their lengths
                     unsafe {
@@ -249,7 +249,6 @@ impl Readout {
         max_level: Option<f32>,
         fill_normals: impl Fn(&mut SplitMix64, &mut [f32]),
     ) {
-        const BLOCK: usize = 64;
         const ONES: [f32; BLOCK] = [1.0; BLOCK];
         const ZEROS: [f32; BLOCK] = [0.0; BLOCK];
         // x + (−0) is x for every x, −0 included: absent column offsets add nothing, to the bit
@@ -348,7 +347,7 @@ impl Readout {
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::Readout;
+    use super::{BLOCK, Readout};
     use crate::physics::random::{Quantiles, SplitMix64};
 
     /// One row (`line`, whole blocks of 64) read out with deviates of the `table` sampler: per block of 64, the
@@ -477,7 +476,6 @@ mod x86 {
         rngs: (&mut SplitMix64, &mut SplitMix64),
         top: Option<f32>,
     ) {
-        const BLOCK: usize = 64;
         let n = block.len();
         assert!(n > 0 && n < BLOCK && maps.iter().flatten().all(|m| m.len() == n), "a part block, maps of its length");
         // the values in a block of 64, the last repeated
@@ -496,6 +494,9 @@ mod x86 {
         block.copy_from_slice(&whole[..n]);
     }
 }
+
+/// The readout's block of pixels: the general path's unit of work, and one run of the `table` sampler's deviates.
+const BLOCK: usize = 64;
 
 /// Rounds to the nearest level in `[0, top]` (`top` a whole number ≤ 2²²), halves up; NaN becomes 0.
 ///
