@@ -988,13 +988,10 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
     let px = frame.pixels();
     // a band of tiles a task: the wanted tiles are often a few bands
     out.par_chunks_mut(tw).enumerate().with_max_len(split_finely(1)).for_each(|(ty, tiles)| {
-        CURVATURE_ROW.with_borrow_mut(|(line, most, nan)| {
-            line.resize(w, 0.0);
-            // each tile's largest value so far in each of sixteen lanes, and whether it met a NaN
+        CURVATURE_COLUMNS.with_borrow_mut(|most| {
+            // each column's largest value so far in the band (NaN sticking)
             most.clear();
-            most.resize(tw, [0.0; 16]);
-            nan.clear();
-            nan.resize(tw, false);
+            most.resize(w, 0.0);
             let wanted = &wanted[ty * tw..(ty + 1) * tw];
             widest(
                 #[inline(always)]
@@ -1003,53 +1000,38 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                         let row = |y: usize| &px[y * w..(y + 1) * w];
                         let (up, mid, down) = (row(y.saturating_sub(1)), row(y), row((y + 1).min(h - 1)));
                         for run in true_runs(wanted) {
-                            let (x0, x1) = (run.start * t, (run.end * t).min(w));
-                            curvature_row(up, mid, down, x0..x1, line);
-                            for k in run {
-                                let c = &line[k * t..((k + 1) * t).min(w)];
-                                for chunk in c.chunks(16) {
-                                    // a whole tile row as one fixed-length vector
-                                    nan[k] |= match <&[f32; 16]>::try_from(chunk) {
-                                        Ok(whole) => lane_max(&mut most[k], whole),
-                                        Err(_) => lane_max(&mut most[k], chunk),
-                                    };
-                                }
-                            }
+                            curvature_max_row(up, mid, down, run.start * t..(run.end * t).min(w), most);
                         }
                     }
                 },
             );
-            // NaN sticks; the values are ≥ 0, so their largest is the same in any order (here lane by lane, in
-            // vector registers, then across the lanes)
+            // the values are ≥ 0 and NaN sticks, so their largest is the same in any order (here down each column
+            // in vector registers, then across the tile's columns)
             for (k, tile) in tiles.iter_mut().enumerate() {
                 if wanted[k] {
-                    *tile =
-                        if nan[k] || tile.is_nan() { f32::NAN } else { most[k].iter().fold(*tile, |m, &v| m.max(v)) };
+                    *tile = most[k * t..((k + 1) * t).min(w)].iter().fold(0.0, |m, &v| sticky_max(m, v));
                 }
             }
         });
     });
 }
 
-/// `lanes[j] = max(lanes[j], chunk[j])` for the values `≥ 0` of `chunk` (at most sixteen), a NaN leaving its lane
-/// as it was; returns whether `chunk` holds a NaN. Taken in locals, so the loop is one vector compare and max.
+/// The larger of `m` and `v` (values `≥ 0`), NaN if either is NaN: a tile's curvature is NaN once a pixel's is.
 #[inline(always)]
-fn lane_max(lanes: &mut [f32; 16], chunk: &[f32]) -> bool {
-    let (mut most, mut any) = (*lanes, false);
-    for (m, &v) in most.iter_mut().zip(chunk) {
-        any |= v.is_nan();
-        *m = if v > *m { v } else { *m };
+fn sticky_max(m: f32, v: f32) -> f32 {
+    if v > m {
+        v
+    } else if v <= m {
+        m
+    } else {
+        f32::NAN
     }
-    *lanes = most;
-    any
 }
 
 thread_local! {
-    /// Each thread's row of curvatures for [`tile_curvature`], with its tiles' lane maxima and NaN flags (kept
+    /// Each thread's largest curvature so far down each column of a band of tiles, for [`tile_curvature`] (kept
     /// from frame to frame).
-    #[allow(clippy::type_complexity)]
-    static CURVATURE_ROW: std::cell::RefCell<(Vec<f32>, Vec<[f32; 16]>, Vec<bool>)> =
-        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
+    static CURVATURE_COLUMNS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
     /// Each thread's tile columns that a padded row's horizontal pass covers, and the run of the row it pads
     /// ([`pad_span`]), for [`Convolver::apply_where_needed_in`] (kept from frame to frame).
     static BLURRED_COLUMNS: std::cell::RefCell<(Vec<bool>, Vec<f32>)> =
@@ -1061,10 +1043,10 @@ thread_local! {
 }
 
 /// The curvature measure `|f_xx| + |f_yy| + 2·|f_xy|` of row `mid` (rows `up` and `down` around it, edges
-/// replicated) at the columns `xs`, into `line` at the same columns. The interior is one pass over slices (it
-/// vectorizes); the first and last columns use the replicated neighbours.
+/// replicated) at the columns `xs`, taken into `most` at the same columns by [`sticky_max`]. The interior is one
+/// pass over slices (it vectorizes); the first and last columns use the replicated neighbours.
 #[inline(always)]
-fn curvature_row(up: &[f32], mid: &[f32], down: &[f32], xs: std::ops::Range<usize>, line: &mut [f32]) {
+fn curvature_max_row(up: &[f32], mid: &[f32], down: &[f32], xs: std::ops::Range<usize>, most: &mut [f32]) {
     let w = mid.len();
     let at = |x: usize| {
         let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
@@ -1075,23 +1057,23 @@ fn curvature_row(up: &[f32], mid: &[f32], down: &[f32], xs: std::ops::Range<usiz
     };
     // the interior columns a..b have both neighbours
     let (a, b) = (xs.start.max(1), xs.end.min(w.saturating_sub(1)));
-    for (x, c) in line.iter_mut().enumerate().take(a.min(xs.end)).skip(xs.start) {
-        *c = at(x);
+    for (x, m) in most.iter_mut().enumerate().take(a.min(xs.end)).skip(xs.start) {
+        *m = sticky_max(*m, at(x));
     }
     if a < b {
         let n = b - a;
         let (ml, mc, mr) = (&mid[a - 1..b - 1], &mid[a..b], &mid[a + 1..b + 1]);
         let (uc, dc, dr) = (&up[a..b], &down[a..b], &down[a + 1..b + 1]);
-        let out = &mut line[a..b];
+        let out = &mut most[a..b];
         for i in 0..n {
             let fxx = ml[i] - 2.0 * mc[i] + mr[i];
             let fyy = uc[i] - 2.0 * mc[i] + dc[i];
             let fxy = dr[i] - dc[i] - mr[i] + mc[i];
-            out[i] = fxx.abs() + fyy.abs() + 2.0 * fxy.abs();
+            out[i] = sticky_max(out[i], fxx.abs() + fyy.abs() + 2.0 * fxy.abs());
         }
     }
-    for (x, c) in line.iter_mut().enumerate().take(xs.end).skip(b.max(a)) {
-        *c = at(x);
+    for (x, m) in most.iter_mut().enumerate().take(xs.end).skip(b.max(a)) {
+        *m = sticky_max(*m, at(x));
     }
 }
 
@@ -2095,6 +2077,47 @@ mod tests {
         let mut f = smooth.clone();
         assert_eq!(c.apply_where_needed(kernel, &mut f, ConvolutionMethod::Separable, 0.5).tiles_blurred, 0);
         assert_eq!(f, smooth);
+    }
+
+    #[test]
+    fn a_nan_or_one_rough_pixel_marks_its_tile_and_only_the_tiles_it_reaches() {
+        // a ramp (no curvature) 100 × 84 px: 7 × 6 tiles of 16 px, the last column and row of tiles partial
+        let (w, h) = (100, 84);
+        let ramp = Frame::from_pixels(w, h, (0..w * h).map(|i| 1000.0 + 0.25 * (i % w) as f32).collect());
+        let t = BLUR_TILE_PX;
+        let tile = |x: usize, y: usize| (y / t) * w.div_ceil(t) + x / t;
+        // a tile's first and last column and row, a partial tile's last pixel, the frame's corners
+        for (x, y) in [(0, 0), (15, 20), (16, 31), (47, 47), (99, 83), (96, 70), (31, 64)] {
+            for bad in [f32::NAN, 1100.0] {
+                let mut f = ramp.clone();
+                f.pixels_mut()[y * w + x] = bad;
+                let mut rough = Vec::new();
+                tile_curvature(&f, &[true; 42], &mut rough);
+                // the pixel's own tile, and those whose pixels are its neighbours in the stencil
+                let mut want = [false; 42];
+                for (dx, dy) in [(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1)] {
+                    let (nx, ny) = (x as isize + dx, y as isize + dy);
+                    if (0..w as isize).contains(&nx) && (0..h as isize).contains(&ny) {
+                        want[tile(nx as usize, ny as usize)] = true;
+                    }
+                }
+                for (i, &r) in rough.iter().enumerate() {
+                    if !want[i] {
+                        // the replicated right edge's kink gives 0.25
+                        assert!(r <= 0.25, "({x}, {y}) = {bad}: tile {i} {r}");
+                    } else if i == tile(x, y) && bad.is_nan() {
+                        assert!(r.is_nan(), "({x}, {y}): its tile {i} {r}");
+                    } else if i == tile(x, y) {
+                        assert!(r >= 100.0, "({x}, {y}): its tile {i} {r}");
+                    }
+                }
+                // a tile that is not wanted stays at 0
+                let mut some = [true; 42];
+                some[tile(x, y)] = false;
+                tile_curvature(&f, &some, &mut rough);
+                assert_eq!(rough[tile(x, y)], 0.0);
+            }
+        }
     }
 
     #[test]
