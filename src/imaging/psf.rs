@@ -1006,14 +1006,32 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                 },
             );
             // the values are ≥ 0 and NaN sticks, so their largest is the same in any order (here down each column
-            // in vector registers, then across the tile's columns)
+            // in vector registers, then across a whole tile's columns by halves)
             for (k, tile) in tiles.iter_mut().enumerate() {
                 if wanted[k] {
-                    *tile = most[k * t..((k + 1) * t).min(w)].iter().fold(0.0, |m, &v| sticky_max(m, v));
+                    let columns = &most[k * t..((k + 1) * t).min(w)];
+                    *tile = match <&[f32; BLUR_TILE_PX]>::try_from(columns) {
+                        Ok(whole) => halving_max(*whole),
+                        Err(_) => columns.iter().fold(0.0, |m, &v| sticky_max(m, v)),
+                    };
                 }
             }
         });
     });
+}
+
+/// The largest of sixteen values by [`sticky_max`], the first half against the second until one is left (four
+/// vector steps, where a fold is sixteen dependent ones).
+#[inline(always)]
+fn halving_max(mut v: [f32; BLUR_TILE_PX]) -> f32 {
+    let mut n = BLUR_TILE_PX;
+    while n > 1 {
+        n /= 2;
+        for j in 0..n {
+            v[j] = sticky_max(v[j], v[j + n]);
+        }
+    }
+    sticky_max(0.0, v[0])
 }
 
 /// The larger of `m` and `v` (values `≥ 0`), NaN if either is NaN: a tile's curvature is NaN once a pixel's is.
@@ -1085,8 +1103,10 @@ pub struct Convolver {
     acc: Vec<f32>,
     padded: Vec<f32>,
     fft: Option<FftConvolution>,
-    /// Per tile: the curvature measure, then whether the tile is blurred.
+    /// Per tile: the curvature measure (infinite for NaN), then whether the tile is blurred.
     rough: Vec<f32>,
+    /// Per tile: the largest measure within the kernel's reach along its row of tiles.
+    spread: Vec<f32>,
     needed: Vec<bool>,
     /// Per tile: whether its curvature is needed (a candidate tile reaches it).
     wanted: Vec<bool>,
@@ -1099,11 +1119,14 @@ pub struct Convolver {
 pub fn tiles_within_reach(flags: &[bool], tiles_x: usize, reach: usize, out: &mut Vec<bool>) {
     let tiles_y = flags.len().div_ceil(tiles_x.max(1));
     out.clear();
-    out.extend((0..flags.len()).map(|i| {
-        let (tx, ty) = (i % tiles_x, i / tiles_x);
-        (ty.saturating_sub(reach)..=(ty + reach).min(tiles_y - 1))
-            .any(|y| (tx.saturating_sub(reach)..=(tx + reach).min(tiles_x - 1)).any(|x| flags[y * tiles_x + x]))
-    }));
+    // rows and columns in nested loops (an index divided into them is two 64-bit divisions a tile)
+    for ty in 0..tiles_y {
+        let row_len = tiles_x.min(flags.len() - ty * tiles_x);
+        out.extend((0..row_len).map(|tx| {
+            (ty.saturating_sub(reach)..=(ty + reach).min(tiles_y - 1))
+                .any(|y| (tx.saturating_sub(reach)..=(tx + reach).min(tiles_x - 1)).any(|x| flags[y * tiles_x + x]))
+        }));
+    }
 }
 
 /// The runs of consecutive `true` entries of `flags`, as index ranges, in order.
@@ -1417,33 +1440,41 @@ impl Convolver {
             self.apply(kernel, frame, method);
             return BlurStats { tiles_needed: considered, tiles_blurred: considered, tiles };
         }
-        let reach = kernel.radius.div_ceil(t) as isize;
+        let reach = kernel.radius.div_ceil(t);
         // curvature only on the tiles a candidate's reach covers
         match candidates {
-            Some(c) => tiles_within_reach(c, tw, reach as usize, &mut self.wanted),
+            Some(c) => tiles_within_reach(c, tw, reach, &mut self.wanted),
             None => {
                 self.wanted.clear();
                 self.wanted.resize(tiles, true);
             }
         }
         tile_curvature(frame, &self.wanted, &mut self.rough);
+        // NaN counts as rough; then each tile's largest within `reach` tiles on either axis: along each row of
+        // tiles, then down the columns (a max is the same in either order)
+        for r in &mut self.rough {
+            if r.is_nan() {
+                *r = f32::INFINITY;
+            }
+        }
+        // rows and columns of tiles in nested loops: a tile's index divided into its row and column was two
+        // 64-bit divisions a tile, most of this step's time
+        let (rough, spread) = (&self.rough, &mut self.spread);
+        spread.clear();
+        for row in rough.chunks(tw) {
+            spread.extend((0..tw).map(|tx| {
+                row[tx.saturating_sub(reach)..=(tx + reach).min(tw - 1)].iter().fold(0.0f32, |m, &c| m.max(c))
+            }));
+        }
         let factor = (0.25 * kernel.second_moment_px2) as f32;
         self.needed.clear();
-        self.needed.extend((0..tiles).map(|i| {
-            if !candidate(i) {
-                return false;
-            }
-            let (tx, ty) = ((i % tw) as isize, (i / tw) as isize);
-            let mut worst = 0.0f32;
-            for y in (ty - reach).max(0)..=(ty + reach).min(th as isize - 1) {
-                for x in (tx - reach).max(0)..=(tx + reach).min(tw as isize - 1) {
-                    // NaN counts as rough
-                    let c = self.rough[y as usize * tw + x as usize];
-                    worst = if c.is_nan() { f32::INFINITY } else { worst.max(c) };
-                }
-            }
-            !(worst * factor <= skip_below)
-        }));
+        for ty in 0..th {
+            let rows = ty.saturating_sub(reach)..=(ty + reach).min(th - 1);
+            self.needed.extend((0..tw).map(|tx| {
+                let worst = rows.clone().fold(0.0f32, |m, y| m.max(spread[y * tw + tx]));
+                candidate(ty * tw + tx) && !(worst * factor <= skip_below)
+            }));
+        }
         let blurred = self.needed.iter().filter(|&&n| n).count();
         if blurred == 0 {
             return BlurStats { tiles_needed: 0, tiles_blurred: 0, tiles };
