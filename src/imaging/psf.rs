@@ -1006,7 +1006,7 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                 },
             );
             // the values are ≥ 0 and NaN sticks, so their largest is the same in any order (here down each column
-            // in vector registers, then across a whole tile's columns by halves)
+            // in vector registers, then across a tile's columns: a whole tile's by halves)
             for (k, tile) in tiles.iter_mut().enumerate() {
                 if wanted[k] {
                     let columns = &most[k * t..((k + 1) * t).min(w)];
@@ -1103,10 +1103,11 @@ pub struct Convolver {
     acc: Vec<f32>,
     padded: Vec<f32>,
     fft: Option<FftConvolution>,
-    /// Per tile: the curvature measure (infinite for NaN), then whether the tile is blurred.
+    /// Per tile: the curvature measure (infinite for NaN).
     rough: Vec<f32>,
     /// Per tile: the largest measure within the kernel's reach along its row of tiles.
     spread: Vec<f32>,
+    /// Per tile: whether the tile is blurred.
     needed: Vec<bool>,
     /// Per tile: whether its curvature is needed (a candidate tile reaches it).
     wanted: Vec<bool>,
@@ -1119,7 +1120,8 @@ pub struct Convolver {
 pub fn tiles_within_reach(flags: &[bool], tiles_x: usize, reach: usize, out: &mut Vec<bool>) {
     let tiles_y = flags.len().div_ceil(tiles_x.max(1));
     out.clear();
-    // rows and columns in nested loops (an index divided into them is two 64-bit divisions a tile)
+    // rows and columns in nested loops (no division of a tile's index into them)
+    debug_assert!(tiles_x > 0 || flags.is_empty(), "tiles in rows of none");
     for ty in 0..tiles_y {
         let row_len = tiles_x.min(flags.len() - ty * tiles_x);
         out.extend((0..row_len).map(|tx| {
@@ -1457,8 +1459,7 @@ impl Convolver {
                 *r = f32::INFINITY;
             }
         }
-        // rows and columns of tiles in nested loops: a tile's index divided into its row and column was two
-        // 64-bit divisions a tile, most of this step's time
+        // rows and columns of tiles in nested loops (no division of a tile's index into them)
         let (rough, spread) = (&self.rough, &mut self.spread);
         spread.clear();
         for row in rough.chunks(tw) {
@@ -2111,13 +2112,15 @@ mod tests {
     }
 
     #[test]
-    fn a_nan_or_one_rough_pixel_marks_its_tile_and_only_the_tiles_it_reaches() {
+    fn a_rough_or_nan_pixel_marks_the_tiles_it_reaches_and_the_blur_takes_those_within_reach() {
         // a ramp (no curvature) 100 × 84 px: 7 × 6 tiles of 16 px, the last column and row of tiles partial
         let (w, h) = (100, 84);
         let ramp = Frame::from_pixels(w, h, (0..w * h).map(|i| 1000.0 + 0.25 * (i % w) as f32).collect());
         let t = BLUR_TILE_PX;
         let tile = |x: usize, y: usize| (y / t) * w.div_ceil(t) + x / t;
-        // a tile's first and last column and row, a partial tile's last pixel, the frame's corners
+        let psf = Psf::new(&PsfSpec::default(), &optics(1.0, Band::LWIR_8_12)).unwrap();
+        let (kernel, mut convolver) = (psf.point_kernel(), Convolver::new());
+        // a tile's first and last column and row, a partial tile's last pixel, two of the frame's corners
         for (x, y) in [(0, 0), (15, 20), (16, 31), (47, 47), (99, 83), (96, 70), (31, 64)] {
             for bad in [f32::NAN, 1100.0] {
                 let mut f = ramp.clone();
@@ -2134,14 +2137,21 @@ mod tests {
                 }
                 for (i, &r) in rough.iter().enumerate() {
                     if !want[i] {
-                        // the replicated right edge's kink gives 0.25
+                        // the replicated edges' kinks give 0.25
                         assert!(r <= 0.25, "({x}, {y}) = {bad}: tile {i} {r}");
-                    } else if i == tile(x, y) && bad.is_nan() {
-                        assert!(r.is_nan(), "({x}, {y}): its tile {i} {r}");
-                    } else if i == tile(x, y) {
-                        assert!(r >= 100.0, "({x}, {y}): its tile {i} {r}");
+                    } else if bad.is_nan() {
+                        assert!(r.is_nan(), "({x}, {y}): tile {i} {r}");
+                    } else {
+                        // a neighbour's second difference alone is over 75; the pixel's own, over 150
+                        let least = if i == tile(x, y) { 150.0 } else { 70.0 };
+                        assert!(r >= least, "({x}, {y}): tile {i} {r}");
                     }
                 }
+                // the blur's decision: every tile within the kernel's reach of those tiles, and no other
+                let mut reached = Vec::new();
+                tiles_within_reach(&want, w.div_ceil(t), kernel.radius().div_ceil(t), &mut reached);
+                convolver.apply_where_needed(kernel, &mut f.clone(), ConvolutionMethod::Separable, 0.5);
+                assert_eq!(convolver.needed, reached, "({x}, {y}) = {bad}");
                 // a tile that is not wanted stays at 0
                 let mut some = [true; 42];
                 some[tile(x, y)] = false;
