@@ -148,6 +148,8 @@ pub struct BackgroundRenderer {
     /// Per tile: in `clean`, not in `near`, next to a tile that is (with the FFT method, every tile in `clean`
     /// and not in `near`).
     ring: Vec<bool>,
+    /// The row pass of [`tiles_within_reach`].
+    along: Vec<bool>,
 }
 
 impl BackgroundRenderer {
@@ -232,7 +234,7 @@ impl BackgroundRenderer {
         let reach = kernel.radius().div_ceil(t);
         self.rest.clear();
         self.rest.extend(self.clean.iter().map(|c| !c));
-        tiles_within_reach(&self.rest, frame.width().div_ceil(t), reach, &mut self.near);
+        tiles_within_reach(&self.rest, frame.width().div_ceil(t), reach, &mut self.along, &mut self.near);
         if area_sampled {
             plane.render(camera, sky.sampling, sky.miss, frame);
         } else {
@@ -242,7 +244,7 @@ impl BackgroundRenderer {
             // beyond the reached ones
             let tw = frame.width().div_ceil(t);
             let whole = b.method == ConvolutionMethod::Fft;
-            tiles_within_reach(&self.near, tw, 1, &mut self.ring);
+            tiles_within_reach(&self.near, tw, 1, &mut self.along, &mut self.ring);
             for ((r, &c), &n) in self.ring.iter_mut().zip(&self.clean).zip(&self.near) {
                 *r = (*r || whole) && c && !n;
             }

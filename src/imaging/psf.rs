@@ -1009,19 +1009,19 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
             // in vector registers, then across a tile's columns: a whole tile's by halves)
             for (k, tile) in tiles.iter_mut().enumerate() {
                 if wanted[k] {
+                    // a partial tile's missing columns as 0, which changes no largest value
                     let columns = &most[k * t..((k + 1) * t).min(w)];
-                    *tile = match <&[f32; BLUR_TILE_PX]>::try_from(columns) {
-                        Ok(whole) => halving_max(*whole),
-                        Err(_) => columns.iter().fold(0.0, |m, &v| sticky_max(m, v)),
-                    };
+                    let mut v = [0.0; BLUR_TILE_PX];
+                    v[..columns.len()].copy_from_slice(columns);
+                    *tile = halving_max(v);
                 }
             }
         });
     });
 }
 
-/// The largest of sixteen values by [`sticky_max`], the first half against the second until one is left (four
-/// vector steps, where a fold is sixteen dependent ones).
+/// The largest of sixteen values (`≥ 0`, or NaN) by [`sticky_max`], the first half against the second until one
+/// is left (four vector steps, where a fold is sixteen dependent ones).
 #[inline(always)]
 fn halving_max(mut v: [f32; BLUR_TILE_PX]) -> f32 {
     let mut n = BLUR_TILE_PX;
@@ -1031,7 +1031,7 @@ fn halving_max(mut v: [f32; BLUR_TILE_PX]) -> f32 {
             v[j] = sticky_max(v[j], v[j + n]);
         }
     }
-    sticky_max(0.0, v[0])
+    v[0]
 }
 
 /// The larger of `m` and `v` (values `≥ 0`), NaN if either is NaN: a tile's curvature is NaN once a pixel's is.
@@ -1106,7 +1106,11 @@ pub struct Convolver {
     /// Per tile: the curvature measure (infinite for NaN).
     rough: Vec<f32>,
     /// Per tile: the largest measure within the kernel's reach along its row of tiles.
-    spread: Vec<f32>,
+    along: Vec<f32>,
+    /// Per tile: the largest measure within the kernel's reach.
+    worst: Vec<f32>,
+    /// Per tile: whether a candidate tile within the kernel's reach along its row of tiles.
+    along_flags: Vec<bool>,
     /// Per tile: whether the tile is blurred.
     needed: Vec<bool>,
     /// Per tile: whether its curvature is needed (a candidate tile reaches it).
@@ -1116,18 +1120,41 @@ pub struct Convolver {
 }
 
 /// Per tile of a row-major grid `tiles_x` wide (`flags`): whether a tile within `reach` tiles of it (on either
-/// axis) is flagged, into `out`.
-pub fn tiles_within_reach(flags: &[bool], tiles_x: usize, reach: usize, out: &mut Vec<bool>) {
-    let tiles_y = flags.len().div_ceil(tiles_x.max(1));
-    out.clear();
-    // rows and columns in nested loops (no division of a tile's index into them)
-    debug_assert!(tiles_x > 0 || flags.is_empty(), "tiles in rows of none");
-    for ty in 0..tiles_y {
-        let row_len = tiles_x.min(flags.len() - ty * tiles_x);
-        out.extend((0..row_len).map(|tx| {
-            (ty.saturating_sub(reach)..=(ty + reach).min(tiles_y - 1))
-                .any(|y| (tx.saturating_sub(reach)..=(tx + reach).min(tiles_x - 1)).any(|x| flags[y * tiles_x + x]))
+/// axis) is flagged, into `out`; `along` is the row pass's buffer ([`join_within_reach`]).
+pub fn tiles_within_reach(flags: &[bool], tiles_x: usize, reach: usize, along: &mut Vec<bool>, out: &mut Vec<bool>) {
+    join_within_reach(flags, tiles_x, reach, (false, |a, b| a | b), along, out);
+}
+
+/// Per tile of a row-major grid `tiles_x` wide (`values`; its last row may be short): `join` of the values of the
+/// tiles within `reach` tiles of it on either axis (a square, cut at the grid's edges), into `out`. `join` is
+/// associative and commutative with `none` its identity (`|` with `false`, or the larger of two values `≥ 0` with
+/// 0), so the square's value is that of each row's windows (into `along`) taken down the column's window: twice
+/// `2·reach + 1` joins a tile where the square takes its square. Rows and columns go in nested loops (no division
+/// of a tile's index into them).
+fn join_within_reach<T: Copy>(
+    values: &[T],
+    tiles_x: usize,
+    reach: usize,
+    (none, join): (T, impl Fn(T, T) -> T),
+    along: &mut Vec<T>,
+    out: &mut Vec<T>,
+) {
+    debug_assert!(tiles_x > 0 || values.is_empty(), "tiles in rows of none");
+    let window = |v: &[T]| v.iter().fold(none, |m, &x| join(m, x));
+    along.clear();
+    for row in values.chunks(tiles_x.max(1)) {
+        // every column of the grid, past a short last row's end too: their windows may reach into the row
+        along.extend((0..tiles_x).map(|tx| {
+            let end = (tx + reach + 1).min(row.len());
+            window(&row[tx.saturating_sub(reach).min(end)..end])
         }));
+    }
+    let tiles_y = values.len().div_ceil(tiles_x.max(1));
+    out.clear();
+    for ty in 0..tiles_y {
+        let rows = ty.saturating_sub(reach)..=(ty + reach).min(tiles_y - 1);
+        let row_len = tiles_x.min(values.len() - ty * tiles_x);
+        out.extend((0..row_len).map(|tx| rows.clone().fold(none, |m, y| join(m, along[y * tiles_x + tx]))));
     }
 }
 
@@ -1445,7 +1472,7 @@ impl Convolver {
         let reach = kernel.radius.div_ceil(t);
         // curvature only on the tiles a candidate's reach covers
         match candidates {
-            Some(c) => tiles_within_reach(c, tw, reach, &mut self.wanted),
+            Some(c) => tiles_within_reach(c, tw, reach, &mut self.along_flags, &mut self.wanted),
             None => {
                 self.wanted.clear();
                 self.wanted.resize(tiles, true);
@@ -1459,23 +1486,11 @@ impl Convolver {
                 *r = f32::INFINITY;
             }
         }
-        // rows and columns of tiles in nested loops (no division of a tile's index into them)
-        let (rough, spread) = (&self.rough, &mut self.spread);
-        spread.clear();
-        for row in rough.chunks(tw) {
-            spread.extend((0..tw).map(|tx| {
-                row[tx.saturating_sub(reach)..=(tx + reach).min(tw - 1)].iter().fold(0.0f32, |m, &c| m.max(c))
-            }));
-        }
+        join_within_reach(&self.rough, tw, reach, (0.0, f32::max), &mut self.along, &mut self.worst);
         let factor = (0.25 * kernel.second_moment_px2) as f32;
         self.needed.clear();
-        for ty in 0..th {
-            let rows = ty.saturating_sub(reach)..=(ty + reach).min(th - 1);
-            self.needed.extend((0..tw).map(|tx| {
-                let worst = rows.clone().fold(0.0f32, |m, y| m.max(spread[y * tw + tx]));
-                candidate(ty * tw + tx) && !(worst * factor <= skip_below)
-            }));
-        }
+        self.needed
+            .extend(self.worst.iter().enumerate().map(|(i, &worst)| candidate(i) && !(worst * factor <= skip_below)));
         let blurred = self.needed.iter().filter(|&&n| n).count();
         if blurred == 0 {
             return BlurStats { tiles_needed: 0, tiles_blurred: 0, tiles };
@@ -1761,11 +1776,42 @@ mod tests {
         assert_eq!(true_runs(&[]).count(), 0);
         // a 4 × 2 grid with one flagged tile: reach 1 covers its neighbours on either axis and diagonally
         let grid = [false, false, false, false, false, false, true, false];
-        let mut out = Vec::new();
-        tiles_within_reach(&grid, 4, 1, &mut out);
+        let (mut along, mut out) = (Vec::new(), Vec::new());
+        tiles_within_reach(&grid, 4, 1, &mut along, &mut out);
         assert_eq!(out, vec![false, true, true, true, false, true, true, true]);
-        tiles_within_reach(&grid, 4, 0, &mut out);
+        tiles_within_reach(&grid, 4, 0, &mut along, &mut out);
         assert_eq!(out, grid.to_vec());
+    }
+
+    #[test]
+    fn rows_then_columns_give_the_square_window() {
+        // grids of several widths (the last row whole or short), sparse and dense flags and measures (NaN as ∞,
+        // as the blur's decision takes it), against each tile's square of tiles within reach
+        let mut rng = crate::physics::random::SplitMix64::new(17);
+        let (mut along, mut out, mut along_f, mut out_f) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for (tiles_x, len) in [(1, 5), (4, 8), (7, 35), (7, 33), (40, 32 * 40), (9, 1)] {
+            for reach in 0..4 {
+                for density in [0.05, 0.5] {
+                    let flags: Vec<bool> = (0..len).map(|_| rng.uniform_open0() < density).collect();
+                    let values: Vec<f32> = (0..len)
+                        .map(|_| if rng.uniform_open0() < 0.02 { f32::INFINITY } else { rng.uniform_open0() as f32 })
+                        .collect();
+                    tiles_within_reach(&flags, tiles_x, reach, &mut along, &mut out);
+                    join_within_reach(&values, tiles_x, reach, (0.0, f32::max), &mut along_f, &mut out_f);
+                    for i in 0..len {
+                        let (ty, tx) = (i / tiles_x, i % tiles_x);
+                        let square = (0..len).filter(|&j| {
+                            let (y, x) = (j / tiles_x, j % tiles_x);
+                            y.abs_diff(ty) <= reach && x.abs_diff(tx) <= reach
+                        });
+                        let what = format!("{tiles_x} wide, {len} tiles, reach {reach}, tile {i}");
+                        assert_eq!(out[i], square.clone().any(|j| flags[j]), "{what}");
+                        assert_eq!(out_f[i], square.fold(0.0f32, |m, j| m.max(values[j])), "{what}");
+                    }
+                    assert_eq!((out.len(), out_f.len()), (len, len));
+                }
+            }
+        }
     }
 
     #[test]
@@ -2148,8 +2194,8 @@ mod tests {
                     }
                 }
                 // the blur's decision: every tile within the kernel's reach of those tiles, and no other
-                let mut reached = Vec::new();
-                tiles_within_reach(&want, w.div_ceil(t), kernel.radius().div_ceil(t), &mut reached);
+                let (mut along, mut reached) = (Vec::new(), Vec::new());
+                tiles_within_reach(&want, w.div_ceil(t), kernel.radius().div_ceil(t), &mut along, &mut reached);
                 convolver.apply_where_needed(kernel, &mut f.clone(), ConvolutionMethod::Separable, 0.5);
                 assert_eq!(convolver.needed, reached, "({x}, {y}) = {bad}");
                 // a tile that is not wanted stays at 0
