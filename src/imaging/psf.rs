@@ -1006,7 +1006,7 @@ fn tile_curvature(frame: &Frame, wanted: &[bool], out: &mut Vec<f32>) {
                 },
             );
             // the values are ≥ 0 and NaN sticks, so their largest is the same in any order (here down each column
-            // in vector registers, then across a tile's columns: a whole tile's by halves)
+            // in vector registers, then across a tile's sixteen columns by halves)
             for (k, tile) in tiles.iter_mut().enumerate() {
                 if wanted[k] {
                     // a partial tile's missing columns as 0, which changes no largest value
@@ -1109,7 +1109,7 @@ pub struct Convolver {
     along: Vec<f32>,
     /// Per tile: the largest measure within the kernel's reach.
     worst: Vec<f32>,
-    /// Per tile: whether a candidate tile within the kernel's reach along its row of tiles.
+    /// Per tile: whether a candidate tile is within the kernel's reach along its row of tiles.
     along_flags: Vec<bool>,
     /// Per tile: whether the tile is blurred.
     needed: Vec<bool>,
@@ -1120,7 +1120,8 @@ pub struct Convolver {
 }
 
 /// Per tile of a row-major grid `tiles_x` wide (`flags`): whether a tile within `reach` tiles of it (on either
-/// axis) is flagged, into `out`; `along` is the row pass's buffer ([`join_within_reach`]).
+/// axis) is flagged, into `out`; `along` is the buffer of its pass along the rows (each row's windows, then the
+/// columns' windows of those).
 pub fn tiles_within_reach(flags: &[bool], tiles_x: usize, reach: usize, along: &mut Vec<bool>, out: &mut Vec<bool>) {
     join_within_reach(flags, tiles_x, reach, (false, |a, b| a | b), along, out);
 }
