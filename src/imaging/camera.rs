@@ -255,6 +255,36 @@ impl Camera {
         DVec3::new((pixel.x - c.x) / f, (pixel.y - c.y) / f, 1.0)
     }
 
+    /// Where this camera's pixels fall in `wider`'s image, as one shift: `wider` stands at the same point and
+    /// turns a little from this camera (its frame may be larger; the principal points are both frame centres).
+    /// Returns the shift that takes this frame's centre to where its ray falls in `wider`'s image, px, and the
+    /// largest distance between where a pixel's ray falls there and where the shift puts the pixel, over the
+    /// frame's corners, edge midpoints and centre, px (for a small turn that distance is close to a quadratic in
+    /// the pixel's position, largest at the frame's edges; a roll makes it grow linearly toward them). `None`
+    /// if the cameras stand apart or a ray of this frame does not meet `wider`'s image plane in front.
+    pub fn shift_within(&self, wider: &Camera) -> Option<(DVec2, f64)> {
+        if self.position_m != wider.position_m {
+            return None;
+        }
+        let (w, h) = (f64::from(self.intrinsics.width), f64::from(self.intrinsics.height));
+        let turn = wider.world_to_camera() * self.camera_to_world;
+        let (f, c) = (wider.intrinsics.focal_px(), wider.intrinsics.principal_point());
+        let land = |p: DVec2| {
+            let d = turn * self.ray_camera(p);
+            (d.z > 0.0 && d.is_finite()).then(|| DVec2::new(c.x + f * d.x / d.z, c.y + f * d.y / d.z))
+        };
+        let centre = DVec2::new(w / 2.0, h / 2.0);
+        let shift = land(centre)? - centre;
+        let mut error: f64 = 0.0;
+        for x in [0.5, w / 2.0, w - 0.5] {
+            for y in [0.5, h / 2.0, h - 0.5] {
+                let p = DVec2::new(x, y);
+                error = error.max(land(p)?.distance(p + shift));
+            }
+        }
+        Some((shift, error))
+    }
+
     /// The intrinsic matrix K (pixels from camera coordinates).
     pub fn k_matrix(&self) -> DMat3 {
         let f = self.intrinsics.focal_px();
@@ -324,6 +354,45 @@ mod tests {
         let Projection::InFront { pixel, .. } = cam.project(target) else { panic!() };
         assert!((pixel - DVec2::splat(128.0)).length() < 1e-9);
         assert!(Camera::look_at(intr(), target, target, 0.0).is_err());
+    }
+
+    #[test]
+    fn a_small_turn_is_a_shift_up_to_its_quadratic_term() {
+        let inner = Intrinsics::try_new(256, 200, 0.05, 17e-6).unwrap();
+        let outer = Intrinsics::try_new(296, 240, 0.05, 17e-6).unwrap();
+        let eye = DVec3::new(10.0, -20.0, 3000.0);
+        let attitude = YawPitchRoll { yaw_deg: 30.0, pitch_deg: 10.0, roll_deg: 5.0 };
+        let wider = Camera::new(outer, eye, attitude);
+        let f = inner.focal_px();
+        // unturned: the margin, exactly
+        let (shift, error) = Camera::new(inner, eye, attitude).shift_within(&wider).unwrap();
+        assert!((shift - DVec2::new(20.0, 20.0)).length() < 1e-9 && error < 1e-9, "{shift} {error}");
+        for (pan, tilt) in [(3e-3, 0.0), (0.0, -4e-3), (2e-3, 2e-3)] {
+            let view = Camera::new(inner, eye, attitude).jittered(Jitter { x_rad: tilt, y_rad: pan, z_rad: 0.0 });
+            let (shift, error) = view.shift_within(&wider).unwrap();
+            // a pan to the right moves the view right in the wider image, a tilt about x the other way down
+            assert!((shift.x - 20.0 - f * pan.tan()).abs() < 0.02 && (shift.y - 20.0 + f * tilt.tan()).abs() < 0.02);
+            // every pixel of the view, not just the nine points, lies within the error of the shift
+            let mut worst: f64 = 0.0;
+            for y in (0..200).step_by(7).chain([199]) {
+                for x in (0..256).step_by(5).chain([255]) {
+                    let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                    let Projection::InFront { pixel, .. } = wider.project(eye + 1e4 * view.ray(p)) else { panic!() };
+                    worst = worst.max(pixel.distance(p + shift));
+                }
+            }
+            assert!(worst <= error + 1e-6 && error < 0.1 && error > 0.2 * worst, "{pan} {tilt}: {worst} {error}");
+            // the quadratic term: θ·x²/f at the edge, a few hundredths of a pixel here
+            let edge = pan.abs().max(tilt.abs()) * 128f64.powi(2) / f;
+            assert!(error > 0.5 * edge && error < 4.0 * edge, "{error} against {edge}");
+        }
+        // a roll moves the corners: a milliradian is 0.16 px at the corner
+        let rolled = Camera::new(inner, eye, attitude).jittered(Jitter { x_rad: 0.0, y_rad: 0.0, z_rad: 1e-3 });
+        let (_, error) = rolled.shift_within(&wider).unwrap();
+        assert!((error - 1e-3 * DVec2::new(127.5, 99.5).length()).abs() < 2e-3, "{error}");
+        // elsewhere: no shift
+        let moved = Camera::new(inner, eye + DVec3::X, attitude);
+        assert!(moved.shift_within(&wider).is_none());
     }
 
     #[test]

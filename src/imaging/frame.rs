@@ -20,13 +20,22 @@ impl Frame {
     /// # Panics
     /// If this frame is not `step` times `coarse` each way, or `copy` is not this frame's size.
     pub fn upsample_bilinear(&mut self, coarse: &Frame, step: usize, copy: Option<&mut Frame>) {
-        use rayon::prelude::*;
         assert!(step >= 1 && self.width == coarse.width * step && self.height == coarse.height * step);
+        self.upsample_with(&Upsampler::new(coarse, step), copy);
+    }
+
+    /// Fills this frame with `up`'s rows, in one parallel pass over blocks of rows. Where `copy` is given, each
+    /// row is copied into it as it is made.
+    ///
+    /// # Panics
+    /// If this frame is not the size `up` makes, or `copy` is not this frame's size.
+    pub fn upsample_with(&mut self, up: &Upsampler<'_>, copy: Option<&mut Frame>) {
+        use rayon::prelude::*;
+        assert!(self.width == up.width && self.height == up.height, "the frame is not the upsampler's size");
         let w = self.width;
         if w == 0 || self.height == 0 {
             return;
         }
-        let up = Upsampler::new(coarse, step);
         let rows_per_task = crate::physics::simd::rows_per_task(w, 1);
         let block = w * rows_per_task;
         let copies: Vec<Option<&mut [f32]>> = match copy {
@@ -247,17 +256,38 @@ pub enum PngCompression {
 /// outermost centres; along x first (each coarse row once per block of rows), then between two such rows.
 /// [`Frame::upsample_bilinear`] makes a whole frame with it; the readout of a frame made on a coarse grid
 /// ([`crate::physics::noise::Readout::apply`]) makes each block of rows just before it reads it.
+///
+/// [`Upsampler::shifted`] reads a frame from a larger coarse frame at a sub-pixel offset instead: a camera's
+/// view shifted within the render of a wider view (`crate::scenario::Quality::view_shift_tolerance_px`).
 #[derive(Debug, Clone)]
 pub struct Upsampler<'a> {
     coarse: &'a Frame,
     step: usize,
     /// The frame's width.
     width: usize,
+    /// The frame's height.
+    height: usize,
+    /// How a coarse row is interpolated along x.
+    columns: Columns,
+    /// Of a shifted view: the coarse row coordinate added to every row's (whose rows then all lie between two
+    /// coarse rows inside the coarse frame).
+    row_offset: Option<f64>,
+}
+
+/// The largest step [`Upsampler::shifted`] takes.
+pub const MAX_SHIFTED_STEP: usize = 8;
+
+/// How an [`Upsampler`] interpolates a coarse row along x.
+#[derive(Debug, Clone)]
+enum Columns {
     /// A step of 2 (and a coarse frame at least 2 wide): the fixed ¾–¼ weights, no table.
-    halves: bool,
-    /// Otherwise each column's `(x0, x1, fx)` (the last table made on this thread, shared: a frame's readout
-    /// makes an upsampler at every frame, which allocates nothing then).
-    columns: Arc<[(usize, usize, f32)]>,
+    Halves,
+    /// Each column's `(x0, x1, fx)` (the last table made on this thread, shared: a frame's readout makes an
+    /// upsampler at every frame, which allocates nothing then).
+    Table(Arc<[(usize, usize, f32)]>),
+    /// A shifted view: pixel `k·step + r` from coarse pixels `k + n` and `k + n + 1` with weight `f` on the
+    /// second, `(n, f)` the `r`th pair (every pixel between two coarse centres inside the row).
+    Phases([(usize, f32); MAX_SHIFTED_STEP]),
 }
 
 impl<'a> Upsampler<'a> {
@@ -268,17 +298,49 @@ impl<'a> Upsampler<'a> {
     pub fn new(coarse: &'a Frame, step: usize) -> Self {
         assert!(step >= 1, "a step of 0");
         let (cw, width) = (coarse.width, coarse.width * step);
-        let halves = step == 2 && cw >= 2;
-        let columns = UPSAMPLE_COLUMNS.with_borrow_mut(|last| match last {
-            Some((s, w, table)) if (*s, *w) == (step, cw) => Arc::clone(table),
-            _ => {
-                let table: Arc<[_]> =
-                    if halves { Arc::new([]) } else { (0..width).map(|i| Self::place(step, i, cw)).collect() };
-                *last = Some((step, cw, Arc::clone(&table)));
-                table
-            }
-        });
-        Self { coarse, step, width, halves, columns }
+        let columns = if step == 2 && cw >= 2 {
+            Columns::Halves
+        } else {
+            Columns::Table(UPSAMPLE_COLUMNS.with_borrow_mut(|last| match last {
+                Some((s, w, table)) if (*s, *w) == (step, cw) => Arc::clone(table),
+                _ => {
+                    let table: Arc<[_]> = (0..width).map(|i| Self::place(step, i, cw)).collect();
+                    *last = Some((step, cw, Arc::clone(&table)));
+                    table
+                }
+            }))
+        };
+        Self { coarse, step, width, height: coarse.height * step, columns, row_offset: None }
+    }
+
+    /// A `width × height` frame read from `coarse` as if it were `step` times finer and shifted: pixel centre
+    /// `(i + ½, j + ½)` falls at coarse coordinates `((i + ½)/step − ½ + offset[0], (j + ½)/step − ½ +
+    /// offset[1])` (coarse pixel `k`'s centre at `k`), and takes the bilinear interpolation there. `None`
+    /// unless every pixel falls between two coarse centres inside `coarse` each way (nothing is held at an
+    /// edge), the sizes are whole multiples of `step` and `step` is 1 to [`MAX_SHIFTED_STEP`].
+    pub fn shifted(coarse: &'a Frame, step: usize, (width, height): (usize, usize), offset: [f64; 2]) -> Option<Self> {
+        if !(1..=MAX_SHIFTED_STEP).contains(&step) {
+            return None;
+        }
+        let whole = |n: usize| n > 0 && n.is_multiple_of(step);
+        let at = |i: usize, o: f64| (i as f64 + 0.5) / step as f64 - 0.5 + o;
+        // the first pixel at or past the first centre, the last one's upper neighbour inside
+        let inside = |n: usize, o: f64, len: usize| at(0, o) >= 0.0 && at(n - 1, o).floor() + 2.0 <= len as f64;
+        if !(whole(width)
+            && whole(height)
+            && offset.iter().all(|o| o.is_finite())
+            && inside(width, offset[0], coarse.width)
+            && inside(height, offset[1], coarse.height))
+        {
+            return None;
+        }
+        let mut phases = [(0, 0.0); MAX_SHIFTED_STEP];
+        for (r, phase) in phases.iter_mut().enumerate().take(step) {
+            let c = at(r, offset[0]);
+            *phase = (c.floor() as usize, (c - c.floor()) as f32);
+        }
+        let columns = Columns::Phases(phases);
+        Some(Self { coarse, step, width, height, columns, row_offset: Some(offset[1]) })
     }
 
     /// Where pixel centre `i` falls between coarse centres (of `n`): the lower one's index, the upper one's, the
@@ -303,7 +365,16 @@ impl<'a> Upsampler<'a> {
             return;
         }
         let row_x = |y: usize, out: &mut [f32]| {
-            along_x(&self.coarse.pixels[y * cw..(y + 1) * cw], out, self.halves, &self.columns);
+            along_x(&self.coarse.pixels[y * cw..(y + 1) * cw], out, self.step, &self.columns);
+        };
+        let place = |row: usize| match self.row_offset {
+            Some(o) => {
+                // inside the coarse frame (`shifted` checked it): the rows on either side
+                let c = (row as f64 + 0.5) / self.step as f64 - 0.5 + o;
+                let k = c.floor();
+                (k as usize, k as usize + 1, (c - k) as f32)
+            }
+            None => Self::place(self.step, row, ch),
         };
         UPSAMPLE_ROWS.with_borrow_mut(|scratch| {
             scratch.resize(2 * w, 0.0);
@@ -311,8 +382,8 @@ impl<'a> Upsampler<'a> {
             // which coarse rows `upper` and `lower` hold, interpolated along x; going down the block, the lower
             // row becomes the next upper one
             let (mut upper_y, mut lower_y) = (usize::MAX, usize::MAX);
-            for (r, line) in out.chunks_exact_mut(w).enumerate().take((ch * self.step).saturating_sub(first_row)) {
-                let (y0, y1, fy) = Self::place(self.step, first_row + r, ch);
+            for (r, line) in out.chunks_exact_mut(w).enumerate().take(self.height.saturating_sub(first_row)) {
+                let (y0, y1, fy) = place(first_row + r);
                 if upper_y != y0 {
                     if lower_y == y0 {
                         std::mem::swap(&mut upper, &mut lower);
@@ -343,13 +414,13 @@ thread_local! {
     static UPSAMPLE_COLUMNS: std::cell::RefCell<Option<ColumnTable>> = const { std::cell::RefCell::new(None) };
 }
 
-/// Coarse row `a` interpolated along x into `out`: at the half-pixel offsets of a step of 2 (`halves`), or
-/// with each output pixel's `(x0, x1, fx)` from `columns`.
-fn along_x(a: &[f32], out: &mut [f32], halves: bool, columns: &[(usize, usize, f32)]) {
+/// Coarse row `a` interpolated along x into `out`: at the half-pixel offsets of a step of 2, from each output
+/// pixel's `(x0, x1, fx)`, or `step` pixels at a time at a shifted view's phases.
+fn along_x(a: &[f32], out: &mut [f32], step: usize, columns: &Columns) {
     crate::physics::simd::widest(
         #[inline(always)]
-        || {
-            if halves {
+        || match columns {
+            Columns::Halves => {
                 // centres at k ∓ ¼: ¾ of the nearest coarse pixel and ¼ of the next one out
                 let (w, cw) = (out.len(), a.len());
                 out[0] = a[0];
@@ -358,9 +429,28 @@ fn along_x(a: &[f32], out: &mut [f32], halves: bool, columns: &[(usize, usize, f
                     pair[0] = 0.75 * a0 + 0.25 * a1;
                     pair[1] = 0.25 * a0 + 0.75 * a1;
                 }
-            } else {
-                for (o, &(x0, x1, fx)) in out.iter_mut().zip(columns) {
+            }
+            Columns::Table(columns) => {
+                for (o, &(x0, x1, fx)) in out.iter_mut().zip(columns.iter()) {
                     *o = a[x0] + (a[x1] - a[x0]) * fx;
+                }
+            }
+            Columns::Phases(phases) if step == 2 => {
+                // the even pixels from one pair of neighbours, the odd ones from the same pair or the next
+                let [(n0, f0), (n1, f1)] = [phases[0], phases[1]];
+                let (even, odd) = (&a[n0..], &a[n1..]);
+                let pairs = even.iter().zip(&even[1..]).zip(odd.iter().zip(&odd[1..]));
+                for (pair, ((&e0, &e1), (&o0, &o1))) in out.chunks_exact_mut(2).zip(pairs) {
+                    pair[0] = e0 + (e1 - e0) * f0;
+                    pair[1] = o0 + (o1 - o0) * f1;
+                }
+            }
+            Columns::Phases(phases) => {
+                for (k, pixels) in out.chunks_exact_mut(step).enumerate() {
+                    for (o, &(n, f)) in pixels.iter_mut().zip(phases) {
+                        let (a0, a1) = (a[k + n], a[k + n + 1]);
+                        *o = a0 + (a1 - a0) * f;
+                    }
                 }
             }
         },
@@ -408,6 +498,57 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn shifted_views_are_bilinear_at_their_offset_and_stay_inside() {
+        // hashed values (no plane hides a wrong neighbour), wide enough for several blocks of rows
+        let (cw, ch) = (150, 90);
+        let coarse = Frame::from_pixels(
+            cw,
+            ch,
+            (0..cw * ch).map(|i| ((i as u32).wrapping_mul(2_654_435_761) >> 22) as f32).collect(),
+        );
+        let at = |x: usize, y: usize| f64::from(coarse.get(x, y));
+        for step in [1, 2, 3, 4] {
+            let (w, h) = ((cw - 20) / step * step, (ch - 20) / step * step);
+            // (from the first offset that puts the first pixel on the first centre)
+            let first = 0.5 - 0.5 / step as f64;
+            for [x, y] in [[0.0, 0.0], [3.0, 5.0], [7.3, 2.9], [9.99, 0.01], [0.26, 8.74]] {
+                let offset = [first + x, first + y];
+                let up = Upsampler::shifted(&coarse, step, (w, h), offset).unwrap();
+                let mut fine = Frame::new(w, h);
+                let mut copy = Frame::new(w, h);
+                fine.upsample_with(&up, Some(&mut copy));
+                assert_eq!(copy, fine);
+                let c = |i: usize, o: f64| (i as f64 + 0.5) / step as f64 - 0.5 + o;
+                for y in 0..h {
+                    let (fy, y0) = (c(y, offset[1]), c(y, offset[1]).floor() as usize);
+                    for x in 0..w {
+                        let (fx, x0) = (c(x, offset[0]), c(x, offset[0]).floor() as usize);
+                        let (tx, ty) = (fx - x0 as f64, fy - y0 as f64);
+                        let top = at(x0, y0) + (at(x0 + 1, y0) - at(x0, y0)) * tx;
+                        let bottom = at(x0, y0 + 1) + (at(x0 + 1, y0 + 1) - at(x0, y0 + 1)) * tx;
+                        let want = top + (bottom - top) * ty;
+                        let got = f64::from(fine.get(x, y));
+                        assert!((got - want).abs() < 1e-3 * (1.0 + want.abs()), "step {step} {offset:?} ({x}, {y})");
+                    }
+                }
+            }
+            // a pixel before the first centre, or past the last one's left neighbour, is not read shifted
+            let last = |n: usize, len: usize| len as f64 - 1.0 - ((n as f64 - 0.5) / step as f64 - 0.5);
+            let (ox, oy) = (last(w, cw), last(h, ch));
+            // (exact where the step is a power of two: the last pixel then falls on the last centre itself)
+            let beyond = if step.is_power_of_two() { 0.0 } else { 1e-9 };
+            assert!(Upsampler::shifted(&coarse, step, (w, h), [ox - 1e-9, oy - 1e-9]).is_some(), "step {step}");
+            assert!(Upsampler::shifted(&coarse, step, (w, h), [ox + beyond, 1.0]).is_none(), "step {step}");
+            assert!(Upsampler::shifted(&coarse, step, (w, h), [1.0, oy + beyond]).is_none(), "step {step}");
+            assert!(Upsampler::shifted(&coarse, step, (w, h), [first + 1e-9, first + 1e-9]).is_some(), "step {step}");
+            assert!(Upsampler::shifted(&coarse, step, (w, h), [first - 1e-9, 1.0]).is_none(), "step {step}");
+            assert!(Upsampler::shifted(&coarse, step, (w, h), [f64::NAN, 1.0]).is_none(), "step {step}");
+            assert!(Upsampler::shifted(&coarse, step, (w + 1, h), [1.0, 1.0]).is_none() || step == 1);
+        }
+        assert!(Upsampler::shifted(&coarse, 9, (9, 9), [1.0, 1.0]).is_none());
     }
 
     #[test]

@@ -94,6 +94,12 @@ impl Vibration {
         Self { axes: [Vec::new(), Vec::new(), Vec::new()] }
     }
 
+    /// The largest jitter on each axis: the sum of its sinusoids' amplitudes, rad (none is ever exceeded).
+    pub fn peak(&self) -> Jitter {
+        let sum = |tones: &[Tone]| tones.iter().map(|t| t.amplitude.abs()).sum::<f64>();
+        Jitter { x_rad: sum(&self.axes[0]), y_rad: sum(&self.axes[1]), z_rad: sum(&self.axes[2]) }
+    }
+
     /// The jitter at time `t_s`.
     pub fn jitter(&self, t_s: f64) -> Jitter {
         let eval = |tones: &[Tone]| tones.iter().map(|t| t.amplitude * (t.omega * t_s + t.phase).sin()).sum::<f64>();
@@ -119,9 +125,16 @@ mod tests {
             peak = peak.max(j.x_rad.abs()).max(j.y_rad.abs());
         }
         assert!(peak <= 0.3f64.to_radians() + 1e-15);
+        // the bound `peak` gives is the amplitude on each turning axis, none on the roll without a roll fraction
+        let bound = a.peak();
+        assert!((bound.x_rad - 0.3f64.to_radians()).abs() < 1e-15 && (bound.y_rad - bound.x_rad).abs() < 1e-15);
+        assert!(bound.z_rad == 0.0 && peak <= bound.x_rad + 1e-15);
+        let rolled = VibrationSpec { roll_fraction: 0.5, ..spec }.plan(7).peak();
+        assert!((rolled.z_rad - 0.15f64.to_radians()).abs() < 1e-15);
         assert!(peak > 0.1f64.to_radians(), "peak {peak}");
         assert_ne!(a.jitter(1.0), c.jitter(1.0));
         let still = VibrationSpec::default().plan(7);
         assert_eq!(still.jitter(3.0), Jitter::default());
+        assert_eq!(still.peak(), Jitter::default());
     }
 }

@@ -123,6 +123,13 @@ pub struct Quality {
     /// it, and interpolated bilinearly between (1: at every pixel; a frame whose width or height is not a
     /// multiple of it is made at every pixel).
     pub background_step_px: usize,
+    /// On the coarse grid (`background_step_px` > 1) of a camera whose steady view holds still while it shakes,
+    /// each shaken view is read from one render of the steady view (with a margin the shake cannot leave),
+    /// shifted, when the shift puts every pixel within this many pixels of where its ray falls in that render
+    /// (0: every view is rendered). A small turn of a camera about its own centre moves the image almost as a
+    /// whole: by a shift, up to a term quadratic in the distance from the frame's centre, largest at its edges,
+    /// which is what this bounds; a roll is not a shift and is rendered.
+    pub view_shift_tolerance_px: f64,
     /// A generated cloud or haze layer's texel, in sensor pixels at the plane's distance (1: a texel a pixel, up
     /// to the layer's `max_texels`). A coarser layer is the same clouds without their finest detail: its
     /// spectrum holds the same coefficients at the frequencies it has ([`crate::imaging::sky_gen`]), and it costs
@@ -193,6 +200,7 @@ impl Quality {
             prefilter_spacing_px: TEXTURE_SPACING_PX,
             prefilter_grid_error_dn: STANDARD_PREFILTER_GRID_ERROR_DN,
             background_step_px: 1,
+            view_shift_tolerance_px: 0.0,
             sky_texel_px: 1.0,
             target_method: TargetMethod::Auto,
             target_node_spacing_px: target_psf::NODE_SPACING_PX,
@@ -250,6 +258,7 @@ impl Quality {
                 prefilter_spacing_px: DRAFT_PREFILTER_SPACING_PX,
                 prefilter_grid_error_dn: DRAFT_PREFILTER_GRID_ERROR_DN,
                 background_step_px: DRAFT_BACKGROUND_STEP_PX,
+                view_shift_tolerance_px: DRAFT_VIEW_SHIFT_TOLERANCE_PX,
                 sky_texel_px: DRAFT_SKY_TEXEL_PX,
                 target_node_spacing_px: DRAFT_TARGET_NODE_SPACING_PX,
                 blob_sampling: BlobSampling::Point,
@@ -311,7 +320,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 30] = [
+pub const SWITCHES: [&str; 31] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -325,6 +334,7 @@ pub const SWITCHES: [&str; 30] = [
     "prefilter_spacing_px",
     "prefilter_grid_error_dn",
     "background_step_px",
+    "view_shift_tolerance_px",
     "sky_texel_px",
     "target_method",
     "target_node_spacing_px",
@@ -396,6 +406,11 @@ pub const DRAFT_TARGET_NODE_SPACING_PX: f64 = 0.6;
 pub const DRAFT_BACKGROUND_STEP_PX: usize = 2;
 /// Largest `background_step_px`.
 pub const MAX_BACKGROUND_STEP_PX: usize = 4;
+/// The draft preset's `view_shift_tolerance_px`: a tenth of a pixel, under the error of draft's own
+/// interpolation between the nodes of its 2 px grid.
+pub const DRAFT_VIEW_SHIFT_TOLERANCE_PX: f64 = 0.1;
+/// Largest `view_shift_tolerance_px`.
+pub const MAX_VIEW_SHIFT_TOLERANCE_PX: f64 = 2.0;
 /// The draft preset's `sky_texel_px`: the texels of the background's own 2 px grid.
 pub const DRAFT_SKY_TEXEL_PX: f64 = 2.0;
 /// Smallest and largest `sky_texel_px`.
@@ -447,6 +462,9 @@ pub struct QualitySpec {
     /// See [`Quality::background_step_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub background_step_px: Option<usize>,
+    /// See [`Quality::view_shift_tolerance_px`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub view_shift_tolerance_px: Option<f64>,
     /// See [`Quality::sky_texel_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sky_texel_px: Option<f64>,
@@ -538,6 +556,7 @@ impl QualitySpec {
             prefilter_spacing_px,
             prefilter_grid_error_dn,
             background_step_px,
+            view_shift_tolerance_px,
             sky_texel_px,
             target_method,
             target_node_spacing_px,
@@ -587,6 +606,7 @@ impl QualitySpec {
                 format!("{} must be in 1 … {MAX_BACKGROUND_STEP_PX} px", q.background_step_px),
             ));
         }
+        range("view_shift_tolerance_px", q.view_shift_tolerance_px, 0.0, MAX_VIEW_SHIFT_TOLERANCE_PX, " px")?;
         range("sky_texel_px", q.sky_texel_px, SKY_TEXEL_RANGE_PX.0, SKY_TEXEL_RANGE_PX.1, " px")?;
         if let BlobSampling::Integrated { n } = q.blob_sampling
             && !(1..=16).contains(&n)
@@ -698,6 +718,9 @@ mod tests {
             ("reflection_skip_below_dn = -1", "quality.reflection_skip_below_dn"),
             ("background_step_px = 0", "quality.background_step_px"),
             ("background_step_px = 9", "quality.background_step_px"),
+            ("view_shift_tolerance_px = -0.1", "quality.view_shift_tolerance_px"),
+            ("view_shift_tolerance_px = 3", "quality.view_shift_tolerance_px"),
+            ("view_shift_tolerance_px = nan", "quality.view_shift_tolerance_px"),
             ("sky_texel_px = 0.1", "quality.sky_texel_px"),
             ("sky_texel_px = nan", "quality.sky_texel_px"),
             ("prefilter_spacing_px = 0", "quality.prefilter_spacing_px"),

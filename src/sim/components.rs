@@ -7,7 +7,7 @@ use glam::DVec3;
 
 use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, SkyBlurPlan};
 use crate::imaging::camera::{Camera, Jitter, YawPitchRoll};
-use crate::imaging::frame::Frame;
+use crate::imaging::frame::{Frame, Upsampler};
 use crate::imaging::psf::Psf;
 use crate::imaging::sky_plane::{MissFill, Sampling, SkyPlane};
 use crate::imaging::target_blob::{GeneralizedGaussian, ImageEllipse, PixelRect};
@@ -324,19 +324,66 @@ pub struct SensorFrame {
     /// pixels before the readout, so `background` is not made and the readout interpolates each block of the
     /// frame from `coarse` as it reads it out ([`SensorFrame::background_at`] for a pixel).
     pub(super) coarse_only: bool,
+    /// A staring camera's steady view rendered on the coarse grid with a margin around it, from which its shaken
+    /// views are read shifted (`[quality] view_shift_tolerance_px`).
+    pub(super) steady_render: Option<SteadyRender>,
+    /// The margin `steady_render` is made with, coarse pixels (0: shaken views are rendered each; so in a run
+    /// whose steady view moves).
+    pub(super) steady_margin: usize,
+    /// This frame's view read from `steady_render` at this offset, coarse pixels ([`Upsampler::shifted`]).
+    pub(super) view_offset: Option<[f64; 2]>,
+}
+
+/// A steady view on the coarse grid with a margin (see [`SensorFrame`]).
+#[derive(Debug)]
+pub(super) struct SteadyRender {
+    /// The steady camera it was made for (at the sensor's pixels, without the margin).
+    pub(super) steady: Camera,
+    /// The camera that sees it at the sensor's pixels: the steady one with the margin on every side.
+    pub(super) wider: Camera,
+    /// The coarse frame, margin included.
+    pub(super) coarse: Frame,
+    /// What its render did.
+    pub(super) stats: BackgroundStats,
+}
+
+/// What interpolates a frame of `size` from the coarse grid (`step`): the view at `offset` in the steady render
+/// where it is read from one ([`Upsampler::shifted`]), else the coarse frame itself (`None` without a coarse
+/// grid).
+pub(super) fn coarse_upsampler<'a>(
+    steady: Option<&'a SteadyRender>,
+    offset: Option<[f64; 2]>,
+    coarse: Option<&'a Frame>,
+    size: (usize, usize),
+    step: usize,
+) -> Option<Upsampler<'a>> {
+    match (steady, offset, coarse) {
+        (Some(r), Some(offset), _) => Upsampler::shifted(&r.coarse, step, size, offset),
+        (_, _, Some(coarse)) => Some(Upsampler::new(coarse, step)),
+        _ => None,
+    }
 }
 
 impl SensorFrame {
+    /// Where this frame's view was read from the render of the camera's steady view, shifted (`[quality]
+    /// view_shift_tolerance_px`): the offset in that render's coarse pixels ([`Upsampler::shifted`]); `None`
+    /// where the view was rendered.
+    pub fn shifted_view(&self) -> Option<[f64; 2]> {
+        self.view_offset
+    }
+
     /// The noise-free, blurred background at pixel `(x, y)` (radiance; 0 outside the frame).
     pub fn background_at(&self, x: usize, y: usize) -> f32 {
         let (w, h) = (self.background.width(), self.background.height());
         if x >= w || y >= h {
             return 0.0;
         }
-        match (&self.coarse, self.coarse_only) {
-            (Some(coarse), true) => {
+        let step = self.coarse.as_ref().map_or(1, |c| w / c.width().max(1));
+        let up = coarse_upsampler(self.steady_render.as_ref(), self.view_offset, self.coarse.as_ref(), (w, h), step);
+        match (self.coarse_only, up) {
+            (true, Some(up)) => {
                 let mut row = vec![0.0; w];
-                crate::imaging::frame::Upsampler::new(coarse, w / coarse.width().max(1)).rows(y, &mut row);
+                up.rows(y, &mut row);
                 row[x]
             }
             _ => self.background.get(x, y),

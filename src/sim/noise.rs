@@ -4,8 +4,8 @@ use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
+use super::components::coarse_upsampler;
 use super::{NoiseSystems, Sensor, SensorFrame, SimClock, SimSettings};
-use crate::imaging::frame::Upsampler;
 use crate::physics::noise::{Readout, ReadoutMaps, RowFill};
 
 /// Reads the detector out.
@@ -37,9 +37,16 @@ pub fn read_out(clock: Res<SimClock>, settings: Res<SimSettings>, mut sensor: Qu
     }
     let top = sensor.max_level;
     // a frame made on a coarse grid with nothing drawn on it: interpolated block by block as it is read out
-    let upsampler = match (&sf.coarse, sf.coarse_only) {
-        (Some(coarse), true) => Some(Upsampler::new(coarse, sensor.background_step)),
-        _ => None,
+    let size = (width, sf.frame.height());
+    let upsampler = match sf.coarse_only {
+        true => coarse_upsampler(
+            sf.steady_render.as_ref(),
+            sf.view_offset,
+            sf.coarse.as_ref(),
+            size,
+            sensor.background_step,
+        ),
+        false => None,
     };
     let fill = upsampler.as_ref().map(|u| move |first: usize, block: &mut [f32]| u.rows(first, block));
     let fill = fill.as_ref().map(|f| f as &RowFill<'_>);

@@ -5,9 +5,11 @@ use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
-use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, Sky};
+use super::components::SteadyRender;
+use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, SimSettings, Sky};
 use crate::imaging::background::{BackgroundBlur, SkyView};
-use crate::imaging::camera::Camera;
+use crate::imaging::camera::{Camera, Intrinsics, Jitter};
+use crate::imaging::frame::{Frame, Upsampler};
 
 /// Renders the background.
 pub struct RenderToTexturePlugin;
@@ -19,8 +21,10 @@ impl Plugin for RenderToTexturePlugin {
 }
 
 /// Renders the blurred sky background for the vibrated camera; when the camera has not moved since the last
-/// render, reuses it.
+/// render, reuses it; on a coarse grid, reads a staring camera's shaken view from the render of its steady view
+/// where `[quality] view_shift_tolerance_px` allows.
 pub fn render_sky(
+    settings: Res<SimSettings>,
     observer: Query<&CameraPose, With<Observer>>,
     sky: Query<&Sky>,
     mut sensor: Query<(&Sensor, &mut SensorFrame)>,
@@ -30,7 +34,13 @@ pub fn render_sky(
     };
     let sf = &mut *sf;
     if sf.background_camera != Some(pose.current) {
-        let in_frame = render_background(sensor, sky, &pose.current, sf);
+        let tolerance_px = settings.quality.view_shift_tolerance_px;
+        let in_frame = if read_shifted(sensor, sky, pose, tolerance_px, sf) {
+            true
+        } else {
+            sf.view_offset = None;
+            render_background(sensor, sky, &pose.current, sf)
+        };
         sf.background_camera = Some(pose.current);
         if in_frame {
             return;
@@ -51,6 +61,22 @@ pub fn render_sky(
         .for_each(|(dst, src)| dst.copy_from_slice(src));
 }
 
+/// The margin, coarse pixels, that a steady view is rendered with so that every view a shake of `peak` turns it
+/// to lies inside, where a shaken view may be read from it (a grid of `step` > 1 pixels, `tolerance_px` > 0):
+/// the shift of the frame's centre under the largest pan or tilt, the tolerance and a pixel for the
+/// interpolation, and a coarse pixel more. 0 where views are rendered each: without those, without a pan or tilt,
+/// or where the margin would be more than a quarter of the frame's larger side (a render of up to 2.25 times a
+/// view's pixels for every view the shake may turn to).
+pub(super) fn steady_margin(peak: Jitter, intrinsics: &Intrinsics, step: usize, tolerance_px: f64) -> usize {
+    let turn = peak.x_rad.abs().max(peak.y_rad.abs());
+    if step < 2 || !(tolerance_px > 0.0) || !(turn > 0.0 && turn < 0.5) {
+        return 0;
+    }
+    let shift_px = intrinsics.focal_px() * turn.tan() + tolerance_px + 1.0;
+    let margin = (shift_px / step as f64).ceil() as usize + 1;
+    if 4 * margin * step > intrinsics.width.max(intrinsics.height) as usize { 0 } else { margin }
+}
+
 /// `camera` with pixels `step` times larger each way: what sees the background's coarse grid.
 pub(super) fn coarse_camera(camera: &Camera, step: usize) -> Camera {
     let mut camera = *camera;
@@ -60,13 +86,57 @@ pub(super) fn coarse_camera(camera: &Camera, step: usize) -> Camera {
     camera
 }
 
-/// Renders the background `camera` sees into `sf.background` (on a sensor with a coarse grid: into the coarse
-/// frame, upsampled into both `sf.background` and `sf.frame` unless the readout does it, and returns true: the
-/// frame holds it already, or will).
-pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf: &mut SensorFrame) -> bool {
-    let step = sensor.background_step;
-    // on the coarse grid: the optics seen from pixels `step` times larger
-    let blur = match (sensor.background_psf(), sensor.resolved.psf, sensor.blur_frame) {
+/// Reads this frame's view from the render of the steady view, shifted (upsampled into both `sf.background`
+/// and `sf.frame` unless the readout does it), where the sensor has a coarse grid, the shake a margin (a
+/// staring camera), and the shift puts every pixel within `tolerance_px` of where its ray falls in that render
+/// ([`Camera::shift_within`]); renders the steady view first where it has not been (a frame's values depend on
+/// its own pose alone, not on the frames before it: a render does not depend on when it is made). Returns false
+/// where the view is to be rendered instead.
+fn read_shifted(sensor: &Sensor, sky: &Sky, pose: &CameraPose, tolerance_px: f64, sf: &mut SensorFrame) -> bool {
+    let (step, margin) = (sensor.background_step, sf.steady_margin);
+    if step < 2 || margin == 0 || !(tolerance_px > 0.0) {
+        return false;
+    }
+    if !sf.steady_render.as_ref().is_some_and(|r| r.steady == pose.steady) {
+        // the steady view with `margin` coarse pixels more on every side (the principal point stays the centre)
+        let mut wider = pose.steady;
+        let m = (2 * margin * step) as u32;
+        wider.intrinsics.width += m;
+        wider.intrinsics.height += m;
+        let camera = coarse_camera(&wider, step);
+        let (cw, ch) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
+        let mut coarse = match sf.steady_render.take() {
+            Some(r) if (r.coarse.width(), r.coarse.height()) == (cw, ch) => r.coarse,
+            _ => Frame::new(cw, ch),
+        };
+        let stats = sf.renderer.render(&sky_view(sky, &camera), &camera, background_blur(sensor).as_ref(), &mut coarse);
+        sf.steady_render = Some(SteadyRender { steady: pose.steady, wider, coarse, stats });
+    }
+    let Some(r) = &sf.steady_render else { return false };
+    let Some((shift, error_px)) = pose.current.shift_within(&r.wider) else { return false };
+    if !(error_px <= tolerance_px) {
+        return false;
+    }
+    let offset = [shift.x / step as f64, shift.y / step as f64];
+    let size = (sf.background.width(), sf.background.height());
+    let Some(up) = Upsampler::shifted(&r.coarse, step, size, offset) else { return false };
+    if !sf.coarse_only {
+        sf.background.upsample_with(&up, Some(&mut sf.frame));
+    }
+    sf.background_stats = r.stats;
+    sf.view_offset = Some(offset);
+    true
+}
+
+/// The sky as `camera` sees it: a plane still to be made is made now if this view may see it.
+fn sky_view<'a>(sky: &'a Sky, camera: &Camera) -> SkyView<'a> {
+    SkyView { plane: sky.plane_for(camera), dome: &sky.dome, sampling: sky.sampling, miss: sky.miss }
+}
+
+/// How the background is blurred: on the coarse grid, the optics seen from pixels `background_step` times
+/// larger.
+fn background_blur(sensor: &Sensor) -> Option<BackgroundBlur<'_>> {
+    match (sensor.background_psf(), sensor.resolved.psf, sensor.blur_frame) {
         (Some(psf), Some(cfg), true) => Some(BackgroundBlur {
             psf,
             method: cfg.method,
@@ -77,18 +147,19 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
             dome: sensor.blur_dome,
         }),
         _ => None,
-    };
-    // a plane still to be made is made now if this view may see it
-    let view = |camera: &Camera| SkyView {
-        plane: sky.plane_for(camera),
-        dome: &sky.dome,
-        sampling: sky.sampling,
-        miss: sky.miss,
-    };
+    }
+}
+
+/// Renders the background `camera` sees into `sf.background` (on a sensor with a coarse grid: into the coarse
+/// frame, upsampled into both `sf.background` and `sf.frame` unless the readout does it, and returns true: the
+/// frame holds it already, or will).
+pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf: &mut SensorFrame) -> bool {
+    let step = sensor.background_step;
+    let blur = background_blur(sensor);
     match sf.coarse.as_mut() {
         Some(coarse) => {
             let camera = coarse_camera(camera, step);
-            let view = view(&camera);
+            let view = sky_view(sky, &camera);
             sf.background_stats = sf.renderer.render(&view, &camera, blur.as_ref(), coarse);
             // the frame gets each row as it is made, or (nothing reading it before) from the readout
             if !sf.coarse_only {
@@ -97,7 +168,7 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
             true
         }
         None => {
-            let view = view(camera);
+            let view = sky_view(sky, camera);
             sf.background_stats = sf.renderer.render(&view, camera, blur.as_ref(), &mut sf.background);
             false
         }

@@ -7,7 +7,7 @@ use bevy::ecs::prelude::*;
 use glam::DVec3;
 
 use super::camera::resolve_aim;
-use super::render::{coarse_camera, render_background};
+use super::render::{coarse_camera, render_background, steady_margin};
 use super::{
     Aim, Aircraft, Body, CameraPose, FlightPath, Footprint, Kinematics, Observer, SceneParams, Sensor, SensorFrame,
     Shake, Signature, SimClock, SimSettings, Skin, Sky,
@@ -151,6 +151,12 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     }
     world.insert_resource(scene);
     let step = sensor.background_step;
+    let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
+    // a staring camera (the same steady view at every frame) may read its shaken views from one render
+    let mut views = planned_views(scenario);
+    let first = views.next();
+    let staring = first.is_some_and(|first| views.all(|v| v == first));
+    let tolerance_px = if staring { scenario.quality.view_shift_tolerance_px } else { 0.0 };
     let mut sensor_frame = SensorFrame {
         frame: Frame::new(w, h),
         float_frame: None,
@@ -161,6 +167,9 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         columns: Vec::new(),
         coarse: (step > 1).then(|| Frame::new(w / step, h / step)),
         coarse_only: step > 1 && spec.targets.is_empty(),
+        steady_render: None,
+        steady_margin: steady_margin(vibration.peak(), &intrinsics, step, tolerance_px),
+        view_offset: None,
     };
     // the prefiltered textures the first view reads are built now, with the rest of the set-up, rather than in
     // the first frame: the first view's background is rendered here (the first frame renders its own over it,
@@ -174,7 +183,6 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         render_background(&sensor, &sky, &first, &mut sensor_frame);
     }
     world.spawn((sensor, sensor_frame));
-    let vibration = if options.vibration { spec.observer.vibration.plan(seed) } else { Vibration::still() };
     let placeholder = Camera::new(intrinsics, p0, Default::default());
     let observer = world
         .spawn((
