@@ -698,7 +698,7 @@ pub(super) fn time_stages(scenario: &CheckedScenario, frames: u64) -> Result<Sta
 /// frames, its first `period` replayed ([`run_timed`]), and lines on where the time went (per stage, the sky
 /// blur).
 fn time_headless(scenario: &CheckedScenario, frames: u64, period: u64) -> Result<(f64, Vec<String>), CliError> {
-    let (mut needed, mut blurred, mut prefiltered, mut builds) = (0.0, 0.0, 0.0, 0);
+    let (mut needed, mut blurred, mut prefiltered, mut builds, mut shifted) = (0.0, 0.0, 0.0, 0, 0u64);
     let mut plan = None;
     // the query made once: making it is ~0.6 µs, which the timed loop would count every frame
     let mut query = None;
@@ -711,6 +711,7 @@ fn time_headless(scenario: &CheckedScenario, frames: u64, period: u64) -> Result
             blurred += b.tiles_blurred as f64 / b.tiles.max(1) as f64;
             prefiltered += sf.background_stats.tiles_prefiltered as f64 / b.tiles.max(1) as f64;
             builds = sf.background_stats.texture_builds;
+            shifted += u64::from(sf.shifted_view().is_some());
         }
     })?;
     let fps = 1e6 / split.frame_us;
@@ -724,6 +725,12 @@ fn time_headless(scenario: &CheckedScenario, frames: u64, period: u64) -> Result
         100.0 * needed / frames as f64,
         100.0 * blurred / frames as f64
     ));
+    if shifted > 0 {
+        details.push(format!(
+            "  views read shifted from one render of the steady view ([quality] view_shift_tolerance_px): {:.0} %",
+            100.0 * shifted as f64 / frames as f64
+        ));
+    }
     if let Some((choice, plan)) = plan {
         let why = plan.map_or_else(String::new, |p| {
             format!(

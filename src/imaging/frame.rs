@@ -324,13 +324,14 @@ impl<'a> Upsampler<'a> {
         }
         let whole = |n: usize| n > 0 && n.is_multiple_of(step);
         let at = |i: usize, o: f64| (i as f64 + 0.5) / step as f64 - 0.5 + o;
-        // the first pixel at or past the first centre, the last one's upper neighbour inside
-        let inside = |n: usize, o: f64, len: usize| at(0, o) >= 0.0 && at(n - 1, o).floor() + 2.0 <= len as f64;
+        // the first pixel at or past the first centre each way; the last row's lower neighbour inside (each row is
+        // placed by `at` itself, which grows with the row)
         if !(whole(width)
             && whole(height)
-            && offset.iter().all(|o| o.is_finite())
-            && inside(width, offset[0], coarse.width)
-            && inside(height, offset[1], coarse.height))
+            && offset.iter().all(|o| o.abs() < 1e9)
+            && at(0, offset[0]) >= 0.0
+            && at(0, offset[1]) >= 0.0
+            && at(height - 1, offset[1]).floor() + 2.0 <= coarse.height as f64)
         {
             return None;
         }
@@ -338,6 +339,10 @@ impl<'a> Upsampler<'a> {
         for (r, phase) in phases.iter_mut().enumerate().take(step) {
             let c = at(r, offset[0]);
             *phase = (c.floor() as usize, (c - c.floor()) as f32);
+        }
+        // the last column's right neighbour inside, by the phase the loop reads it with (the largest)
+        if phases[step - 1].0 + width / step + 1 > coarse.width {
+            return None;
         }
         let columns = Columns::Phases(phases);
         Some(Self { coarse, step, width, height, columns, row_offset: Some(offset[1]) })

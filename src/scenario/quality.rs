@@ -125,10 +125,11 @@ pub struct Quality {
     pub background_step_px: usize,
     /// On the coarse grid (`background_step_px` > 1) of a camera whose steady view holds still while it shakes,
     /// each shaken view is read from one render of the steady view (with a margin the shake cannot leave),
-    /// shifted, when the shift puts every pixel within this many pixels of where its ray falls in that render
-    /// (0: every view is rendered). A small turn of a camera about its own centre moves the image almost as a
-    /// whole: by a shift, up to a term quadratic in the distance from the frame's centre, largest at its edges,
-    /// which is what this bounds; a roll is not a shift and is rendered.
+    /// shifted, when the shift puts the frame's corners, edge midpoints and centre within this many pixels of
+    /// where their rays fall in that render (0: every view is rendered). A small turn of a camera about its own
+    /// centre moves the image almost as a whole: by a shift, up to a term quadratic in the distance from the
+    /// frame's centre, largest at its edges, which those points bound; a roll is not a shift, and a shake whose
+    /// peak roll moves the corners by more than this renders every view.
     pub view_shift_tolerance_px: f64,
     /// A generated cloud or haze layer's texel, in sensor pixels at the plane's distance (1: a texel a pixel, up
     /// to the layer's `max_texels`). A coarser layer is the same clouds without their finest detail: its

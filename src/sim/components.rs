@@ -358,7 +358,10 @@ pub(super) fn coarse_upsampler<'a>(
     step: usize,
 ) -> Option<Upsampler<'a>> {
     match (steady, offset, coarse) {
-        (Some(r), Some(offset), _) => Upsampler::shifted(&r.coarse, step, size, offset),
+        // `read_shifted` set the offset only where this fits
+        (Some(r), Some(offset), _) => {
+            Some(Upsampler::shifted(&r.coarse, step, size, offset).expect("a shifted view inside its render"))
+        }
         (_, _, Some(coarse)) => Some(Upsampler::new(coarse, step)),
         _ => None,
     }

@@ -65,16 +65,19 @@ pub fn render_sky(
 /// to lies inside, where a shaken view may be read from it (a grid of `step` > 1 pixels, `tolerance_px` > 0):
 /// the shift of the frame's centre under the largest pan or tilt, the tolerance and a pixel for the
 /// interpolation, and a coarse pixel more. 0 where views are rendered each: without those, without a pan or tilt,
-/// or where the margin would be more than a quarter of the frame's larger side (a render of up to 2.25 times a
-/// view's pixels for every view the shake may turn to).
+/// where the peak roll alone would move the frame's corners by more than the tolerance (a roll is not a shift),
+/// or where the render would have more than 2.25 times a view's pixels.
 pub(super) fn steady_margin(peak: Jitter, intrinsics: &Intrinsics, step: usize, tolerance_px: f64) -> usize {
     let turn = peak.x_rad.abs().max(peak.y_rad.abs());
-    if step < 2 || !(tolerance_px > 0.0) || !(turn > 0.0 && turn < 0.5) {
+    let (w, h) = (f64::from(intrinsics.width), f64::from(intrinsics.height));
+    let corner_px = 0.5 * w.hypot(h);
+    if step < 2 || !(tolerance_px > 0.0) || !(turn > 0.0 && turn < 0.5) || peak.z_rad.abs() * corner_px > tolerance_px {
         return 0;
     }
     let shift_px = intrinsics.focal_px() * turn.tan() + tolerance_px + 1.0;
     let margin = (shift_px / step as f64).ceil() as usize + 1;
-    if 4 * margin * step > intrinsics.width.max(intrinsics.height) as usize { 0 } else { margin }
+    let m = (2 * margin * step) as f64;
+    if (w + m) * (h + m) > 2.25 * w * h { 0 } else { margin }
 }
 
 /// `camera` with pixels `step` times larger each way: what sees the background's coarse grid.
@@ -98,19 +101,7 @@ fn read_shifted(sensor: &Sensor, sky: &Sky, pose: &CameraPose, tolerance_px: f64
         return false;
     }
     if !sf.steady_render.as_ref().is_some_and(|r| r.steady == pose.steady) {
-        // the steady view with `margin` coarse pixels more on every side (the principal point stays the centre)
-        let mut wider = pose.steady;
-        let m = (2 * margin * step) as u32;
-        wider.intrinsics.width += m;
-        wider.intrinsics.height += m;
-        let camera = coarse_camera(&wider, step);
-        let (cw, ch) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
-        let mut coarse = match sf.steady_render.take() {
-            Some(r) if (r.coarse.width(), r.coarse.height()) == (cw, ch) => r.coarse,
-            _ => Frame::new(cw, ch),
-        };
-        let stats = sf.renderer.render(&sky_view(sky, &camera), &camera, background_blur(sensor).as_ref(), &mut coarse);
-        sf.steady_render = Some(SteadyRender { steady: pose.steady, wider, coarse, stats });
+        render_steady(sensor, sky, &pose.steady, sf);
     }
     let Some(r) = &sf.steady_render else { return false };
     let Some((shift, error_px)) = pose.current.shift_within(&r.wider) else { return false };
@@ -123,9 +114,29 @@ fn read_shifted(sensor: &Sensor, sky: &Sky, pose: &CameraPose, tolerance_px: f64
     if !sf.coarse_only {
         sf.background.upsample_with(&up, Some(&mut sf.frame));
     }
+    // what the render the frame is read from did
     sf.background_stats = r.stats;
     sf.view_offset = Some(offset);
     true
+}
+
+/// Renders `steady` on the coarse grid with `sf.steady_margin` coarse pixels more on every side, into
+/// `sf.steady_render`.
+pub(super) fn render_steady(sensor: &Sensor, sky: &Sky, steady: &Camera, sf: &mut SensorFrame) {
+    let (step, margin) = (sensor.background_step, sf.steady_margin);
+    // the principal point stays the centre
+    let mut wider = *steady;
+    let m = (2 * margin * step) as u32;
+    wider.intrinsics.width += m;
+    wider.intrinsics.height += m;
+    let camera = coarse_camera(&wider, step);
+    let (cw, ch) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
+    let mut coarse = match sf.steady_render.take() {
+        Some(r) if (r.coarse.width(), r.coarse.height()) == (cw, ch) => r.coarse,
+        _ => Frame::new(cw, ch),
+    };
+    let stats = sf.renderer.render(&sky_view(sky, &camera), &camera, background_blur(sensor).as_ref(), &mut coarse);
+    sf.steady_render = Some(SteadyRender { steady: *steady, wider, coarse, stats });
 }
 
 /// The sky as `camera` sees it: a plane still to be made is made now if this view may see it.
@@ -172,5 +183,31 @@ pub(super) fn render_background(sensor: &Sensor, sky: &Sky, camera: &Camera, sf:
             sf.background_stats = sf.renderer.render(&view, camera, blur.as_ref(), &mut sf.background);
             false
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_margin_holds_the_shake_or_there_is_none() {
+        // the paper's 256 × 256 sensor, f = 2941 px
+        let i = Intrinsics::try_new(256, 256, 0.05, 17e-6).unwrap();
+        let shake = |turn: f64, roll: f64| Jitter { x_rad: turn, y_rad: turn / 2.0, z_rad: roll };
+        let a = 0.3f64.to_radians();
+        // 0.3°: 15.4 px, the tolerance and a pixel, 8.25 coarse pixels: 9, and one more
+        assert_eq!(steady_margin(shake(a, 0.0), &i, 2, 0.1), 10);
+        assert_eq!(steady_margin(shake(a, 0.0), &i, 4, 0.1), 6);
+        // no coarse grid, no tolerance, no turn
+        assert_eq!(steady_margin(shake(a, 0.0), &i, 1, 0.1), 0);
+        assert_eq!(steady_margin(shake(a, 0.0), &i, 2, 0.0), 0);
+        assert_eq!(steady_margin(shake(0.0, 1e-5), &i, 2, 0.1), 0);
+        // a peak roll of 0.1 mrad moves the corners 0.018 px, of 1 mrad 0.18 px
+        assert_eq!(steady_margin(shake(a, 1e-4), &i, 2, 0.1), 10);
+        assert_eq!(steady_margin(shake(a, 1e-3), &i, 2, 0.1), 0);
+        // 1.1°: 30 coarse pixels a side, a render of 2.16 times the view's pixels; 1.2°: 33, 2.30 times
+        assert_eq!(steady_margin(shake(1.1f64.to_radians(), 0.0), &i, 2, 0.1), 30);
+        assert_eq!(steady_margin(shake(1.2f64.to_radians(), 0.0), &i, 2, 0.1), 0);
     }
 }

@@ -7,7 +7,7 @@ use bevy::ecs::prelude::*;
 use glam::DVec3;
 
 use super::camera::resolve_aim;
-use super::render::{coarse_camera, render_background, steady_margin};
+use super::render::{coarse_camera, render_background, render_steady, steady_margin};
 use super::{
     Aim, Aircraft, Body, CameraPose, FlightPath, Footprint, Kinematics, Observer, SceneParams, Sensor, SensorFrame,
     Shake, Signature, SimClock, SimSettings, Skin, Sky,
@@ -155,7 +155,8 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     // a staring camera (the same steady view at every frame) may read its shaken views from one render
     let mut views = planned_views(scenario);
     let first = views.next();
-    let staring = first.is_some_and(|first| views.all(|v| v == first));
+    let noisy_track = matches!(spec.observer.pointing, Pointing::Track { noise_urad, .. } if noise_urad > 0.0);
+    let staring = !noisy_track && first.is_some_and(|first| views.all(|v| v == first));
     let tolerance_px = if staring { scenario.quality.view_shift_tolerance_px } else { 0.0 };
     let mut sensor_frame = SensorFrame {
         frame: Frame::new(w, h),
@@ -175,10 +176,15 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     // the first frame: the first view's background is rendered here (the first frame renders its own over it,
     // the same values: a texel does not depend on when or in which crop it was built, nor a frame on what its
     // buffers held)
-    if sensor.blur_frame
+    if sensor_frame.steady_margin > 0
+        && let Some(first) = first
+    {
+        // a staring camera's frames read the steady view's render: that is the first view's render
+        render_steady(&sensor, &sky, &first, &mut sensor_frame);
+    } else if sensor.blur_frame
         && sensor.sky_blur == SkyBlur::Prefilter
         && sky.has_plane()
-        && let Some(first) = planned_views(scenario).next()
+        && let Some(first) = first
     {
         render_background(&sensor, &sky, &first, &mut sensor_frame);
     }
