@@ -505,15 +505,17 @@ mod tests {
         }
     }
 
+    /// A `cw × ch` frame of hashed values, `bits` bits each (no plane hides a wrong neighbour).
+    fn hashed(cw: usize, ch: usize, bits: u32) -> Frame {
+        let values = (0..cw * ch).map(|i| ((i as u32).wrapping_mul(2_654_435_761) >> (32 - bits)) as f32);
+        Frame::from_pixels(cw, ch, values.collect())
+    }
+
     #[test]
     fn shifted_views_are_bilinear_at_their_offset_and_stay_inside() {
-        // hashed values (no plane hides a wrong neighbour), wide enough for several blocks of rows
+        // wide enough for several blocks of rows
         let (cw, ch) = (150, 90);
-        let coarse = Frame::from_pixels(
-            cw,
-            ch,
-            (0..cw * ch).map(|i| ((i as u32).wrapping_mul(2_654_435_761) >> 22) as f32).collect(),
-        );
+        let coarse = hashed(cw, ch, 10);
         let at = |x: usize, y: usize| f64::from(coarse.get(x, y));
         for step in [1, 2, 3, 4] {
             let (w, h) = ((cw - 20) / step * step, (ch - 20) / step * step);
@@ -560,11 +562,7 @@ mod tests {
     fn upsampling_across_many_row_blocks_is_bilinear() {
         // wide enough that the rows are shared out in several blocks, each starting its own coarse rows
         let (cw, ch) = (300, 70);
-        let coarse = Frame::from_pixels(
-            cw,
-            ch,
-            (0..cw * ch).map(|i| ((i as u32).wrapping_mul(2_654_435_761) >> 20) as f32).collect(),
-        );
+        let coarse = hashed(cw, ch, 12);
         for step in [2, 3] {
             let (w, h) = (cw * step, ch * step);
             let mut fine = Frame::new(w, h);
