@@ -91,8 +91,8 @@ pub(super) fn coarse_camera(camera: &Camera, step: usize) -> Camera {
 
 /// Reads this frame's view from the render of the steady view, shifted (upsampled into both `sf.background`
 /// and `sf.frame` unless the readout does it), where the sensor has a coarse grid, the shake a margin (a
-/// staring camera), and the shift puts every pixel within `tolerance_px` of where its ray falls in that render
-/// ([`Camera::shift_within`]); renders the steady view first where it has not been (a frame's values depend on
+/// staring camera), and the shift puts the frame's corners, edge midpoints and centre within `tolerance_px` of
+/// where their rays fall in that render ([`Camera::shift_within`]); renders the steady view first where it has not been (a frame's values depend on
 /// its own pose alone, not on the frames before it: a render does not depend on when it is made). Returns false
 /// where the view is to be rendered instead.
 fn read_shifted(sensor: &Sensor, sky: &Sky, pose: &CameraPose, tolerance_px: f64, sf: &mut SensorFrame) -> bool {
