@@ -323,7 +323,7 @@ impl<'a> Upsampler<'a> {
             return None;
         }
         let whole = |n: usize| n > 0 && n.is_multiple_of(step);
-        let at = |i: usize, o: f64| (i as f64 + 0.5) / step as f64 - 0.5 + o;
+        let at = |i: usize, o: f64| Self::centre(step, i) + o;
         // the first pixel at or past the first centre each way; the last row's lower neighbour inside (each row is
         // placed by `at` itself, which grows with the row)
         if !(whole(width)
@@ -348,10 +348,15 @@ impl<'a> Upsampler<'a> {
         Some(Self { coarse, step, width, height, columns, row_offset: Some(offset[1]) })
     }
 
+    /// Where pixel centre `i + ½` falls on the coarse grid, coarse pixel `k`'s centre at `k`.
+    fn centre(step: usize, i: usize) -> f64 {
+        (i as f64 + 0.5) / step as f64 - 0.5
+    }
+
     /// Where pixel centre `i` falls between coarse centres (of `n`): the lower one's index, the upper one's, the
     /// weight.
     fn place(step: usize, i: usize, n: usize) -> (usize, usize, f32) {
-        let c = (i as f64 + 0.5) / step as f64 - 0.5;
+        let c = Self::centre(step, i);
         if c <= 0.0 {
             (0, 0, 0.0)
         } else if c >= (n - 1) as f64 {
@@ -375,7 +380,7 @@ impl<'a> Upsampler<'a> {
         let place = |row: usize| match self.row_offset {
             Some(o) => {
                 // inside the coarse frame (`shifted` checked it): the rows on either side
-                let c = (row as f64 + 0.5) / self.step as f64 - 0.5 + o;
+                let c = Self::centre(self.step, row) + o;
                 let k = c.floor();
                 (k as usize, k as usize + 1, (c - k) as f32)
             }
