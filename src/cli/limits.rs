@@ -25,7 +25,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::CliError;
-use super::run::{StageSplit, bench_dir, bench_scenario, time_stages};
+use super::run::{bench_dir, bench_scenario, time_stages};
 use crate::physics::random::{NormalSampler, SplitMix64, box_muller_fill, mix64, with_normal_fill};
 use crate::physics::simd::{Level, widest};
 use crate::scenario::load::load_for_frames;
@@ -267,18 +267,22 @@ impl LimitsRow {
 }
 
 /// Times the per-pixel lower bounds beside `irsim bench`'s built-in case (one target, `standard`) at 256×256 and
-/// 640×512 on 1 and 2 threads (as many as the machine has), `frames` frames each; `each` sees every row as it is
-/// measured (its error stops the measurement).
+/// 640×512 on 1 and 2 threads (as many as the machine has), `frames` frames each, split over `rounds` rounds that
+/// take the bounds and the pipeline in turn (each number the median of its rounds); `each` sees every row as it
+/// is measured (its error stops the measurement).
 ///
 /// # Errors
 /// [`CliError`] if the scenario cannot be written or run, or from `each`.
 pub(super) fn measure_limits(
     frames: u64,
+    rounds: usize,
     each: &mut dyn FnMut(&LimitsRow) -> Result<(), CliError>,
 ) -> Result<Vec<LimitsRow>, CliError> {
     let failed = |e: String| CliError::Failed(e);
     let dir = bench_dir("limits")?;
     let threads_max = std::thread::available_parallelism().map_or(1, |n| n.get()).min(2);
+    let rounds = rounds.clamp(1, frames.max(1) as usize);
+    let per_round = frames.div_ceil(rounds as u64);
     let mut rows = Vec::new();
     for (w, h) in [(256usize, 256usize), (640, 512)] {
         let setup = Setup::new(w, h);
@@ -288,10 +292,22 @@ pub(super) fn measure_limits(
         for threads in 1..=threads_max {
             let pool =
                 rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| failed(e.to_string()))?;
-            let (bounds, split): (Vec<f64>, StageSplit) = pool.install(|| {
-                let bounds = Bound::ALL.iter().map(|&b| time_bound(b, &setup, w, h, frames)).collect();
-                time_stages(&scenario, frames).map(|split| (bounds, split))
-            })?;
+            // the bounds and the pipeline in turn, `rounds` times, so that a slow minute of a shared machine
+            // falls on both; each number the median of its rounds
+            let (mut bounds, mut render, mut noise, mut frame) =
+                (vec![Vec::new(); Bound::ALL.len()], Vec::new(), Vec::new(), Vec::new());
+            for _ in 0..rounds {
+                let split = pool.install(|| {
+                    for (b, times) in Bound::ALL.iter().zip(&mut bounds) {
+                        times.push(time_bound(*b, &setup, w, h, per_round));
+                    }
+                    time_stages(&scenario, per_round)
+                })?;
+                render.push(split.stage_us("render"));
+                noise.push(split.stage_us("noise"));
+                frame.push(split.frame_us);
+            }
+            let median = super::report::median;
             let samplers: Vec<String> = [NormalSampler::Ziggurat, NormalSampler::BoxMuller, NormalSampler::Table]
                 .into_iter()
                 .map(|n| {
@@ -303,10 +319,10 @@ pub(super) fn measure_limits(
                 width: w,
                 height: h,
                 threads,
-                bounds,
-                render_us: split.stage_us("render"),
-                noise_us: split.stage_us("noise"),
-                frame_us: split.frame_us,
+                bounds: bounds.iter_mut().map(|t| median(t)).collect(),
+                render_us: median(&mut render),
+                noise_us: median(&mut noise),
+                frame_us: median(&mut frame),
                 samplers,
             };
             each(&row)?;
@@ -317,14 +333,18 @@ pub(super) fn measure_limits(
     Ok(rows)
 }
 
+/// Rounds of `irsim bench --limits` ([`measure_limits`]).
+const LIMITS_ROUNDS: usize = 4;
+
 /// `irsim bench --limits`: the per-pixel lower bounds beside the pipeline's stages, printed as a table.
 ///
 /// # Errors
 /// [`CliError`] if the scenario cannot be written or run, or the output cannot be written.
 pub fn limits(frames: u64) -> Result<(), CliError> {
+    let rounds = LIMITS_ROUNDS;
     super::say(&format!(
-        "per-pixel lower bounds beside the pipeline ({} vectors, {frames} frames each, medians; pipeline: \
-         irsim bench's case, 1 target, standard)",
+        "per-pixel lower bounds beside the pipeline ({} vectors, {frames} frames each in {rounds} interleaved \
+         rounds, medians; pipeline: irsim bench's case, 1 target, standard)",
         Level::detect().name()
     ))?;
     super::say(
@@ -332,7 +352,7 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
     )?;
     // each row's share of steal time, from the end of the row before
     let mut since = super::steal::CpuTicks::now();
-    measure_limits(frames, &mut |row| {
+    measure_limits(frames, rounds, &mut |row| {
         eprintln!("  the pipeline's normal samplers alone, µs per frame: {}", row.samplers.join(", "));
         let cols: Vec<String> = row.bounds.iter().map(|b| format!("{b:.0}")).collect();
         let [render, noise, frame] = row.ratios();

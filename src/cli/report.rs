@@ -68,6 +68,9 @@ struct Plan {
     limits_frames: u64,
     /// Frames of the recording against headless comparison.
     recording_frames: u64,
+    /// Interleaved rounds of the timings that are compared with each other ([`time_interleaved`], and the
+    /// lower bounds beside the pipeline).
+    rounds: usize,
 }
 
 impl Plan {
@@ -85,6 +88,7 @@ impl Plan {
                 opencv_sides: vec![17],
                 limits_frames: 20,
                 recording_frames: 20,
+                rounds: 1,
             }
         } else if a.quick {
             Plan {
@@ -99,6 +103,7 @@ impl Plan {
                 opencv_sides: vec![17, 33, 65],
                 limits_frames: 200,
                 recording_frames: 300,
+                rounds: 2,
             }
         } else {
             Plan {
@@ -114,6 +119,7 @@ impl Plan {
                 opencv_sides: vec![17, 33, 65, 129],
                 limits_frames: 2000,
                 recording_frames: 2000,
+                rounds: 3,
             }
         }
     }
@@ -155,20 +161,51 @@ fn median_run<T>(mut run: impl FnMut() -> Result<(f64, T), CliError>) -> Result<
     Ok(runs.swap_remove(runs.len() / 2).1)
 }
 
-/// A scenario's whole run headless, ms: its set-up with nothing kept from earlier runs and every one of its own
-/// frames, noise on ([`median_run`]).
-fn whole_run_ms(s: &CheckedScenario) -> Result<f64, CliError> {
-    median_run(|| {
-        crate::sim::forget_kept_results();
-        let started = Instant::now();
-        let mut app = headless_app(s, RunOptions::default())
-            .map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))?;
-        for _ in 0..s.spec.run.frames {
-            step(&mut app);
+/// A scenario's whole run headless: its set-up with nothing kept from earlier runs and every one of its own
+/// frames, noise on; the window's length, s, and it in ms.
+fn whole_run(s: &CheckedScenario) -> Result<(f64, f64), CliError> {
+    crate::sim::forget_kept_results();
+    let started = Instant::now();
+    let mut app = headless_app(s, RunOptions::default())
+        .map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))?;
+    for _ in 0..s.spec.run.frames {
+        step(&mut app);
+    }
+    let elapsed_s = started.elapsed().as_secs_f64();
+    Ok((elapsed_s, elapsed_s * 1e3))
+}
+
+/// The whole runs of `runs` ([`whole_run`]), ms, each the median of `rounds` interleaved rounds (or of
+/// [`median_run`]'s windows with one round).
+fn whole_runs_ms(runs: &[CheckedScenario], rounds: usize) -> Result<Vec<f64>, CliError> {
+    if rounds <= 1 {
+        return runs.iter().map(|s| median_run(|| whole_run(s))).collect();
+    }
+    interleaved(runs, rounds, whole_run)
+}
+
+/// `window` of every case in `rounds` rounds, round k running each case once in order, so that a slow minute of
+/// a shared machine falls on all of them alike; per case, the result of its median window (of two, the faster;
+/// `window` returns its length, s, and its result).
+fn interleaved<C, T>(
+    cases: &[C],
+    rounds: usize,
+    mut window: impl FnMut(&C) -> Result<(f64, T), CliError>,
+) -> Result<Vec<T>, CliError> {
+    let mut windows: Vec<Vec<(f64, T)>> = cases.iter().map(|_| Vec::new()).collect();
+    for _ in 0..rounds.max(1) {
+        for (c, w) in cases.iter().zip(&mut windows) {
+            w.push(window(c)?);
         }
-        let elapsed_s = started.elapsed().as_secs_f64();
-        Ok((elapsed_s, elapsed_s * 1e3))
-    })
+    }
+    Ok(windows
+        .into_iter()
+        .map(|mut w| {
+            w.sort_by(|a, b| a.0.total_cmp(&b.0));
+            // of two, the faster: the one a pause disturbed less
+            w.swap_remove((w.len() - 1) / 2).1
+        })
+        .collect())
 }
 
 fn failed(e: impl std::fmt::Display) -> CliError {
@@ -186,15 +223,15 @@ fn one_switch(scenario: &CheckedScenario, name: &str, value: &str) -> Result<Che
     with_quality_spec(scenario, spec)
 }
 
-fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
-    let setup = |options: RunOptions| {
-        headless_app(s, options).map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))
-    };
+/// `s`'s frames and labels with the noise off (`plan.error_frames`; `ms_per_frame` their time, noise off, and no
+/// stages), untimed.
+fn compare_frames(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
     let (mut frames, mut labels) = (Vec::new(), Vec::new());
     let mut width = 0;
     let mut ms_per_frame = f64::NAN;
     if plan.error_frames > 0 {
-        let mut app = setup(RunOptions { noise: false, keep_float: true, ..RunOptions::default() })?;
+        let mut app = headless_app(s, RunOptions { noise: false, keep_float: true, ..RunOptions::default() })
+            .map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))?;
         let t = Instant::now();
         for _ in 0..plan.error_frames {
             labels.push(step(&mut app));
@@ -204,29 +241,60 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
             width = f.width();
             frames.push(f.pixels().to_vec());
         }
-        // without timed frames (the smallest configuration), the compared frames' own time, noise off
         ms_per_frame = t.elapsed().as_secs_f64() * 1e3 / plan.error_frames as f64;
     }
-    let mut stage_ms = Vec::new();
-    if plan.time_frames > 0 {
-        // each window from a fresh start
-        (ms_per_frame, stage_ms) = median_run(|| {
-            let mut app = setup(RunOptions { timings: true, ..RunOptions::default() })?;
-            for _ in 0..2 {
-                step(&mut app);
-            }
-            app.world_mut().insert_resource(StageTimings::default());
-            let t = Instant::now();
-            for _ in 0..plan.time_frames {
-                step(&mut app);
-            }
-            let window_s = t.elapsed().as_secs_f64();
-            let ms = window_s * 1e3 / plan.time_frames.max(1) as f64;
-            let stages = app.world().get_resource::<StageTimings>().map(StageTimings::mean_ms).unwrap_or_default();
-            Ok((window_s, (ms, stages)))
-        })?;
+    Ok(Measured { ms_per_frame, stage_ms: Vec::new(), frames, labels, width })
+}
+
+/// A timed window of `s` from a fresh start: two warm-up frames, then `plan.time_frames` frames, noise on; the
+/// window's length, s, with ms per frame and each stage's mean ms.
+fn time_window(s: &CheckedScenario, plan: &Plan) -> Result<(f64, Timed), CliError> {
+    let mut app = headless_app(s, RunOptions { timings: true, ..RunOptions::default() })
+        .map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))?;
+    for _ in 0..2 {
+        step(&mut app);
     }
-    Ok(Measured { ms_per_frame, stage_ms, frames, labels, width })
+    app.world_mut().insert_resource(StageTimings::default());
+    let t = Instant::now();
+    for _ in 0..plan.time_frames {
+        step(&mut app);
+    }
+    let window_s = t.elapsed().as_secs_f64();
+    let ms = window_s * 1e3 / plan.time_frames.max(1) as f64;
+    let stages = app.world().get_resource::<StageTimings>().map(StageTimings::mean_ms).unwrap_or_default();
+    Ok((window_s, (ms, stages)))
+}
+
+/// Ms per frame and each stage's mean ms.
+type Timed = (f64, Vec<(&'static str, f64)>);
+
+/// One case compared ([`compare_frames`]) and timed: its window of median time among one, or three where the
+/// first is short ([`median_run`]). Without timed frames (the smallest configuration) the compared frames' own
+/// time, noise off.
+fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
+    let mut m = compare_frames(s, plan)?;
+    if plan.time_frames > 0 {
+        (m.ms_per_frame, m.stage_ms) = median_run(|| time_window(s, plan))?;
+    }
+    Ok(m)
+}
+
+/// Cases whose times are compared with each other (presets, skips, points of a curve): each compared
+/// ([`compare_frames`]), then timed in `plan.rounds` interleaved rounds ([`interleaved`]; with one round, as
+/// [`measure`] times a case).
+fn measure_together(cases: &[CheckedScenario], plan: &Plan) -> Result<Vec<Measured>, CliError> {
+    let mut all = cases.iter().map(|s| compare_frames(s, plan)).collect::<Result<Vec<_>, _>>()?;
+    if plan.time_frames > 0 {
+        let times = if plan.rounds <= 1 {
+            cases.iter().map(|s| median_run(|| time_window(s, plan))).collect::<Result<Vec<_>, _>>()?
+        } else {
+            interleaved(cases, plan.rounds, |s| time_window(s, plan))?
+        };
+        for (m, (ms, stages)) in all.iter_mut().zip(times) {
+            (m.ms_per_frame, m.stage_ms) = (ms, stages);
+        }
+    }
+    Ok(all)
 }
 
 /// The intensity centroid of `frame` in `bbox` grown by 3 px, over the median of the region's border.
@@ -679,11 +747,15 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         "Made by `irsim bench report --out {}{mode}` (irsim {}) on {} ({}), {} frames compared and {} timed per \
          case. Errors are against the `reference` preset on the same input with the noise off: the frame's rms and \
          largest difference in DN before quantization, and the largest difference of a target's intensity centroid in px (\"–\": no \
-         target in the frames). Times are per frame, headless, noise on, after two warm-up frames (where the first run's timed \
-         frames take under 0.1 s, the median of three runs); the machine may be shared, so compare times within one report. \
+         target in the frames). Times are per frame, headless, noise on, after two warm-up frames. Times that are compared with \
+         each other (standard's, draft's and the skips' on a scenario or case, the points of the scaling curves, the \
+         lower bounds and the pipeline beside them) are taken in {} interleaved rounds, each the median of its \
+         rounds (of two, the faster), so that a slow minute of a shared machine falls on all of them alike; a time alone (the reference's, \
+         a switch's) is one run, or the median of three where its timed frames take under 0.1 s. The machine may be \
+         shared, so compare times within one report. \
          Each run is planned for the frames compared and timed ({} here). A scenario's whole run is timed apart: its set-up \
          with nothing kept from earlier runs (the shipped LOWTRAN table, decoded once per process, aside) and all of its own \
-         frames, headless, noise on, planned for them (the median of three where under 0.1 s); a preset plans for the frames \
+         frames, headless, noise on, planned for them (standard's and draft's in the same rounds); a preset plans for the frames \
          it runs (draft's sky blur builds a prefiltered texture only where enough frames use it), so on a short scenario the \
          speed-ups per frame and over the whole run can differ.\n",
         a.out.display(),
@@ -692,6 +764,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         today(),
         plan.error_frames,
         plan.time_frames,
+        plan.rounds,
         plan.error_frames.max(plan.time_frames + 2),
     );
 
@@ -710,13 +783,23 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         let name = path.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         progress(&format!("  {name}"));
         let r = measure(&preset(s, QualityPreset::Reference)?, &plan)?;
-        let st = measure(&preset(s, QualityPreset::Standard)?, &plan)?;
-        let dr = measure(&preset(s, QualityPreset::Draft)?, &plan)?;
-        let (es, ed) = (errors(&st, &r), errors(&dr, &r));
-        let (whole_st, whole_dr) = (
-            whole_run_ms(&preset(written, QualityPreset::Standard)?)?,
-            whole_run_ms(&preset(written, QualityPreset::Draft)?)?,
-        );
+        // standard, draft and each skip's other setting over standard, timed in the same rounds: the speed-up and
+        // the savings are differences of these times
+        let mut cases = vec![preset(s, QualityPreset::Standard)?, preset(s, QualityPreset::Draft)?];
+        for &(switch, _) in &SKIPS {
+            let value =
+                if skips(&skip_value_in(QualityPreset::Standard, switch)) { "0".into() } else { skip_value(switch) };
+            let spec: QualitySpec = toml::from_str(&format!("preset = \"standard\"\n{switch} = {value}"))
+                .map_err(|e| failed(format!("{switch} = {value}: {e}")))?;
+            cases.push(with_quality_spec(s, spec)?);
+        }
+        let measured = measure_together(&cases, &plan)?;
+        let (st, dr) = (&measured[0], &measured[1]);
+        let (es, ed) = (errors(st, &r), errors(dr, &r));
+        let whole = whole_runs_ms(
+            &[preset(written, QualityPreset::Standard)?, preset(written, QualityPreset::Draft)?],
+            plan.rounds,
+        )?;
         let _ = writeln!(
             md,
             "| {name} | {:.2} | {:.2} | {:.2} | {:.3} / {:.2} | {} | {:.3} / {:.2} | {} | {:.2}× / {:.2}× |",
@@ -730,19 +813,13 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
             ed.max_dn,
             centroid_cell(&ed),
             st.ms_per_frame / dr.ms_per_frame,
-            whole_st / whole_dr
+            whole[0] / whole[1]
         );
         // the skips of the last section against the same standard run
-        for &(switch, stage) in &SKIPS {
+        for (&(switch, stage), other) in SKIPS.iter().zip(&measured[2..]) {
             let on = skip_value(switch);
-            let with = |value: &str| -> Result<CheckedScenario, CliError> {
-                let spec: QualitySpec = toml::from_str(&format!("preset = \"standard\"\n{switch} = {value}"))
-                    .map_err(|e| failed(format!("{switch} = {value}: {e}")))?;
-                with_quality_spec(s, spec)
-            };
             let standard_skips = skips(&skip_value_in(QualityPreset::Standard, switch));
-            let other = measure(&with(if standard_skips { "0" } else { &on })?, &plan)?;
-            let (skipping, full) = if standard_skips { (&st, &other) } else { (&other, &st) };
+            let (skipping, full) = if standard_skips { (st, other) } else { (other, st) };
             let changed = errors(skipping, full);
             let stage_of = |m: &Measured| m.stage_ms.iter().find(|x| x.0 == stage).map_or(f64::NAN, |x| x.1);
             let stage_saved = 1e3 * (stage_of(full) - stage_of(skipping));
@@ -788,8 +865,9 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         let s = synthetic(w, h, n)?;
         let r = measure(&preset(&s, QualityPreset::Reference)?, &plan)?;
         let _ = writeln!(md, "| {w}×{h}, {n} | reference | {:.1} | 0 / 0 | 0 |", 1e3 / r.ms_per_frame);
-        for (k, p) in [QualityPreset::Standard, QualityPreset::Draft].into_iter().enumerate() {
-            let m = measure(&preset(&s, p)?, &plan)?;
+        let presets = [QualityPreset::Standard, QualityPreset::Draft];
+        let cases = presets.iter().map(|&p| preset(&s, p)).collect::<Result<Vec<_>, _>>()?;
+        for (k, (p, m)) in presets.into_iter().zip(measure_together(&cases, &plan)?).enumerate() {
             let e = errors(&m, &r);
             let _ = writeln!(
                 md,
@@ -903,18 +981,24 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
     let _ = writeln!(md, "## Scaling (standard preset)\n");
     // timing alone, unless there is no timing run (then the compared frames are the timed ones)
     let plan_timing = Plan { error_frames: if plan.time_frames > 0 { 0 } else { plan.error_frames }, ..plan.clone() };
-    let mut by_targets = Vec::new();
+    // every point of both curves in the same rounds, so that a slow minute bends neither
+    let mut cases = Vec::new();
     for &n in &plan.targets {
-        let s = preset(&synthetic(plan.target_size.0, plan.target_size.1, n)?, QualityPreset::Standard)?;
-        let m = measure(&s, &plan_timing)?;
-        by_targets.push((n as f64, m.ms_per_frame, format!("{n}")));
+        cases.push(preset(&synthetic(plan.target_size.0, plan.target_size.1, n)?, QualityPreset::Standard)?);
     }
-    let mut by_size = Vec::new();
     for &side in &plan.sizes {
-        let s = preset(&synthetic(side, side, 1)?, QualityPreset::Standard)?;
-        let m = measure(&s, &plan_timing)?;
-        by_size.push((f64::from(side * side), m.ms_per_frame, format!("{side}²")));
+        cases.push(preset(&synthetic(side, side, 1)?, QualityPreset::Standard)?);
     }
+    let times: Vec<f64> = measure_together(&cases, &plan_timing)?.iter().map(|m| m.ms_per_frame).collect();
+    let (target_times, size_times) = times.split_at(plan.targets.len());
+    let by_targets: Vec<_> =
+        plan.targets.iter().zip(target_times).map(|(&n, &ms)| (n as f64, ms, format!("{n}"))).collect();
+    let by_size: Vec<_> = plan
+        .sizes
+        .iter()
+        .zip(size_times)
+        .map(|(&side, &ms)| (f64::from(side * side), ms, format!("{side}²")))
+        .collect();
     let _ = std::fs::remove_dir_all(&dir);
     // the marginal cost of targets: time above the fewest-target case, fitted where it is measurable
     let t1 = by_targets.first().map_or(0.0, |p| p.1);
@@ -1007,16 +1091,17 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
 /// PNG keeps of the headless rate on `irsim bench`'s cases.
 fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
     let _ = writeln!(md, "## Against the machine\n");
-    let rows = super::limits::measure_limits(plan.limits_frames, &mut |_| Ok(()))?;
+    let rows = super::limits::measure_limits(plan.limits_frames, plan.rounds, &mut |_| Ok(()))?;
     let _ = writeln!(
         md,
-        "`irsim bench --limits` in this run ({} frames each, medians, {} vectors): simple kernels that bound each \
+        "`irsim bench --limits` in this run ({} frames each in {} interleaved rounds, medians, {} vectors): simple kernels that bound each \
          per-pixel stage from below (one bilinear sample of a texture per pixel; the detector's readout in place; \
          sample, noise and ADC fused in one pass), beside `irsim bench`'s built-in case (one target, `standard`) \
          in a pool of the same size. µs per frame; a frame includes every stage and the schedule's own.\n\n\
          | size | threads | bilinear | readout | fused | render | noise | frame | render / bilinear | noise / \
          readout | frame / fused |\n|---|---|---|---|---|---|---|---|---|---|---|",
         plan.limits_frames,
+        plan.rounds,
         crate::physics::simd::Level::detect().name(),
     );
     for r in &rows {
@@ -1169,6 +1254,31 @@ fn toml_text<T: serde::Serialize>(v: &T) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rounds_take_every_case_in_turn_and_keep_each_median() {
+        // window lengths by call: case a 3, 1, 2; case b 5, 9, 7 (a slow second round for b)
+        let lengths = [3.0, 5.0, 1.0, 9.0, 2.0, 7.0];
+        let mut calls = Vec::new();
+        let got = interleaved(&["a", "b"], 3, |c| {
+            calls.push(*c);
+            Ok((lengths[calls.len() - 1], (*c, calls.len())))
+        })
+        .unwrap();
+        assert_eq!(calls, ["a", "b", "a", "b", "a", "b"]);
+        // the median windows: a's third call (length 2), b's sixth (length 7)
+        assert_eq!(got, [("a", 5), ("b", 6)]);
+        // of two, the faster; one round is that round
+        let mut k = 0;
+        let two = interleaved(&[()], 2, |_| {
+            k += 1;
+            Ok(([6.0, 2.0][k - 1], k))
+        })
+        .unwrap();
+        assert_eq!(two, [2]);
+        let errs = interleaved(&[0, 1], 2, |&c| if c == 1 { Err(failed("boom")) } else { Ok((1.0, c)) });
+        assert!(errs.is_err());
+    }
 
     #[test]
     fn exponent_of_a_power_law() {
