@@ -611,16 +611,28 @@ fn pareto_panels(path: &Path, title: &str, panels: &[Series]) -> Result<(), CliE
                 }
             }
             chart.draw_series(LineSeries::new(front, SERIES_COLORS[0].stroke_width(2))).map_err(failed)?;
-            chart
-                .draw_series(points.iter().enumerate().map(|(k, (x, y, label))| {
-                    let color = if k == 0 { RGBColor(120, 120, 120) } else { SERIES_COLORS[k % SERIES_COLORS.len()] };
-                    let mut label = label.clone();
-                    if label.chars().count() > 22 {
-                        label = label.chars().take(21).collect::<String>() + "…";
+            let labels: Vec<String> = points
+                .iter()
+                .map(|p| {
+                    if p.2.chars().count() > 22 {
+                        p.2.chars().take(21).collect::<String>() + "…"
+                    } else {
+                        p.2.clone()
                     }
-                    EmptyElement::at((*x, *y))
-                        + Circle::new((0, 0), 5, color.filled())
-                        + Text::new(label, (6, -15), ("sans-serif", 12))
+                })
+                .collect();
+            // placed clear of each other and of the markers, as in the single plots (settings whose points fall
+            // together otherwise write over each other)
+            let pixels: Vec<(i32, i32)> = points.iter().map(|p| chart.backend_coord(&(p.0, p.1))).collect();
+            let widths: Vec<i32> = labels.iter().map(|l| (7 * l.chars().count()) as i32).collect();
+            let (xr, yr) = chart.plotting_area().get_pixel_range();
+            let offsets = place_labels(&pixels, &widths, 12, (xr.start, yr.start, xr.end, yr.end), &[]);
+            chart
+                .draw_series(points.iter().zip(labels).zip(offsets).enumerate().map(|(k, (((x, y, _), label), at))| {
+                    let color = if k == 0 { RGBColor(120, 120, 120) } else { SERIES_COLORS[k % SERIES_COLORS.len()] };
+                    // the label in its point's colour, so that a label set beside another point still names its own
+                    let style = ("sans-serif", 12).into_font().color(&color);
+                    EmptyElement::at((*x, *y)) + Circle::new((0, 0), 5, color.filled()) + Text::new(label, at, style)
                 }))
                 .map_err(failed)?;
         }
