@@ -5,23 +5,21 @@
 //!
 //! `standard` is what a scenario without `[quality]` gets. `reference` puts every switch at its exact setting,
 //! or where a switch has none (a truncated kernel, a quadrature), at the finest the program offers; `draft` gives
-//! up accuracy for speed: in the committed report (made on an AMD EPYC) its frames are 2.0–6.3× faster than
-//! `standard`'s on the shipped scenarios except paper_vibration (1.01×: a sky image whose standard frame is
-//! 0.14 ms, and whose draft blurs its sky per frame in runs as short as the report's); head_on (2.00×: its clear
-//! sky's standard textures take one node a texel since `prefilter_grid_error_dn`) and swarm (2.76×: its ten
-//! targets' fusion and labels cost the same in both presets) are the thinnest margins among the others; its
-//! whole runs 2.6–3.7× shorter (paper_vibration's 2.88×), and
-//! differ from `reference` by 0.49–19.0 DN rms (the most on paper_cloudy_sky, where the
+//! up accuracy for speed: in the committed report (docs/speed-vs-error, made on an Intel Xeon with 2 vCPUs) its
+//! frames are 2.26–8.35× faster than `standard`'s on the shipped scenarios (the least on supersonic_climb, a
+//! tracking camera's 640 × 512 frame whose detector readout, the same work in both presets but for the normal
+//! deviates' sampler, is most of draft's time), its whole runs 2.30–4.40× shorter, and
+//! differ from `reference` by 0.46–19.0 DN rms (the most on paper_cloudy_sky, where the
 //! blurred sky is read nearest, made on a 2 px grid, from a cloud layer of 2 px texels: cloud edges move and
-//! soften; alone, on sense_and_avoid, the 2 px grid costs 10.0 DN rms and its targets' centroids 0.14 px, the
-//! 2 px texels 9.3 DN rms and 0.05 px). The texels also shorten the set-up (a layer's generation and bake),
+//! soften; alone, on sense_and_avoid, the 2 px grid costs 9.7 DN rms and its targets' centroids 0.14 px, the
+//! 2 px texels 9.5 DN rms and 0.05 px). The texels also shorten the set-up (a layer's generation and bake),
 //! which is common to the presets. What each switch costs and saves is measured in
 //! `docs/accuracy.md` and by `irsim bench report`.
 //!
 //! `standard` is chosen so that, noise off, its frames stay within about 0.4 DN rms and its targets' intensity
 //! centroids within 0.015 px of `reference` on every shipped scenario (8 frames each: `irsim record S --frames 8
-//! --no-noise --format npy --quality P`; in the committed report at most 0.375 DN rms, on swarm, and 0.0070
-//! px). The switches that mattered: the prefiltered sky texture's grid (0.5 px grids erred up to 0.64 DN rms
+//! --no-noise --format npy --quality P`; in the committed report at most 0.375 DN rms and 0.0098 px, both on
+//! swarm). The switches that mattered: the prefiltered sky texture's grid (0.5 px grids erred up to 0.64 DN rms
 //! against the reference's 0.25 px, 0.33 px grids up to 0.38; clear skies take coarser grids within an estimated
 //! 0.35 DN, which moved paper_clear_sky from 0.115 to 0.122 DN rms in the report), the sun's reflection (the paper's facet overstates a glint by up to 3300 DN against the ellipsoid average),
 //! the sky blur route (the per-frame blur errs at sub-pixel cloud edges) and the PSF's cut (3 % of the energy
