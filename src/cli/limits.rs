@@ -342,10 +342,12 @@ const LIMITS_ROUNDS: usize = 4;
 /// # Errors
 /// [`CliError`] if the scenario cannot be written or run, or the output cannot be written.
 pub fn limits(frames: u64) -> Result<(), CliError> {
-    let rounds = LIMITS_ROUNDS;
+    let rounds = LIMITS_ROUNDS.clamp(1, frames.max(1) as usize);
+    let per_round = frames.div_ceil(rounds as u64);
     super::say(&format!(
-        "per-pixel lower bounds beside the pipeline ({} vectors, {frames} frames each in {rounds} interleaved \
-         rounds, the fastest round's; pipeline: irsim bench's case, 1 target, standard)",
+        "per-pixel lower bounds beside the pipeline ({} vectors, {rounds} interleaved rounds of {per_round} frames, \
+         each number its fastest round's: a bound's median frame, the pipeline's mean; pipeline: irsim bench's case, \
+         1 target, standard)",
         Level::detect().name()
     ))?;
     super::say(

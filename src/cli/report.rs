@@ -68,7 +68,7 @@ struct Plan {
     limits_frames: u64,
     /// Frames of the recording against headless comparison.
     recording_frames: u64,
-    /// Interleaved rounds of the timings that are compared with each other ([`time_interleaved`], and the
+    /// Interleaved rounds of the timings that are compared with each other ([`interleaved`], and the
     /// lower bounds beside the pipeline).
     rounds: usize,
 }
@@ -175,25 +175,25 @@ fn whole_run(s: &CheckedScenario) -> Result<(f64, f64), CliError> {
     Ok((elapsed_s, elapsed_s * 1e3))
 }
 
-/// The whole runs of `runs` ([`whole_run`]), ms, each the fastest of `rounds` interleaved rounds (or the
-/// median of [`median_run`]'s windows with one round).
+/// The whole runs of `runs` ([`whole_run`]), ms ([`interleaved`]).
 fn whole_runs_ms(runs: &[CheckedScenario], rounds: usize) -> Result<Vec<f64>, CliError> {
-    if rounds <= 1 {
-        return runs.iter().map(|s| median_run(|| whole_run(s))).collect();
-    }
     interleaved(runs, rounds, whole_run)
 }
 
 /// `window` of every case in `rounds` rounds, round k running each case once in order, so that a slow minute of
 /// a shared machine falls on all of them alike; per case, the result of its fastest window, the least disturbed
-/// by the host's other work, which can only add time (`window` returns its length, s, and its result).
+/// by the host's other work, which can only add time (`window` returns its length, s, and its result). With one
+/// round, each case as [`median_run`] times it.
 fn interleaved<C, T>(
     cases: &[C],
     rounds: usize,
     mut window: impl FnMut(&C) -> Result<(f64, T), CliError>,
 ) -> Result<Vec<T>, CliError> {
+    if rounds <= 1 {
+        return cases.iter().map(|c| median_run(|| window(c))).collect();
+    }
     let mut windows: Vec<Vec<(f64, T)>> = cases.iter().map(|_| Vec::new()).collect();
-    for _ in 0..rounds.max(1) {
+    for _ in 0..rounds {
         for (c, w) in cases.iter().zip(&mut windows) {
             w.push(window(c)?);
         }
@@ -280,21 +280,36 @@ fn measure(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError> {
 }
 
 /// Cases whose times are compared with each other (presets, skips, points of a curve): each compared
-/// ([`compare_frames`]), then timed in `plan.rounds` interleaved rounds ([`interleaved`]; with one round, as
-/// [`measure`] times a case).
+/// ([`compare_frames`]), then timed in `plan.rounds` interleaved rounds ([`interleaved`]).
 fn measure_together(cases: &[CheckedScenario], plan: &Plan) -> Result<Vec<Measured>, CliError> {
     let mut all = cases.iter().map(|s| compare_frames(s, plan)).collect::<Result<Vec<_>, _>>()?;
     if plan.time_frames > 0 {
-        let times = if plan.rounds <= 1 {
-            cases.iter().map(|s| median_run(|| time_window(s, plan))).collect::<Result<Vec<_>, _>>()?
-        } else {
-            interleaved(cases, plan.rounds, |s| time_window(s, plan))?
-        };
+        let times = interleaved(cases, plan.rounds, |s| time_window(s, plan))?;
         for (m, (ms, stages)) in all.iter_mut().zip(times) {
             (m.ms_per_frame, m.stage_ms) = (ms, stages);
         }
     }
     Ok(all)
+}
+
+/// How the report's times were taken, as its header says it.
+fn timing_text(plan: &Plan) -> String {
+    // a time alone (the reference's, a switch's) or every time of a one-round plan
+    let alone = "one run, or the median of three where its timed frames take under 0.1 s";
+    if plan.time_frames == 0 {
+        "Times are those of the compared frames, noise off (no frames are timed apart).".into()
+    } else if plan.rounds <= 1 {
+        format!("Times are per frame, headless, noise on, after two warm-up frames: each {alone}.")
+    } else {
+        format!(
+            "Times are per frame, headless, noise on, after two warm-up frames. Times that are compared with each \
+             other (standard's, draft's and the skips' on a scenario or case, a scenario's whole runs, the points of \
+             the scaling curves, the lower bounds and the pipeline beside them) are taken in {} interleaved rounds, \
+             each the fastest of its rounds (the host's other work can only add time), so that a slow minute of a \
+             shared machine falls on all of them alike; a time alone (the reference's, a switch's) is {alone}.",
+            plan.rounds
+        )
+    }
 }
 
 /// The intensity centroid of `frame` in `bbox` grown by 3 px, over the median of the region's border.
@@ -759,15 +774,10 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         "Made by `irsim bench report --out {}{mode}` (irsim {}) on {} ({}), {} frames compared and {} timed per \
          case. Errors are against the `reference` preset on the same input with the noise off: the frame's rms and \
          largest difference in DN before quantization, and the largest difference of a target's intensity centroid in px (\"–\": no \
-         target in the frames). Times are per frame, headless, noise on, after two warm-up frames. Times that are compared with \
-         each other (standard's, draft's and the skips' on a scenario or case, the points of the scaling curves, the \
-         lower bounds and the pipeline beside them) are taken in {} interleaved rounds, each the fastest of its \
-         rounds (the host's other work can only add time), so that a slow minute of a shared machine falls on all of them alike; a time alone (the reference's, \
-         a switch's) is one run, or the median of three where its timed frames take under 0.1 s. The machine may be \
-         shared, so compare times within one report. \
+         target in the frames). {} The machine may be shared, so compare times within one report. \
          Each run is planned for the frames compared and timed ({} here). A scenario's whole run is timed apart: its set-up \
          with nothing kept from earlier runs (the shipped LOWTRAN table, decoded once per process, aside) and all of its own \
-         frames, headless, noise on, planned for them (standard's and draft's in the same rounds); a preset plans for the frames \
+         frames, headless, noise on, planned for them (timed as the frames of a scenario are); a preset plans for the frames \
          it runs (draft's sky blur builds a prefiltered texture only where enough frames use it), so on a short scenario the \
          speed-ups per frame and over the whole run can differ.\n",
         a.out.display(),
@@ -776,7 +786,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         today(),
         plan.error_frames,
         plan.time_frames,
-        plan.rounds,
+        timing_text(&plan),
         plan.error_frames.max(plan.time_frames + 2),
     );
 
@@ -1106,7 +1116,8 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
     let rows = super::limits::measure_limits(plan.limits_frames, plan.rounds, &mut |_| Ok(()))?;
     let _ = writeln!(
         md,
-        "`irsim bench --limits` in this run ({} frames each in {} interleaved rounds, the fastest round's median, {} vectors): simple kernels that bound each \
+        "`irsim bench --limits` in this run ({} frames each in {} interleaved rounds, each number its fastest round's: a \
+         bound's median frame, the pipeline's mean; {} vectors): simple kernels that bound each \
          per-pixel stage from below (one bilinear sample of a texture per pixel; the detector's readout in place; \
          sample, noise and ADC fused in one pass), beside `irsim bench`'s built-in case (one target, `standard`) \
          in a pool of the same size. µs per frame; a frame includes every stage and the schedule's own.\n\n\

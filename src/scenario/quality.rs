@@ -21,7 +21,8 @@
 //! --no-noise --format npy --quality P`; in the committed report at most 0.375 DN rms and 0.0098 px, both on
 //! swarm). The switches that mattered: the prefiltered sky texture's grid (0.5 px grids erred up to 0.64 DN rms
 //! against the reference's 0.25 px, 0.33 px grids up to 0.38; clear skies take coarser grids within an estimated
-//! 0.35 DN, which moved paper_clear_sky from 0.115 to 0.122 DN rms in the report), the sun's reflection (the paper's facet overstates a glint by up to 3300 DN against the ellipsoid average),
+//! 0.35 DN, which moved paper_clear_sky from 0.115 to 0.122 DN rms in the report of that change; 0.126 in the
+//! committed one), the sun's reflection (the paper's facet overstates a glint by up to 3300 DN against the ellipsoid average),
 //! the sky blur route (the per-frame blur errs at sub-pixel cloud edges) and the PSF's cut (3 % of the energy
 //! left out gave 1.2 DN rms on paper_cloudy_sky, 1 % gives 0.29).
 //!
