@@ -161,13 +161,17 @@ fn median_run<T>(mut run: impl FnMut() -> Result<(f64, T), CliError>) -> Result<
     Ok(runs.swap_remove(runs.len() / 2).1)
 }
 
+/// `s`'s headless app, its set-up's error located in its file.
+fn app(s: &CheckedScenario, options: RunOptions) -> Result<bevy::app::App, CliError> {
+    headless_app(s, options).map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))
+}
+
 /// A scenario's whole run headless: its set-up with nothing kept from earlier runs and every one of its own
 /// frames, noise on; the window's length, s, and it in ms.
 fn whole_run(s: &CheckedScenario) -> Result<(f64, f64), CliError> {
     crate::sim::forget_kept_results();
     let started = Instant::now();
-    let mut app = headless_app(s, RunOptions::default())
-        .map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))?;
+    let mut app = app(s, RunOptions::default())?;
     for _ in 0..s.spec.run.frames {
         step(&mut app);
     }
@@ -216,9 +220,14 @@ fn preset(scenario: &CheckedScenario, p: QualityPreset) -> Result<CheckedScenari
     with_quality_spec(scenario, QualitySpec::of(p))
 }
 
-/// `reference` with one switch set to `value` (TOML); `None` if the value does not parse for the switch.
-fn one_switch(scenario: &CheckedScenario, name: &str, value: &str) -> Result<CheckedScenario, CliError> {
-    let text = format!("preset = \"reference\"\n{name} = {value}\n");
+/// Preset `base` with one switch set to `value` (TOML); an error if the value does not parse for the switch.
+fn one_switch(
+    scenario: &CheckedScenario,
+    base: QualityPreset,
+    name: &str,
+    value: &str,
+) -> Result<CheckedScenario, CliError> {
+    let text = format!("preset = \"{}\"\n{name} = {value}\n", base.name());
     let spec: QualitySpec = toml::from_str(&text).map_err(|e| failed(format!("switch {name} = {value}: {e}")))?;
     with_quality_spec(scenario, spec)
 }
@@ -230,8 +239,7 @@ fn compare_frames(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError
     let mut width = 0;
     let mut ms_per_frame = f64::NAN;
     if plan.error_frames > 0 {
-        let mut app = headless_app(s, RunOptions { noise: false, keep_float: true, ..RunOptions::default() })
-            .map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))?;
+        let mut app = app(s, RunOptions { noise: false, keep_float: true, ..RunOptions::default() })?;
         let t = Instant::now();
         for _ in 0..plan.error_frames {
             labels.push(step(&mut app));
@@ -249,8 +257,7 @@ fn compare_frames(s: &CheckedScenario, plan: &Plan) -> Result<Measured, CliError
 /// A timed window of `s` from a fresh start: two warm-up frames, then `plan.time_frames` frames, noise on; the
 /// window's length, s, with ms per frame and each stage's mean ms.
 fn time_window(s: &CheckedScenario, plan: &Plan) -> Result<(f64, Timed), CliError> {
-    let mut app = headless_app(s, RunOptions { timings: true, ..RunOptions::default() })
-        .map_err(|e| CliError::Invalid(located(&s.source, &e.field, &e.message).to_string()))?;
+    let mut app = app(s, RunOptions { timings: true, ..RunOptions::default() })?;
     for _ in 0..2 {
         step(&mut app);
     }
@@ -811,9 +818,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         for &(switch, _) in &SKIPS {
             let value =
                 if skips(&skip_value_in(QualityPreset::Standard, switch)) { "0".into() } else { skip_value(switch) };
-            let spec: QualitySpec = toml::from_str(&format!("preset = \"standard\"\n{switch} = {value}"))
-                .map_err(|e| failed(format!("{switch} = {value}: {e}")))?;
-            cases.push(with_quality_spec(s, spec)?);
+            cases.push(one_switch(s, QualityPreset::Standard, switch, &value)?);
         }
         let measured = measure_together(&cases, &plan)?;
         let (st, dr) = (&measured[0], &measured[1]);
@@ -959,7 +964,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
                 continue;
             }
             tried.push(v.clone());
-            let m = measure(&one_switch(base, name, &v)?, &plan)?;
+            let m = measure(&one_switch(base, QualityPreset::Reference, name, &v)?, &plan)?;
             let e = errors(&m, &reference);
             let _ = writeln!(
                 md,
