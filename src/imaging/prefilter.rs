@@ -59,8 +59,11 @@ const FFT_BLOCK_TEXELS: usize = 128;
 /// Prefiltered crops kept (a view whose Jacobian sits on a lattice boundary alternates between two keys).
 const CACHE_ENTRIES: usize = 4;
 /// Bytes of prefiltered blocks kept for later crops (a panning view needs the blocks it saw a moment ago and
-/// a few new ones); the blocks one crop needs are kept whatever their size.
-const BLOCK_CACHE_BYTES: usize = 64 << 20;
+/// a few new ones; a run that comes back to a Jacobian, or `irsim bench` running a scenario again, needs every
+/// key's blocks); the blocks one crop needs are kept whatever their size. sense_and_avoid's 7 keys take 108 MiB
+/// of blocks (28 a key, each 576 KiB on a grid of 3 × 3 nodes a texel): at 64 MiB each pass of `irsim bench`
+/// made all of them again, 16–28 ms a key (docs/accuracy.md).
+const BLOCK_CACHE_BYTES: usize = 256 << 20;
 /// Bytes of texture filters kept for Jacobians seen before (a camera panning back, a run looped by `irsim
 /// bench`); the filter in use is kept whatever its size. A filter is a few hundred KiB at most on the shipped
 /// scenarios, and takes 0.5–2.5 ms to make (docs/accuracy.md).
@@ -479,7 +482,7 @@ struct Block {
 }
 
 /// Prefiltered crops of one sky plane for one PSF, by Jacobian key: a few are kept, the least recently used
-/// replaced. A crop is put together from prefiltered blocks, kept (up to 64 MiB) for the next crops of the same
+/// replaced. A crop is put together from prefiltered blocks, kept (up to 256 MiB) for the next crops of the same
 /// key, so a view panning across the image filters each block once.
 #[derive(Debug, Default)]
 pub struct PrefilterCache {
@@ -1072,6 +1075,36 @@ mod tests {
         assert_eq!(per_texel(&mut cache, budget), 2);
         assert_eq!(per_texel(&mut PrefilterCache::new(), budget), 2);
         assert_eq!(per_texel(&mut cache, 0.0), 4);
+    }
+
+    #[test]
+    fn a_run_coming_back_to_its_keys_finds_their_blocks() {
+        // seven keys, each needing 28 blocks on a grid of 3 × 3 nodes a texel (sense_and_avoid's working set:
+        // 108 MiB), asked for in turn twice over, as `irsim bench` runs a scenario again: the second round
+        // prefilters nothing
+        let (p, tol) = (psf(), 0.05);
+        let (w, h) = (7 * FFT_BLOCK_TEXELS, 4 * FFT_BLOCK_TEXELS);
+        let image = SkyImage::from_f32(w, h, vec![20.0; w * h]).unwrap();
+        let placement = crate::imaging::sky_plane::SkyPlacement::paper_fig8();
+        let plane = SkyPlane::new(image, &placement, glam::DVec3::new(0.0, 0.0, 8000.0)).unwrap();
+        let keys: Vec<JacobianKey> =
+            (0..7).map(|i| JacobianKey::new(DMat2::IDENTITY * (0.5 * 1.05f64.powi(i)), tol).unwrap()).collect();
+        let mut cache = PrefilterCache::new();
+        let need = [0.0, 0.0, w as f64, h as f64];
+        // one spacing for every key (a cache is for one set of settings): 3 nodes a texel at each of these scales
+        let settings = PrefilterSettings { tolerance: tol, spacing_px: 0.7, grid_error: 0.0 };
+        let round = |cache: &mut PrefilterCache| {
+            for &key in &keys {
+                assert_eq!(finest_per_texel(key.jacobian(tol), settings.spacing_px), Some(3));
+                assert!(cache.plan(&plane, &p, key, settings, need), "a texture");
+            }
+            cache.work()
+        };
+        let first = round(&mut cache);
+        assert_eq!(cache.blocks.len(), 7 * 28);
+        let bytes = cache.blocks.len() * (3 * FFT_BLOCK_TEXELS).pow(2) * size_of::<f32>();
+        assert!(bytes > 64 << 20, "{bytes} bytes of blocks: more than the budget these were made again under");
+        assert_eq!(round(&mut cache), first, "a block was prefiltered again");
     }
 
     #[test]
