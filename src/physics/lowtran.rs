@@ -324,6 +324,55 @@ type ProfileKey = (usize, Vec<(usize, u64)>);
 /// Aerosol profiles kept by a table.
 const PROFILE_CACHE: usize = 8;
 
+/// The blackbody weights of [`PathSpectrum::spectrum_weighted_with`] kept for the temperature, measure, band,
+/// method and bins they were made for, so that a target whose skin temperature does not change (steady speed at
+/// one altitude) does not integrate the blackbody over every bin again at each frame; the same bits either way.
+/// Made again whenever any of those differ, in value, from the last call's.
+#[derive(Debug, Default)]
+pub struct BinWeights(std::sync::Mutex<KeptWeights>);
+
+#[derive(Debug, Clone, Default)]
+struct KeptWeights {
+    made_for: Option<(u64, Measure, [u64; 2], PlanckMethod)>,
+    edges_um: Vec<f64>,
+    weights: Vec<(usize, f64)>,
+}
+
+impl Clone for BinWeights {
+    fn clone(&self) -> Self {
+        Self(std::sync::Mutex::new(self.kept().clone()))
+    }
+}
+
+impl BinWeights {
+    fn kept(&self) -> std::sync::MutexGuard<'_, KeptWeights> {
+        // the weights are whole or not yet made after any panic: a poisoned lock's values are still usable
+        self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// [`PathSpectrum::spectrum_weighted_with`] of `spectrum`, with the weights kept from the last call when it
+    /// was made for the same temperature, measure, band, method and bins.
+    pub fn spectrum_weighted(
+        &self,
+        spectrum: &PathSpectrum,
+        measure: Measure,
+        band: Band,
+        temp_k: f64,
+        method: PlanckMethod,
+    ) -> f64 {
+        let key = (temp_k.to_bits(), measure, [band.lo_um().to_bits(), band.hi_um().to_bits()], method);
+        let mut kept = self.kept();
+        if kept.made_for != Some(key) || kept.edges_um != spectrum.edges_um {
+            let KeptWeights { made_for, edges_um, weights } = &mut *kept;
+            weights.clear();
+            weights.extend(spectrum.blackbody_in_bins(measure, band, temp_k, method));
+            edges_um.clone_from(&spectrum.edges_um);
+            *made_for = Some(key);
+        }
+        spectrum.weighted_by_bins(band, kept.weights.iter().copied())
+    }
+}
+
 /// The spectral result for one path.
 #[derive(Debug, Clone)]
 pub struct PathSpectrum {
@@ -1502,8 +1551,14 @@ impl PathSpectrum {
     /// every computation of their radiometry, and the exact series over every bin was a tenth of a `draft`
     /// frame of swarm. [`PlanckMethod::Series`] gives [`PathSpectrum::spectrum_weighted_in`]'s bits.
     pub fn spectrum_weighted_with(&self, measure: Measure, band: Band, temp_k: f64, method: PlanckMethod) -> f64 {
+        self.weighted_by_bins(band, self.blackbody_in_bins(measure, band, temp_k, method))
+    }
+
+    /// The transmittance weighted by `(bin, weight)` pairs over the band, in their order; the band's average
+    /// without any weight.
+    fn weighted_by_bins(&self, band: Band, weights: impl Iterator<Item = (usize, f64)>) -> f64 {
         let (mut num, mut den) = (0.0, 0.0);
-        for (b, w) in self.blackbody_in_bins(measure, band, temp_k, method) {
+        for (b, w) in weights {
             num += w * self.transmittance[b];
             den += w;
         }
@@ -1925,6 +1980,46 @@ mod tests {
         assert!((cool - hot).abs() > 1e-3, "{cool} {hot}");
         let flat = p.band_average(band);
         assert!((flat - cool).abs() < 0.2);
+    }
+
+    #[test]
+    fn kept_blackbody_weights_give_the_weighting_s_bits_and_follow_every_input() {
+        let near = table().path(&MLS_RURAL_23, 2.0, 4.0, 20.0).unwrap();
+        let far = table().path(&MLS_RURAL_23, 2.0, 4.0, 60.0).unwrap();
+        // the same spectrum on bins 1 % narrower: weights made for the table's bins must not serve it
+        let mut rebinned = near.clone();
+        for e in &mut rebinned.edges_um {
+            *e *= 0.99;
+        }
+        let (mwir, lwir) = (Band::try_new(3.0, 5.0).unwrap(), Band::try_new(8.0, 12.0).unwrap());
+        let gl = PlanckMethod::GaussLegendre { points: 4 };
+        let kept = BinWeights::default();
+        // each call against the weighting made anew: the same temperature again (a target in level flight), then
+        // each input changed alone, then back
+        let calls = [
+            (&near, Measure::Photon, mwir, 320.0, PlanckMethod::Series),
+            (&far, Measure::Photon, mwir, 320.0, PlanckMethod::Series),
+            (&far, Measure::Photon, mwir, 320.5, PlanckMethod::Series),
+            (&far, Measure::Energy, mwir, 320.5, PlanckMethod::Series),
+            (&far, Measure::Energy, lwir, 320.5, PlanckMethod::Series),
+            (&far, Measure::Energy, lwir, 320.5, gl),
+            (&rebinned, Measure::Energy, lwir, 320.5, gl),
+            (&near, Measure::Photon, mwir, 320.0, PlanckMethod::Series),
+        ];
+        for (i, (p, measure, band, temp_k, method)) in calls.into_iter().enumerate() {
+            let fresh = p.spectrum_weighted_with(measure, band, temp_k, method);
+            let again = kept.spectrum_weighted(p, measure, band, temp_k, method);
+            assert_eq!(again.to_bits(), fresh.to_bits(), "call {i}: {again} against {fresh}");
+            if i > 0 {
+                let (q, m0, b0, t0, me0) = calls[i - 1];
+                assert_ne!(q.spectrum_weighted_with(m0, b0, t0, me0), fresh, "call {i} changes the result");
+            }
+        }
+        // a copy keeps them
+        assert_eq!(
+            kept.clone().spectrum_weighted(&near, Measure::Photon, mwir, 320.0, PlanckMethod::Series).to_bits(),
+            near.spectrum_weighted_with(Measure::Photon, mwir, 320.0, PlanckMethod::Series).to_bits()
+        );
     }
 
     /// Short paths, against direct LOWTRAN runs (`python3 tools/atmosphere/lowtran_tables.py --point

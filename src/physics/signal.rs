@@ -9,7 +9,7 @@ use thiserror::Error;
 use super::ParamError;
 use super::atmosphere::{AirTemperature, MAX_ALTITUDE_M, MIN_ALTITUDE_M};
 use super::brdf::CookTorrance;
-use super::lowtran::PathSpectrum;
+use super::lowtran::{BinWeights, PathSpectrum};
 use super::planck::{Band, Measure, PlanckMethod, band_radiance_in};
 use super::reflection::{ReflectionGeometry, ReflectionInput, SphereQuadrature, Sun, reflected_radiance};
 use super::sensor::{GrayMapping, Radiometer};
@@ -247,6 +247,8 @@ pub struct Sight<'a> {
     /// Each bin's ratio from energy radiance to the detector's measure ([`PathSpectrum::measure_ratios`] for the
     /// band).
     pub measure_ratios: &'a [f64],
+    /// The target's own blackbody weights over the bins, kept from its last computation.
+    pub skin_weights: &'a BinWeights,
 }
 
 /// A target's radiance at the sensor's aperture, in the detector's measure.
@@ -294,8 +296,8 @@ pub fn apparent_radiance(
     self_radiance(ctx.band, temps.skin_temp_k, target.emissivity)?;
     let l_self = ctx.planck.band_radiance(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
     let (tau, reflected_tau) = match ctx.sight {
-        Some(Sight { spectrum: p, sun_weights, .. }) => (
-            p.spectrum_weighted_with(ctx.measure, ctx.band, temps.skin_temp_k, ctx.planck).clamp(0.0, 1.0),
+        Some(Sight { spectrum: p, sun_weights, skin_weights, .. }) => (
+            skin_weights.spectrum_weighted(p, ctx.measure, ctx.band, temps.skin_temp_k, ctx.planck).clamp(0.0, 1.0),
             p.weighted(sun_weights).clamp(0.0, 1.0),
         ),
         None => {

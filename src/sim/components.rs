@@ -93,6 +93,8 @@ pub struct Signature {
     pub(super) key: Option<[f64; 10]>,
     /// The line of sight's LOWTRAN spectrum, when the scene has that atmosphere.
     pub(super) sight: super::radiometry::Sightline,
+    /// The skin's blackbody weights over that spectrum's bins, for the next computation at the same temperature.
+    pub(super) skin_weights: crate::physics::lowtran::BinWeights,
 }
 
 /// Where a target falls in the image this frame.

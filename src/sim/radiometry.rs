@@ -83,7 +83,7 @@ pub fn update_signatures(
                 .update(lowtran, eye, p, settings.quality.atmosphere_tolerance)
                 .map(|spectrum| {
                     let (sun_weights, measure_ratios) = (lowtran.sun_weights(), lowtran.measure_ratios());
-                    Some(Sight { spectrum, sun_weights, measure_ratios })
+                    Some(Sight { spectrum, sun_weights, measure_ratios, skin_weights: &sig.skin_weights })
                 })
                 .map_err(|e| e.to_string()),
             None => Ok(None),
