@@ -116,6 +116,7 @@ fn the_cli_names_file_line_and_field() {
     let (code, out, err) = irsim(&["validate", good.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("LOWTRAN7, midlatitude_summer model atmosphere, rural aerosol at 23 km visibility"), "{out}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

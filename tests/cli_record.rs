@@ -328,6 +328,8 @@ fn start_long_recording(name: &str, out: &std::path::Path, checkpointed: usize) 
         assert!(child.try_wait().unwrap().is_none(), "irsim exited before it was interrupted");
         std::thread::sleep(Duration::from_millis(20));
     }
+    // read at the start: not left behind in the system's temporary directory
+    let _ = std::fs::remove_file(&scenario);
     child
 }
 

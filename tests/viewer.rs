@@ -122,6 +122,7 @@ fn screenshot_shows_the_recorded_frame_and_the_encounter() {
         }
     }
     assert!(colours.len() > 20, "the 3D view shows {} colours", colours.len());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -144,4 +145,5 @@ fn a_bad_scenario_or_sky_image_exits_2_before_any_window() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("no_such_sky.png"));
     let out = irsim(&["view", bad.to_str().unwrap(), "--size", "12x9000"]);
     assert_eq!(out.status.code(), Some(2));
+    let _ = std::fs::remove_dir_all(&dir);
 }

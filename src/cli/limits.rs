@@ -330,7 +330,7 @@ pub(super) fn measure_limits(
             rows.push(row);
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(dir);
     Ok(rows)
 }
 

@@ -1026,7 +1026,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
         .zip(size_times)
         .map(|(&side, &ms)| (f64::from(side * side), ms, format!("{side}²")))
         .collect();
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(dir);
     // the marginal cost of targets: time above the fewest-target case, fitted where it is measurable
     let t1 = by_targets.first().map_or(0.0, |p| p.1);
     let marginal: Vec<(f64, f64)> = by_targets.iter().skip(1).map(|p| (p.0, p.1 - t1)).filter(|p| p.1 > 0.0).collect();
@@ -1168,7 +1168,7 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
             done.frames_per_s / (0.5 * (before + after))
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(dir);
     let _ = writeln!(
         md,
         "\nThe frames are encoded by the simulation's own pool, on the cores the frame's stages leave idle; on a \

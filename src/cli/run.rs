@@ -564,13 +564,32 @@ fn write_sky(a: &SkyArgs) -> Result<(), CliError> {
     write_atomic(&a.out, &bytes).map_err(|e| CliError::Failed(e.to_string()))
 }
 
-/// A fresh temporary directory holding the sky image `clear.png` that [`bench_scenario`] files refer to.
+/// A temporary directory, removed with what it holds when dropped (also when a measurement in it fails).
+pub(super) struct BenchDir(PathBuf);
+
+impl std::ops::Deref for BenchDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for BenchDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A fresh temporary directory holding the sky image `clear.png` that [`bench_scenario`] files refer to,
+/// removed when the returned guard is dropped.
 ///
 /// # Errors
 /// [`CliError::Failed`] if it cannot be written.
-pub(super) fn bench_dir(name: &str) -> Result<PathBuf, CliError> {
+pub(super) fn bench_dir(name: &str) -> Result<BenchDir, CliError> {
     let dir = std::env::temp_dir().join(format!("irsim-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| CliError::Failed(e.to_string()))?;
+    // removed from here on, whatever happens
+    let dir = BenchDir(dir);
     write_sky(&SkyArgs {
         kind: SkyKindArg::Clear,
         out: dir.join("clear.png"),
@@ -828,7 +847,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         super::say(&format!("{case:<40} {fps:>9.1} frames/s"))?;
         details.iter().for_each(|d| eprintln!("{d}"));
     }
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(dir);
     Ok(())
 }
 
