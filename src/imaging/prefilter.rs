@@ -60,9 +60,9 @@ const FFT_BLOCK_TEXELS: usize = 128;
 const CACHE_ENTRIES: usize = 4;
 /// Bytes of prefiltered blocks kept for later crops (a panning view needs the blocks it saw a moment ago and
 /// a few new ones; a run that comes back to a Jacobian, or `irsim bench` running a scenario again, needs every
-/// key's blocks); the blocks one crop needs are kept whatever their size. sense_and_avoid's 7 keys take 108 MiB
-/// of blocks (28 a key, each 576 KiB on a grid of 3 × 3 nodes a texel): at 64 MiB each pass of `irsim bench`
-/// made all of them again, 16–28 ms a key (docs/accuracy.md).
+/// key's blocks); the blocks one crop needs are kept whatever their size. sense_and_avoid's 7 keys take 192
+/// blocks of 576 KiB (24 to 28 a key, on a grid of 3 × 3 nodes a texel), 108 MiB: at 64 MiB each pass of `irsim
+/// bench` made all of them again, 16–28 ms a key (docs/accuracy.md).
 const BLOCK_CACHE_BYTES: usize = 256 << 20;
 /// Bytes of texture filters kept for Jacobians seen before (a camera panning back, a run looped by `irsim
 /// bench`); the filter in use is kept whatever its size. A filter is a few hundred KiB at most on the shipped
@@ -474,6 +474,8 @@ struct KeptFilter {
 #[derive(Debug)]
 struct Block {
     key: JacobianKey,
+    /// Grid nodes per texel along each axis: the block holds `(FFT_BLOCK_TEXELS · per_texel)²` values.
+    per_texel: usize,
     /// The block's first texel.
     at: [usize; 2],
     /// `None` in a plan.
@@ -482,7 +484,7 @@ struct Block {
 }
 
 /// Prefiltered crops of one sky plane for one PSF, by Jacobian key: a few are kept, the least recently used
-/// replaced. A crop is put together from prefiltered blocks, kept (up to 256 MiB) for the next crops of the same
+/// replaced. A crop is put together from prefiltered blocks, kept (up to 256 MiB of them) for the next crops of the same
 /// key, so a view panning across the image filters each block once.
 #[derive(Debug, Default)]
 pub struct PrefilterCache {
@@ -597,9 +599,16 @@ impl PrefilterCache {
         self.work += (missing.len() * s * s) as f64 * build_taps(&filter);
         let plane = build.then(|| self.build(source, &filter, key, rect, &missing));
         if !build {
-            self.blocks.extend(missing.iter().map(|&at| Block { key, at, values: None, last_used: self.clock }));
+            let per_texel = filter.per_texel;
+            self.blocks.extend(missing.iter().map(|&at| Block {
+                key,
+                per_texel,
+                at,
+                values: None,
+                last_used: self.clock,
+            }));
         }
-        self.evict_blocks(filter.per_texel);
+        self.evict_blocks();
         let entry = Entry { key, rect, plane, last_used: self.clock };
         self.builds += 1;
         let slot = if self.entries.len() < CACHE_ENTRIES {
@@ -677,14 +686,15 @@ impl PrefilterCache {
     }
 
     /// Drops the least recently used blocks beyond [`BLOCK_CACHE_BYTES`], never those the current crop uses.
-    fn evict_blocks(&mut self, per_texel: usize) {
-        let bytes = (FFT_BLOCK_TEXELS * per_texel).pow(2) * size_of::<f32>();
-        let keep = (BLOCK_CACHE_BYTES / bytes.max(1)).max(1);
-        while self.blocks.len() > keep {
+    fn evict_blocks(&mut self) {
+        let bytes = |b: &Block| (FFT_BLOCK_TEXELS * b.per_texel).pow(2) * size_of::<f32>();
+        let mut total: usize = self.blocks.iter().map(bytes).sum();
+        while total > BLOCK_CACHE_BYTES {
             let (i, oldest) = least_recent(&self.blocks, |b| b.last_used);
             if oldest == self.clock {
                 break;
             }
+            total -= bytes(&self.blocks[i]);
             self.blocks.swap_remove(i);
         }
     }
@@ -745,6 +755,7 @@ impl PrefilterCache {
         assert!(fresh.iter().all(|values| values.iter().all(|v| v.is_finite())), "a blur of finite values is finite");
         self.blocks.extend(missing.iter().zip(fresh).map(|(&at, values)| Block {
             key,
+            per_texel: m,
             at,
             values: Some(values),
             last_used: self.clock,
@@ -1079,8 +1090,8 @@ mod tests {
 
     #[test]
     fn a_run_coming_back_to_its_keys_finds_their_blocks() {
-        // seven keys, each needing 28 blocks on a grid of 3 × 3 nodes a texel (sense_and_avoid's working set:
-        // 108 MiB), asked for in turn twice over, as `irsim bench` runs a scenario again: the second round
+        // seven keys, each needing 28 blocks on a grid of 3 × 3 nodes a texel (110 MiB, about sense_and_avoid's
+        // working set), asked for in turn twice over, as `irsim bench` runs a scenario again: the second round
         // prefilters nothing
         let (p, tol) = (psf(), 0.05);
         let (w, h) = (7 * FFT_BLOCK_TEXELS, 4 * FFT_BLOCK_TEXELS);
@@ -1105,6 +1116,27 @@ mod tests {
         let bytes = cache.blocks.len() * (3 * FFT_BLOCK_TEXELS).pow(2) * size_of::<f32>();
         assert!(bytes > 64 << 20, "{bytes} bytes of blocks: more than the budget these were made again under");
         assert_eq!(round(&mut cache), first, "a block was prefiltered again");
+    }
+
+    #[test]
+    fn blocks_are_dropped_by_their_bytes_oldest_first() {
+        // 4000 blocks of one node a texel (64 KiB each, 250 MiB) made first, then 100 of 3 × 3 nodes (576 KiB
+        // each): the oldest small ones go until the blocks fit the budget, the crop in hand's never
+        let key = JacobianKey::new(DMat2::IDENTITY, 0.05).unwrap();
+        let mut cache = PrefilterCache::new();
+        let block =
+            |per_texel: usize, i: usize, last_used: u64| Block { key, per_texel, at: [i, 0], values: None, last_used };
+        cache.blocks.extend((0..4000).map(|i| block(1, i, i as u64)));
+        cache.clock = 5000;
+        cache.blocks.extend((0..100).map(|i| block(3, i, 5000)));
+        cache.evict_blocks();
+        let bytes = |b: &Block| (FFT_BLOCK_TEXELS * b.per_texel).pow(2) * size_of::<f32>();
+        let total: usize = cache.blocks.iter().map(bytes).sum();
+        assert!(total <= BLOCK_CACHE_BYTES && total + (64 << 10) > BLOCK_CACHE_BYTES, "{total} bytes kept");
+        assert_eq!(cache.blocks.iter().filter(|b| b.per_texel == 3).count(), 100, "the crop in hand's blocks");
+        let oldest_kept = cache.blocks.iter().filter(|b| b.per_texel == 1).map(|b| b.last_used).min().unwrap();
+        let small = cache.blocks.iter().filter(|b| b.per_texel == 1).count() as u64;
+        assert_eq!(oldest_kept, 4000 - small, "the oldest went first");
     }
 
     #[test]

@@ -327,13 +327,15 @@ const PROFILE_CACHE: usize = 8;
 /// The blackbody weights of [`PathSpectrum::spectrum_weighted_with`] kept for the temperature, measure, band,
 /// method and bins they were made for, so that a target whose skin temperature does not change (steady speed at
 /// one altitude) does not integrate the blackbody over every bin again at each frame; the same bits either way.
-/// Made again whenever any of those differ, in value, from the last call's.
+/// Made again whenever any of those differ from the last call's (the temperature and the band in bits, the bins'
+/// edges by value).
 #[derive(Debug, Default)]
 pub struct BinWeights(std::sync::Mutex<KeptWeights>);
 
 #[derive(Debug, Clone, Default)]
 struct KeptWeights {
-    made_for: Option<(u64, Measure, [u64; 2], PlanckMethod)>,
+    /// Temperature and band bits, measure, method and the number of bins of the weights held.
+    made_for: Option<(u64, Measure, [u64; 2], PlanckMethod, usize)>,
     edges_um: Vec<f64>,
     weights: Vec<(usize, f64)>,
 }
@@ -346,13 +348,13 @@ impl Clone for BinWeights {
 
 impl BinWeights {
     fn kept(&self) -> std::sync::MutexGuard<'_, KeptWeights> {
-        // the weights are whole or not yet made after any panic: a poisoned lock's values are still usable
+        // a poisoned lock's values are still usable: weights being made are made for nothing until whole
         self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// [`PathSpectrum::spectrum_weighted_with`] of `spectrum`, with the weights kept from the last call when it
     /// was made for the same temperature, measure, band, method and bins.
-    pub fn spectrum_weighted(
+    pub fn spectrum_weighted_with(
         &self,
         spectrum: &PathSpectrum,
         measure: Measure,
@@ -360,10 +362,13 @@ impl BinWeights {
         temp_k: f64,
         method: PlanckMethod,
     ) -> f64 {
-        let key = (temp_k.to_bits(), measure, [band.lo_um().to_bits(), band.hi_um().to_bits()], method);
+        let bins = spectrum.transmittance.len();
+        let key = (temp_k.to_bits(), measure, [band.lo_um().to_bits(), band.hi_um().to_bits()], method, bins);
         let mut kept = self.kept();
         if kept.made_for != Some(key) || kept.edges_um != spectrum.edges_um {
             let KeptWeights { made_for, edges_um, weights } = &mut *kept;
+            // made for nothing until whole
+            *made_for = None;
             weights.clear();
             weights.extend(spectrum.blackbody_in_bins(measure, band, temp_k, method));
             edges_um.clone_from(&spectrum.edges_um);
@@ -1986,8 +1991,8 @@ mod tests {
     fn kept_blackbody_weights_give_the_weighting_s_bits_and_follow_every_input() {
         let near = table().path(&MLS_RURAL_23, 2.0, 4.0, 20.0).unwrap();
         let far = table().path(&MLS_RURAL_23, 2.0, 4.0, 60.0).unwrap();
-        // the same spectrum on bins 1 % narrower: weights made for the table's bins must not serve it
-        let mut rebinned = near.clone();
+        // the last call's spectrum on bins 1 % narrower: weights made for the table's bins must not serve it
+        let mut rebinned = far.clone();
         for e in &mut rebinned.edges_um {
             *e *= 0.99;
         }
@@ -2008,18 +2013,19 @@ mod tests {
         ];
         for (i, (p, measure, band, temp_k, method)) in calls.into_iter().enumerate() {
             let fresh = p.spectrum_weighted_with(measure, band, temp_k, method);
-            let again = kept.spectrum_weighted(p, measure, band, temp_k, method);
+            let again = kept.spectrum_weighted_with(p, measure, band, temp_k, method);
             assert_eq!(again.to_bits(), fresh.to_bits(), "call {i}: {again} against {fresh}");
             if i > 0 {
                 let (q, m0, b0, t0, me0) = calls[i - 1];
                 assert_ne!(q.spectrum_weighted_with(m0, b0, t0, me0), fresh, "call {i} changes the result");
             }
         }
-        // a copy keeps them
-        assert_eq!(
-            kept.clone().spectrum_weighted(&near, Measure::Photon, mwir, 320.0, PlanckMethod::Series).to_bits(),
-            near.spectrum_weighted_with(Measure::Photon, mwir, 320.0, PlanckMethod::Series).to_bits()
-        );
+        // a copy keeps them, and gives the same bits
+        let copy = kept.clone();
+        assert!(copy.kept().made_for.is_some(), "the copy holds the weights");
+        let from_copy = copy.spectrum_weighted_with(&near, Measure::Photon, mwir, 320.0, PlanckMethod::Series);
+        let fresh = near.spectrum_weighted_with(Measure::Photon, mwir, 320.0, PlanckMethod::Series);
+        assert_eq!(from_copy.to_bits(), fresh.to_bits());
     }
 
     /// Short paths, against direct LOWTRAN runs (`python3 tools/atmosphere/lowtran_tables.py --point

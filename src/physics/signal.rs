@@ -297,7 +297,9 @@ pub fn apparent_radiance(
     let l_self = ctx.planck.band_radiance(ctx.measure, ctx.band, temps.skin_temp_k, target.emissivity);
     let (tau, reflected_tau) = match ctx.sight {
         Some(Sight { spectrum: p, sun_weights, skin_weights, .. }) => (
-            skin_weights.spectrum_weighted(p, ctx.measure, ctx.band, temps.skin_temp_k, ctx.planck).clamp(0.0, 1.0),
+            skin_weights
+                .spectrum_weighted_with(p, ctx.measure, ctx.band, temps.skin_temp_k, ctx.planck)
+                .clamp(0.0, 1.0),
             p.weighted(sun_weights).clamp(0.0, 1.0),
         ),
         None => {
