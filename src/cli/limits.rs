@@ -266,6 +266,12 @@ impl LimitsRow {
     }
 }
 
+/// `rounds` (at least 1, at most one a frame) and the frames each takes of `frames`.
+fn rounds_of(frames: u64, rounds: usize) -> (usize, u64) {
+    let rounds = rounds.clamp(1, frames.max(1) as usize);
+    (rounds, frames.div_ceil(rounds as u64))
+}
+
 /// Times the per-pixel lower bounds beside `irsim bench`'s built-in case (one target, `standard`) at 256×256 and
 /// 640×512 on 1 and 2 threads (as many as the machine has), `frames` frames each, split over `rounds` rounds that
 /// take the bounds and the pipeline in turn (each number that of its fastest round: a bound's median frame, the
@@ -281,8 +287,7 @@ pub(super) fn measure_limits(
     let failed = |e: String| CliError::Failed(e);
     let dir = bench_dir("limits")?;
     let threads_max = std::thread::available_parallelism().map_or(1, |n| n.get()).min(2);
-    let rounds = rounds.clamp(1, frames.max(1) as usize);
-    let per_round = frames.div_ceil(rounds as u64);
+    let (rounds, per_round) = rounds_of(frames, rounds);
     let mut rows = Vec::new();
     for (w, h) in [(256usize, 256usize), (640, 512)] {
         let setup = Setup::new(w, h);
@@ -330,7 +335,6 @@ pub(super) fn measure_limits(
             rows.push(row);
         }
     }
-    drop(dir);
     Ok(rows)
 }
 
@@ -342,8 +346,7 @@ const LIMITS_ROUNDS: usize = 4;
 /// # Errors
 /// [`CliError`] if the scenario cannot be written or run, or the output cannot be written.
 pub fn limits(frames: u64) -> Result<(), CliError> {
-    let rounds = LIMITS_ROUNDS.clamp(1, frames.max(1) as usize);
-    let per_round = frames.div_ceil(rounds as u64);
+    let (rounds, per_round) = rounds_of(frames, LIMITS_ROUNDS);
     super::say(&format!(
         "per-pixel lower bounds beside the pipeline ({} vectors, {rounds} interleaved rounds of {per_round} frames, \
          each number its fastest round's: a bound's median frame, the pipeline's mean; pipeline: irsim bench's case, \

@@ -847,7 +847,6 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         super::say(&format!("{case:<40} {fps:>9.1} frames/s"))?;
         details.iter().for_each(|d| eprintln!("{d}"));
     }
-    drop(dir);
     Ok(())
 }
 

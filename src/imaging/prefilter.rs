@@ -483,6 +483,13 @@ struct Block {
     last_used: u64,
 }
 
+impl Block {
+    /// The bytes its values take (or, in a plan, would take).
+    fn bytes(&self) -> usize {
+        (FFT_BLOCK_TEXELS * self.per_texel).pow(2) * size_of::<f32>()
+    }
+}
+
 /// Prefiltered crops of one sky plane for one PSF, by Jacobian key: a few are kept, the least recently used
 /// replaced. A crop is put together from prefiltered blocks, kept (up to 256 MiB of them) for the next crops of the same
 /// key, so a view panning across the image filters each block once.
@@ -687,14 +694,13 @@ impl PrefilterCache {
 
     /// Drops the least recently used blocks beyond [`BLOCK_CACHE_BYTES`], never those the current crop uses.
     fn evict_blocks(&mut self) {
-        let bytes = |b: &Block| (FFT_BLOCK_TEXELS * b.per_texel).pow(2) * size_of::<f32>();
-        let mut total: usize = self.blocks.iter().map(bytes).sum();
+        let mut total: usize = self.blocks.iter().map(Block::bytes).sum();
         while total > BLOCK_CACHE_BYTES {
             let (i, oldest) = least_recent(&self.blocks, |b| b.last_used);
             if oldest == self.clock {
                 break;
             }
-            total -= bytes(&self.blocks[i]);
+            total -= self.blocks[i].bytes();
             self.blocks.swap_remove(i);
         }
     }
@@ -1130,8 +1136,7 @@ mod tests {
         cache.clock = 5000;
         cache.blocks.extend((0..100).map(|i| block(3, i, 5000)));
         cache.evict_blocks();
-        let bytes = |b: &Block| (FFT_BLOCK_TEXELS * b.per_texel).pow(2) * size_of::<f32>();
-        let total: usize = cache.blocks.iter().map(bytes).sum();
+        let total: usize = cache.blocks.iter().map(Block::bytes).sum();
         assert!(total <= BLOCK_CACHE_BYTES && total + (64 << 10) > BLOCK_CACHE_BYTES, "{total} bytes kept");
         assert_eq!(cache.blocks.iter().filter(|b| b.per_texel == 3).count(), 100, "the crop in hand's blocks");
         let oldest_kept = cache.blocks.iter().filter(|b| b.per_texel == 1).map(|b| b.last_used).min().unwrap();
