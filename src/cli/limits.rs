@@ -35,7 +35,8 @@ const TEXTURE: usize = 1000;
 
 /// How far the bounds' view is turned against the texture, rad. Along a row of a view turned by a few
 /// hundredths of a radian or less, most sixteen pixels' texels lie within a window or two of 32 floats and are
-/// fetched by loads and permutes ([`crate::physics::simd::texel_windows`]); a view turned by 0.3 rad (as this
+/// fetched by loads and permutes ([`crate::physics::simd::texel_windows`]), and most eight pixels' within one
+/// window of 16 floats (AVX2, [`crate::physics::simd::sample8_avx2`]); a view turned by 0.3 rad (as this
 /// bound's was) crosses a texel row every five pixels, and its texels are gathered.
 const TURN_RAD: f32 = 0.01;
 
@@ -84,8 +85,9 @@ impl Setup {
         }
     }
 
-    /// Row `j`'s bilinear samples: with AVX2 or AVX-512, 8 or 16 pixels at a time, their texels gathered (LLVM
-    /// does not vectorize the loop below with gathers on its own); else one pixel after another.
+    /// Row `j`'s bilinear samples: with AVX2 or AVX-512, 8 or 16 pixels at a time, their texels fetched the way
+    /// the sky's ray cast fetches them, by windows or gathers (LLVM does not vectorize the loop below with
+    /// gathers on its own); else one pixel after another.
     #[inline(always)]
     fn sample_row(&self, j: usize, row: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
@@ -385,7 +387,7 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
     super::say("(µs per frame; a frame's time includes every stage and the schedule's own)")
 }
 
-/// The bilinear bound with the CPU's gathers.
+/// The bilinear bound with the CPU's vectors.
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
@@ -447,7 +449,6 @@ mod x86 {
         let (su, sv) = (_mm256_set1_ps(s.step_u[0]), _mm256_set1_ps(s.step_u[1]));
         let limit = _mm256_set1_ps((TEXTURE - 2) as f32);
         let lanes = _mm256_setr_ps(0., 1., 2., 3., 4., 5., 6., 7.);
-        let t = s.texture.as_ptr();
         let mut i = 0;
         let mut tail = [0f32; 8];
         while i < row.len() {
@@ -458,17 +459,7 @@ mod x86 {
             let (fx, fy) = (_mm256_sub_ps(x, _mm256_cvtepi32_ps(ix)), _mm256_sub_ps(y, _mm256_cvtepi32_ps(iy)));
             let k = _mm256_add_epi32(_mm256_mullo_epi32(iy, _mm256_set1_epi32(TEXTURE as i32)), ix);
             // SAFETY: 0 ≤ ix, iy ≤ TEXTURE − 2 (clamped), so every index is inside the texture
-            let (a, b, c, d) = unsafe {
-                (
-                    _mm256_i32gather_ps::<4>(t, k),
-                    _mm256_i32gather_ps::<4>(t.add(1), k),
-                    _mm256_i32gather_ps::<4>(t.add(TEXTURE), k),
-                    _mm256_i32gather_ps::<4>(t.add(TEXTURE + 1), k),
-                )
-            };
-            let top = _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), fx));
-            let bottom = _mm256_add_ps(c, _mm256_mul_ps(_mm256_sub_ps(d, c), fx));
-            let v = _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy));
+            let v = unsafe { crate::physics::simd::sample8_avx2(&s.texture, k, TEXTURE, fx, fy, true) };
             let n = (row.len() - i).min(8);
             // SAFETY: 8 floats into `tail`, then n ≤ 8 into the row at i
             unsafe {

@@ -971,25 +971,24 @@ impl RowGeometry {
         let (mut dx, mut dy) = (fixed(span.b.x + span.c.x), fixed(span.b.y + span.c.y));
         let (ddx, ddy) = (fixed(2.0 * span.c.x), fixed(2.0 * span.c.y));
         let px = &img.pixels;
-        const FRACTION: f32 = 1.0 / 16_777_216.0; // 2⁻²⁴
         #[cfg(target_arch = "x86_64")]
-        if px.len() < i32::MAX as usize && Level::detect() == Level::Avx512 {
-            // SAFETY: the CPU has AVX-512; every sample (and its neighbours, bilinear) lies inside the image
-            // (checked above)
-            unsafe { x86::span(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) };
-            return true;
+        if px.len() < i32::MAX as usize {
+            match Level::detect() {
+                // SAFETY: the CPU has AVX-512; every sample (and its neighbours, bilinear) lies inside the image
+                // (checked above)
+                Level::Avx512 => unsafe { x86::span(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) },
+                // SAFETY: as above, with AVX2
+                Level::Avx2 => unsafe {
+                    x86::span_avx2(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate)
+                },
+                Level::Baseline => {}
+            }
+            if Level::detect() != Level::Baseline {
+                return true;
+            }
         }
         for o in out.iter_mut() {
-            let (xi, yi) = ((x >> 40) as usize, (y >> 40) as usize);
-            let value = if bilinear {
-                // the top 24 bits of the fraction, exact in f32
-                let fx = (((x >> 16) as u32) & 0xff_ffff) as f32 * FRACTION;
-                let fy = (((y >> 16) as u32) & 0xff_ffff) as f32 * FRACTION;
-                let i = yi * w + xi;
-                bilinear_mix(px[i], px[i + 1], px[i + w], px[i + w + 1], fx, fy)
-            } else {
-                px[yi * w + xi]
-            };
+            let value = fixed_sample(px, w, x, y, bilinear);
             *o = if accumulate { *o + value } else { value };
             // wrapping, as the vector path steps: the step after the last pixel is never read
             x = x.wrapping_add(dx);
@@ -1001,12 +1000,30 @@ impl RowGeometry {
     }
 }
 
-/// The span with AVX-512 vectors, its texels fetched by windows where they lie close together, else gathered.
+/// The sample at a 24.40 fixed-point position (its whole pixel and, bilinear, the top 24 bits of its fraction,
+/// exact in f32) of a row-major image `w` wide: [`SkyPlane::fast_span`]'s per-pixel step, which its vector
+/// paths reproduce bit for bit.
+#[inline(always)]
+fn fixed_sample(px: &[f32], w: usize, x: i64, y: i64, bilinear: bool) -> f32 {
+    const FRACTION: f32 = 1.0 / 16_777_216.0; // 2⁻²⁴
+    let (xi, yi) = ((x >> 40) as usize, (y >> 40) as usize);
+    if bilinear {
+        let fx = (((x >> 16) as u32) & 0xff_ffff) as f32 * FRACTION;
+        let fy = (((y >> 16) as u32) & 0xff_ffff) as f32 * FRACTION;
+        let i = yi * w + xi;
+        bilinear_mix(px[i], px[i + 1], px[i + w], px[i + w + 1], fx, fy)
+    } else {
+        px[yi * w + xi]
+    }
+}
+
+/// The span with AVX-512 or AVX2 vectors, its texels fetched by windows where they lie close together, else
+/// gathered.
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
 
-    use crate::physics::simd::sample16_avx512;
+    use crate::physics::simd::{sample8_avx2, sample16_avx512};
 
     /// [`SkyPlane::fast_span`](super::SkyPlane)'s loop (nearest or bilinear), sixteen pixels at a time, the last
     /// block masked. The positions are the scalar recurrence's
@@ -1129,6 +1146,127 @@ mod x86 {
             k += 16;
         }
     }
+
+    /// [`span`] with AVX2 vectors, eight pixels at a time and the last few (fewer than eight) one by one. The
+    /// positions are the scalar recurrence's: the first sixteen by the recurrence itself, then each lane steps
+    /// eight pixels at a time by `q(k + 8) − q(k)`, which grows by `64·dd` from one block to the next (exact in
+    /// wrapping integer arithmetic). The texels come from [`sample8_avx2`], whose mix is the scalar one.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2; otherwise as [`span`]'s.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn span_avx2(
+        px: &[f32],
+        w: usize,
+        q: [i64; 2],
+        d: [i64; 2],
+        dd: [i64; 2],
+        bilinear: bool,
+        out: &mut [f32],
+        accumulate: bool,
+    ) {
+        // SAFETY: the caller's promises, passed on
+        unsafe {
+            if bilinear {
+                span_256::<true>(px, w, q, d, dd, out, accumulate)
+            } else {
+                span_256::<false>(px, w, q, d, dd, out, accumulate)
+            }
+        }
+    }
+
+    /// [`span_avx2`] for one sampler.
+    ///
+    /// # Safety
+    /// As [`span_avx2`]'s.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2")]
+    unsafe fn span_256<const BILINEAR: bool>(
+        px: &[f32],
+        w: usize,
+        q: [i64; 2],
+        d: [i64; 2],
+        dd: [i64; 2],
+        out: &mut [f32],
+        accumulate: bool,
+    ) {
+        let load = |v: &[i64]| {
+            // SAFETY: four i64 from a slice of at least four
+            unsafe { _mm256_loadu_si256(v.as_ptr().cast()) }
+        };
+        // one axis: the eight lanes' positions (lanes 0–3, 4–7), their step to the next block's, and the step's
+        // own change from block to block
+        let axis = |q: i64, d: i64, dd: i64| {
+            let mut walk = [0i64; 16];
+            let (mut p, mut s) = (q, d);
+            for v in &mut walk {
+                *v = p;
+                p = p.wrapping_add(s);
+                s = s.wrapping_add(dd);
+            }
+            let step: [i64; 8] = std::array::from_fn(|j| walk[j + 8].wrapping_sub(walk[j]));
+            ([load(&walk[..4]), load(&walk[4..8])], [load(&step[..4]), load(&step[4..])], dd.wrapping_mul(64))
+        };
+        // the low 32 bits of eight 64-bit lanes held in two vectors, in lane order
+        let low = |a: __m256i, b: __m256i| {
+            let pairs = _mm256_shuffle_ps::<0b10_00_10_00>(_mm256_castsi256_ps(a), _mm256_castsi256_ps(b));
+            _mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_castps_si256(pairs))
+        };
+        let top_bits = _mm256_set1_epi32(0xff_ffff);
+        let fraction = _mm256_set1_ps(1.0 / 16_777_216.0);
+        let width = _mm256_set1_epi32(w as i32);
+        // whole pixels (i32) and the fraction's top 24 bits as f32 (0 for nearest samples, which do not read it)
+        let split = |p: [__m256i; 2]| {
+            let whole = low(_mm256_srli_epi64::<40>(p[0]), _mm256_srli_epi64::<40>(p[1]));
+            if !BILINEAR {
+                return (whole, _mm256_setzero_ps());
+            }
+            let top24 = _mm256_and_si256(low(_mm256_srli_epi64::<16>(p[0]), _mm256_srli_epi64::<16>(p[1])), top_bits);
+            (whole, _mm256_mul_ps(_mm256_cvtepi32_ps(top24), fraction))
+        };
+        let (mut qx, mut sx, bend_x) = axis(q[0], d[0], dd[0]);
+        let (mut qy, mut sy, bend_y) = axis(q[1], d[1], dd[1]);
+        let (bend_x, bend_y) = (_mm256_set1_epi64x(bend_x), _mm256_set1_epi64x(bend_y));
+        let n = out.len();
+        let mut k = 0;
+        while k + 8 <= n {
+            let (ix, fx) = split(qx);
+            let (iy, fy) = split(qy);
+            let i = _mm256_add_epi32(_mm256_mullo_epi32(iy, width), ix);
+            // SAFETY: the caller guarantees every pixel's index and its neighbours are inside `px`
+            let mut v = unsafe { sample8_avx2(px, i, w, fx, fy, BILINEAR) };
+            let at = out[k..k + 8].as_mut_ptr();
+            // SAFETY: eight floats inside `out`
+            unsafe {
+                if accumulate {
+                    v = _mm256_add_ps(_mm256_loadu_ps(at), v);
+                }
+                _mm256_storeu_ps(at, v);
+            }
+            // eight steps of the recurrence in every lane
+            qx = [_mm256_add_epi64(qx[0], sx[0]), _mm256_add_epi64(qx[1], sx[1])];
+            qy = [_mm256_add_epi64(qy[0], sy[0]), _mm256_add_epi64(qy[1], sy[1])];
+            sx = [_mm256_add_epi64(sx[0], bend_x), _mm256_add_epi64(sx[1], bend_x)];
+            sy = [_mm256_add_epi64(sy[0], bend_y), _mm256_add_epi64(sy[1], bend_y)];
+            k += 8;
+        }
+        if k < n {
+            // the last pixels at the lanes' positions, one by one
+            let mut at = [[0i64; 8]; 2];
+            for (lanes, p) in at.iter_mut().zip([qx, qy]) {
+                // SAFETY: eight i64 into an array of eight
+                unsafe {
+                    _mm256_storeu_si256(lanes.as_mut_ptr().cast(), p[0]);
+                    _mm256_storeu_si256(lanes.as_mut_ptr().add(4).cast(), p[1]);
+                }
+            }
+            for (j, o) in out[k..].iter_mut().enumerate() {
+                let value = super::fixed_sample(px, w, at[0][j], at[1][j], BILINEAR);
+                *o = if accumulate { *o + value } else { value };
+            }
+        }
+    }
 }
 
 /// `q(k) = a + b·k + c·k²`: image coordinates along a span, `k` in sensor pixels from its start.
@@ -1176,9 +1314,7 @@ mod tests {
             && is_x86_feature_detected!("avx512dq")
             && is_x86_feature_detected!("avx512bw")
             && is_x86_feature_detected!("avx512vl");
-        if !avx512 {
-            return;
-        }
+        let avx2 = is_x86_feature_detected!("avx2");
         let w = 300usize;
         let px: Vec<f32> = (0..w * 200).map(|i| (i as f32 * 0.37).sin() * 50.0 + 100.0).collect();
         let fixed = |v: f64| (v * 1_099_511_627_776.0) as i64;
@@ -1187,10 +1323,12 @@ mod tests {
         // in one (1.31 texels a pixel), in two of eight (2.7), either way along the row, and on the last rows,
         // where the windows of the later blocks would end past the image and those blocks are gathered (the
         // last path nearest only: its bilinear samples would read the row below the image); and along rows that
-        // cross to the next image row inside a block of sixteen, at its fourth lane or its ninth (two windows)
+        // cross to the next image row inside a block of sixteen, at its fourth lane or its ninth (two windows);
+        // and, for AVX2's eight lanes and one window of 16 floats, rows at 2 texels a pixel (the last lane's right
+        // neighbour is the window's last float) and at 2.05 (one float more: gathered, nearest still windowed)
         let both = [(true, false), (true, true), (false, false), (false, true)];
         let nearest = [(false, false), (false, true)];
-        let paths: [(_, _, _, &[(bool, bool)]); 10] = [
+        let paths: [(_, _, _, &[(bool, bool)]); 12] = [
             ([10.37, 150.2], [0.731, -0.52], [0.0013, -0.0007], &both),
             ([280.9, 20.6], [-1.9, 0.41], [-0.002, 0.003], &both),
             ([5.2, 10.3], [1.31, 0.0004], [0.0001, 0.0], &both),
@@ -1201,6 +1339,8 @@ mod tests {
             ([250.3, 199.4], [0.4, 0.0], [0.0, 0.0], &nearest),
             ([5.2, 20.975], [1.31, 0.01], [0.0, 0.0], &both),
             ([280.2, 40.925], [-1.31, 0.01], [0.0, 0.0], &both),
+            ([7.9, 70.5], [2.0, 0.0], [0.0, 0.0], &both),
+            ([7.9, 80.5], [2.05, 0.0], [0.0, 0.0], &both),
         ];
         for (start, step, bend, modes) in paths {
             for len in 1..=100 {
@@ -1222,11 +1362,19 @@ mod tests {
                         *o = if accumulate { *o + value } else { value };
                         (x, y, dx, dy) = (x + dx, y + dy, dx + dd[0], dy + dd[1]);
                     }
-                    let mut vector = before.clone();
-                    // SAFETY: AVX-512 checked above; the paths stay inside the image
-                    unsafe { x86::span(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                    assert_eq!(bits(&vector), bits(&scalar), "len {len}, bilinear {bilinear}, accumulate {accumulate}");
+                    if avx512 {
+                        let mut vector = before.clone();
+                        // SAFETY: AVX-512 checked above; the paths stay inside the image
+                        unsafe { x86::span(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
+                        assert_eq!(bits(&vector), bits(&scalar), "avx512, len {len}, {bilinear} {accumulate}");
+                    }
+                    if avx2 {
+                        let mut vector = before.clone();
+                        // SAFETY: AVX2 checked above; the paths stay inside the image
+                        unsafe { x86::span_avx2(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
+                        assert_eq!(bits(&vector), bits(&scalar), "avx2, len {len}, {bilinear} {accumulate}");
+                    }
                 }
             }
         }
