@@ -326,12 +326,98 @@ pub unsafe fn sample16_avx512(
     }
 }
 
+/// The first float of a window of 16 that holds eight lanes' floats at `index` (and, `right`, each one's right
+/// neighbour), and each lane's index relative to it: where the window, and the same floats `below` floats on,
+/// lie inside the `len` floats of a buffer; `None` where the lanes spread wider or the window would end past it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn window8(
+    index: std::arch::x86_64::__m256i,
+    right: bool,
+    below: usize,
+    len: usize,
+) -> Option<(usize, std::arch::x86_64::__m256i)> {
+    use std::arch::x86_64::*;
+    // the lowest index: the window's first float
+    let m = _mm256_min_epi32(index, _mm256_permute2x128_si256::<1>(index, index));
+    let m = _mm256_min_epi32(m, _mm256_shuffle_epi32::<0b01_00_11_10>(m));
+    let m = _mm256_min_epi32(m, _mm256_shuffle_epi32::<0b10_11_00_01>(m));
+    let first = _mm256_cvtsi256_si32(m);
+    let rel = _mm256_sub_epi32(index, _mm256_set1_epi32(first));
+    // every index is at least `first`, so `rel` ≥ 0
+    let last = _mm256_set1_epi32(if right { 14 } else { 15 });
+    let fits =
+        _mm256_movemask_epi8(_mm256_cmpgt_epi32(rel, last)) == 0 && first >= 0 && first as usize + below + 16 <= len;
+    fits.then_some((first as usize, rel))
+}
+
+/// The floats at `p + at[k]` (0 ≤ `at[k]` ≤ 15): each half's permute, and bit 3 of `at` picks the half.
+///
+/// # Safety
+/// The CPU must have AVX2; the 16 floats from `p` must lie inside one buffer.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn window_fetch8(p: *const f32, at: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees the 16 floats from `p` are inside the buffer
+    let (low, high) = unsafe { (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8))) };
+    let upper = _mm256_castsi256_ps(_mm256_slli_epi32::<28>(at));
+    _mm256_blendv_ps(_mm256_permutevar8x32_ps(low, at), _mm256_permutevar8x32_ps(high, at), upper)
+}
+
+/// Each of eight lanes' float at `index` and its right neighbour, in every row `rows[r]` floats on, with AVX2:
+/// where all of them lie within one window of 16 floats a row ([`window8`]), as along a row of a view at up to
+/// about two texels a pixel, two loads, two permutes and a blend per row and neighbour; else one 64-bit load of
+/// each lane's pair per row, two lanes to a 128-bit half (hardware gathers, of pairs or of single floats, were
+/// slower than a scalar loop on an AMD EPYC with AVX2).
+///
+/// # Safety
+/// The CPU must have AVX2; for every lane and row, `index + rows[r]` and the float after it must lie inside
+/// `px`, whose length must fit an `i32`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub unsafe fn pairs8_avx2<const ROWS: usize>(
+    px: &[f32],
+    index: std::arch::x86_64::__m256i,
+    rows: [usize; ROWS],
+) -> [(std::arch::x86_64::__m256, std::arch::x86_64::__m256); ROWS] {
+    use std::arch::x86_64::*;
+    let base = px.as_ptr();
+    let below = rows.iter().copied().max().unwrap_or(0);
+    if let Some((first, rel)) = window8(index, true, below, px.len()) {
+        let right = _mm256_add_epi32(rel, _mm256_set1_epi32(1));
+        return rows.map(|r| {
+            // SAFETY: `window8` checked that the 16 floats from `first + r` lie inside `px`
+            unsafe {
+                let p = base.add(first + r);
+                (window_fetch8(p, rel), window_fetch8(p, right))
+            }
+        });
+    }
+    let mut at = [0i32; 8];
+    // SAFETY: eight i32 into an array of eight
+    unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), index) };
+    rows.map(|r| {
+        // SAFETY: the caller guarantees every lane's pair in this row is inside `px`
+        let two = |j: usize| unsafe {
+            let row = base.add(r);
+            let first = _mm_load_sd(row.offset(at[j] as isize).cast());
+            _mm_castpd_ps(_mm_loadh_pd(first, row.offset(at[j + 1] as isize).cast()))
+        };
+        let (a, b) = (_mm256_set_m128(two(2), two(0)), _mm256_set_m128(two(6), two(4)));
+        // in lane order after the shuffles' (0, 2, 1, 3) interleave of 64-bit quarters
+        let order = |v: __m256| _mm256_castsi256_ps(_mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_castps_si256(v)));
+        (order(_mm256_shuffle_ps::<0b10_00_10_00>(a, b)), order(_mm256_shuffle_ps::<0b11_01_11_01>(a, b)))
+    })
+}
+
 /// Eight samples of a row-major f32 image `width` wide with AVX2, bilinear (the texel at each lane's `index` and
-/// its right, lower and lower-right neighbours, mixed as [`bilinear_mix16`] mixes them, so the values are the
-/// scalar samplers') or nearest (the texel at `index`). Where the eight lanes' texels lie within one window of 16
-/// floats (bilinear: with their right neighbours, and the same floats one row down), as along a row of a view at
-/// up to about two texels a pixel, two loads, two permutes and a blend per row of texels fetch them; else each
-/// lane's two texels of a row come in one 64-bit load.
+/// its right, lower and lower-right neighbours by [`pairs8_avx2`], mixed as [`bilinear_mix16`] mixes them, so the
+/// values are the scalar samplers') or nearest (the texel at `index`, by a window of 16 floats where the lanes'
+/// texels fit one, else gathered).
 ///
 /// # Safety
 /// The CPU must have AVX2; for every lane, `index` (and, bilinear, `index + 1`, `index + width` and
@@ -349,66 +435,19 @@ pub unsafe fn sample8_avx2(
 ) -> std::arch::x86_64::__m256 {
     use std::arch::x86_64::*;
     let base = px.as_ptr();
-    let mix = |tl: __m256, tr: __m256, bl: __m256, br: __m256| {
-        let top = _mm256_add_ps(tl, _mm256_mul_ps(_mm256_sub_ps(tr, tl), fx));
-        let bottom = _mm256_add_ps(bl, _mm256_mul_ps(_mm256_sub_ps(br, bl), fx));
-        _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy))
-    };
-    // the lowest index: the window's first float
-    let m = _mm256_min_epi32(index, _mm256_permute2x128_si256::<1>(index, index));
-    let m = _mm256_min_epi32(m, _mm256_shuffle_epi32::<0b01_00_11_10>(m));
-    let m = _mm256_min_epi32(m, _mm256_shuffle_epi32::<0b10_11_00_01>(m));
-    let first = _mm256_cvtsi256_si32(m);
-    let rel = _mm256_sub_epi32(index, _mm256_set1_epi32(first));
-    // every index is at least `first`, so `rel` ≥ 0; the right neighbour is rel + 1, and a window holds 16 floats
-    let last = _mm256_set1_epi32(if bilinear { 14 } else { 15 });
-    let rows = if bilinear { width } else { 0 };
-    let fits = _mm256_movemask_epi8(_mm256_cmpgt_epi32(rel, last)) == 0
-        && first >= 0
-        && first as usize + rows + 16 <= px.len();
-    if fits {
-        // the floats at `p + at[k]` (0 ≤ at[k] ≤ 15): each half's permute, and bit 3 of `at` picks the half
-        let window = |p: *const f32, at: __m256i| {
-            // SAFETY: `fits` checked that the 16 floats from `p` (one row down included) lie inside `px`
-            let (low, high) = unsafe { (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8))) };
-            let upper = _mm256_castsi256_ps(_mm256_slli_epi32::<28>(at));
-            _mm256_blendv_ps(_mm256_permutevar8x32_ps(low, at), _mm256_permutevar8x32_ps(high, at), upper)
-        };
-        // SAFETY: `first` ≥ 0 and inside `px` (checked with `fits`)
-        let p = unsafe { base.add(first as usize) };
-        if !bilinear {
-            return window(p, rel);
-        }
-        let right = _mm256_add_epi32(rel, _mm256_set1_epi32(1));
-        // SAFETY: as above, one row down
-        let below = unsafe { p.add(width) };
-        return mix(window(p, rel), window(p, right), window(below, rel), window(below, right));
-    }
     if !bilinear {
-        // SAFETY: the caller guarantees every lane's texel is inside `px`
-        return unsafe { _mm256_i32gather_ps::<4>(base, index) };
-    }
-    // each lane's two texels of a row as one 64-bit load, two lanes to a 128-bit half, then split into left and
-    // right (eight loads a row of texels: hardware gathers, of pairs or of single floats, were slower than the
-    // scalar loop on an AMD EPYC with AVX2)
-    let mut at = [0i32; 8];
-    // SAFETY: eight i32 into an array of eight
-    unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), index) };
-    let pairs = |row: *const f32| {
-        // SAFETY: the caller guarantees every lane's texel and its right neighbour are inside `px`
-        let two = |j: usize| unsafe {
-            let first = _mm_load_sd(row.offset(at[j] as isize).cast());
-            _mm_castpd_ps(_mm_loadh_pd(first, row.offset(at[j + 1] as isize).cast()))
+        return match window8(index, false, 0, px.len()) {
+            // SAFETY: `window8` checked that the window lies inside `px`
+            Some((first, rel)) => unsafe { window_fetch8(base.add(first), rel) },
+            // SAFETY: the caller guarantees every lane's texel is inside `px`
+            None => unsafe { _mm256_i32gather_ps::<4>(base, index) },
         };
-        let (a, b) = (_mm256_set_m128(two(2), two(0)), _mm256_set_m128(two(6), two(4)));
-        // in lane order after the shuffles' (0, 2, 1, 3) interleave of 64-bit quarters
-        let order = |v: __m256| _mm256_castsi256_ps(_mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_castps_si256(v)));
-        (order(_mm256_shuffle_ps::<0b10_00_10_00>(a, b)), order(_mm256_shuffle_ps::<0b11_01_11_01>(a, b)))
-    };
-    let (tl, tr) = pairs(base);
-    // SAFETY: one row down, inside `px` for every lane (the caller's promise)
-    let (bl, br) = pairs(unsafe { base.add(width) });
-    mix(tl, tr, bl, br)
+    }
+    // SAFETY: the caller guarantees the four texels of every lane are inside `px`
+    let [(tl, tr), (bl, br)] = unsafe { pairs8_avx2(px, index, [0, width]) };
+    let top = _mm256_add_ps(tl, _mm256_mul_ps(_mm256_sub_ps(tr, tl), fx));
+    let bottom = _mm256_add_ps(bl, _mm256_mul_ps(_mm256_sub_ps(br, bl), fx));
+    _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy))
 }
 
 #[cfg(test)]

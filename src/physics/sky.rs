@@ -331,13 +331,20 @@ impl Dome {
     pub fn radiance_along(&self, base: DVec3, step: DVec3, out: &mut [f32], only_nan: bool) {
         let (base, step) = (base.as_vec3(), step.as_vec3());
         #[cfg(target_arch = "x86_64")]
-        let done = if self.table.len() == TABLE_SAMPLES
-            && crate::physics::simd::Level::detect() == crate::physics::simd::Level::Avx512
-        {
-            // SAFETY: the CPU has AVX-512
-            unsafe { x86::radiance_along_512(&self.table, self.horizon_sky as f32, base, step, out, only_nan) }
-        } else {
-            0
+        let done = {
+            use crate::physics::simd::Level;
+            let (table, horizon) = (&self.table[..], self.horizon_sky as f32);
+            match Level::detect() {
+                // SAFETY: the CPU has AVX-512
+                Level::Avx512 if table.len() == TABLE_SAMPLES => unsafe {
+                    x86::radiance_along_512(table, horizon, base, step, out, only_nan)
+                },
+                // SAFETY: the CPU has AVX2
+                Level::Avx2 if table.len() == TABLE_SAMPLES => unsafe {
+                    x86::radiance_along_256(table, horizon, base, step, out, only_nan)
+                },
+                _ => 0,
+            }
         };
         #[cfg(not(target_arch = "x86_64"))]
         let done = 0;
@@ -379,7 +386,7 @@ impl Dome {
     }
 }
 
-/// The dome along a row with AVX-512.
+/// The dome along a row with AVX-512 or AVX2.
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
@@ -455,6 +462,59 @@ mod x86 {
             }
         }
         16 * blocks
+    }
+
+    /// [`radiance_along_512`] with AVX2, eight pixels a block, the table's two samples of each by
+    /// [`pairs8_avx2`](crate::physics::simd::pairs8_avx2): the same operations, so the same values.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2; `table` must hold [`TABLE_SAMPLES`] values.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn radiance_along_256(
+        table: &[f32],
+        horizon: f32,
+        base: Vec3,
+        step: Vec3,
+        out: &mut [f32],
+        only_nan: bool,
+    ) -> usize {
+        let blocks = out.len() / 8;
+        let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let (zero, one, half) = (_mm256_setzero_ps(), _mm256_set1_ps(1.0), _mm256_set1_ps(0.5));
+        let last = _mm256_set1_ps((TABLE_SAMPLES - 1) as f32);
+        let top = _mm256_set1_epi32(TABLE_SAMPLES as i32 - 2);
+        let horizon = _mm256_set1_ps(horizon);
+        for b in 0..blocks {
+            // i as f32, exact (i < 2²⁴)
+            let k = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32((8 * b) as i32), lanes));
+            let axis = |o: f32, s: f32| _mm256_add_ps(_mm256_set1_ps(o), _mm256_mul_ps(_mm256_set1_ps(s), k));
+            let (x, y, z) = (axis(base.x, step.x), axis(base.y, step.y), axis(base.z, step.z));
+            let dot = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(x, x), _mm256_mul_ps(y, y)), _mm256_mul_ps(z, z));
+            let len = _mm256_sqrt_ps(dot);
+            let seen = _mm256_cmp_ps::<_CMP_GT_OQ>(len, zero);
+            let sin_e = _mm256_min_ps(_mm256_max_ps(_mm256_div_ps(z, len), _mm256_set1_ps(-1.0)), one);
+            // zero rays read sample 0, then take the horizon's value
+            let sin_e = _mm256_blendv_ps(zero, sin_e, seen);
+            let at = _mm256_mul_ps(_mm256_mul_ps(_mm256_add_ps(sin_e, one), half), last);
+            let i = _mm256_min_epi32(_mm256_cvttps_epi32(at), top);
+            let frac = _mm256_sub_ps(at, _mm256_cvtepi32_ps(i));
+            // SAFETY: 0 ≤ i ≤ TABLE_SAMPLES − 2, so i and i + 1 are inside the table
+            let [(lo, hi)] = unsafe { crate::physics::simd::pairs8_avx2(table, i, [0]) };
+            let v = _mm256_add_ps(lo, _mm256_mul_ps(_mm256_sub_ps(hi, lo), frac));
+            let v = _mm256_blendv_ps(horizon, v, seen);
+            let p = out[8 * b..8 * b + 8].as_mut_ptr();
+            // SAFETY: eight floats at `p`, inside `out`
+            unsafe {
+                let v = if only_nan {
+                    let old = _mm256_loadu_ps(p);
+                    _mm256_blendv_ps(old, v, _mm256_cmp_ps::<_CMP_UNORD_Q>(old, old))
+                } else {
+                    v
+                };
+                _mm256_storeu_ps(p, v);
+            }
+        }
+        8 * blocks
     }
 }
 
