@@ -368,7 +368,7 @@ unsafe fn window_fetch8(p: *const f32, at: std::arch::x86_64::__m256i) -> std::a
 }
 
 /// Each of eight lanes' float at `index` and its right neighbour, in every row `rows[r]` floats on, with AVX2:
-/// where all of them lie within one window of 16 floats a row ([`window8`]), as along a row of a view at up to
+/// where all of them lie within one window of 16 floats a row (`window8`), as along a row of a view at up to
 /// about two texels a pixel, two loads, two permutes and a blend per row and neighbour; else one 64-bit load of
 /// each lane's pair per row, two lanes to a 128-bit half (hardware gathers, of pairs or of single floats, were
 /// slower than a scalar loop on an AMD EPYC with AVX2).
