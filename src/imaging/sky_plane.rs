@@ -973,14 +973,13 @@ impl RowGeometry {
         let px = &img.pixels;
         #[cfg(target_arch = "x86_64")]
         if px.len() < i32::MAX as usize {
+            let (q, d, dd) = ([x, y], [dx, dy], [ddx, ddy]);
             match Level::detect() {
                 // SAFETY: the CPU has AVX-512; every sample (and its neighbours, bilinear) lies inside the image
                 // (checked above)
-                Level::Avx512 => unsafe { x86::span(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate) },
+                Level::Avx512 => unsafe { x86::span(px, w, q, d, dd, bilinear, out, accumulate) },
                 // SAFETY: as above, with AVX2
-                Level::Avx2 => unsafe {
-                    x86::span_avx2(px, w, [x, y], [dx, dy], [ddx, ddy], bilinear, out, accumulate)
-                },
+                Level::Avx2 => unsafe { x86::span_avx2(px, w, q, d, dd, bilinear, out, accumulate) },
                 Level::Baseline => {}
             }
             if Level::detect() != Level::Baseline {
@@ -1018,7 +1017,7 @@ fn fixed_sample(px: &[f32], w: usize, x: i64, y: i64, bilinear: bool) -> f32 {
 }
 
 /// The span with AVX-512 or AVX2 vectors, its texels fetched by windows where they lie close together, else
-/// gathered.
+/// gathered (AVX-512) or loaded a pair of floats per lane and row (AVX2).
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
