@@ -176,7 +176,7 @@ fn noise_free_frames_equal_the_core_pipeline_composed_by_hand() {
         let cam = Camera::look_at(intr, eye, pos, 0.0).unwrap();
         let mut frame = Frame::new(intr.width as usize, intr.height as usize);
         plane.render(&cam, s.quality.sky_sampling, sky_spec.miss, &mut frame);
-        render_dome(&cam, &dome, &mut frame, true);
+        render_dome(&cam, &dome, &mut frame, true, None);
         let e = Ellipsoid {
             center_m: pos,
             semi_axes_m: spec.targets[0].semi_axes_m,

@@ -179,7 +179,7 @@ impl BackgroundRenderer {
     ) -> BackgroundStats {
         let mut stats = BackgroundStats::default();
         let Some(plane) = sky.plane else {
-            render_dome(camera, sky.dome, frame, false);
+            render_dome(camera, sky.dome, frame, false, None);
             if let Some(b) = blur {
                 stats.blur = self.convolver.apply_where_needed(b.psf.point_kernel(), frame, b.method, b.skip_below);
             }
@@ -194,7 +194,7 @@ impl BackgroundRenderer {
         let kernel = if area_sampled { b.psf.area_kernel() } else { b.psf.point_kernel() };
         if sky.miss == MissFill::Dome && !plane.seen_by(camera) {
             // the dome alone, as a run without an image layer renders it
-            render_dome(camera, sky.dome, frame, false);
+            render_dome(camera, sky.dome, frame, false, None);
             if b.dome {
                 stats.blur = self.convolver.apply_where_needed(kernel, frame, b.method, b.skip_below);
             } else {
@@ -235,8 +235,12 @@ impl BackgroundRenderer {
         self.rest.clear();
         self.rest.extend(self.clean.iter().map(|c| !c));
         tiles_within_reach(&self.rest, frame.width().div_ceil(t), reach, &mut self.along, &mut self.near);
-        if area_sampled {
+        // the tiles that may hold misses, which the dome fills: every tile where the whole image is rendered,
+        // else the tiles rendered from the raw sky and the texture's ring (the other tiles are written from the
+        // texture after the blur, which reads only these)
+        let dome_tiles = if area_sampled {
             plane.render(camera, sky.sampling, sky.miss, frame);
+            false
         } else {
             // the ring of the texture's tiles just beyond the reached ones first: the blur's skip test reads one
             // pixel into it (the curvature at the reached tiles' edge), which must be this frame's, never the
@@ -250,9 +254,13 @@ impl BackgroundRenderer {
             }
             texture.render_tiles(camera, texture_sampling, sky.miss, t, &self.ring, frame);
             plane.render_tiles(camera, sky.sampling, sky.miss, t, &self.near, frame);
-        }
+            for (r, &n) in self.ring.iter_mut().zip(&self.near) {
+                *r |= n;
+            }
+            true
+        };
         if sky.miss == MissFill::Dome {
-            render_dome(camera, sky.dome, frame, true);
+            render_dome(camera, sky.dome, frame, true, dome_tiles.then_some((t, &self.ring[..])));
         }
         stats.blur = self.convolver.apply_where_needed_in(kernel, frame, b.method, b.skip_below, Some(&self.rest));
         texture.render_tiles(camera, texture_sampling, sky.miss, t, &self.clean, frame);
@@ -377,7 +385,7 @@ pub fn exact_blurred_pixel(
 fn render_raw(plane: &SkyPlane, sky: &SkyView<'_>, camera: &Camera, frame: &mut Frame) {
     plane.render(camera, sky.sampling, sky.miss, frame);
     if sky.miss == MissFill::Dome {
-        render_dome(camera, sky.dome, frame, true);
+        render_dome(camera, sky.dome, frame, true, None);
     }
 }
 
@@ -576,6 +584,36 @@ mod tests {
             if width % t != 0 {
                 assert!(cut > 0, "{width} × {height}: served tiles cut by the frame's edge");
             }
+        }
+    }
+
+    #[test]
+    fn the_dome_in_marked_tiles_is_the_whole_frame_s_dome_there() {
+        let (d, p) = (dome(), plane());
+        // 120 × 90: the last column and row of 16 px tiles are cut short; the misses are placed by hand
+        let intrinsics = Intrinsics::try_new(120, 90, 0.05, 17e-6).unwrap();
+        let cam =
+            Camera::look_at(intrinsics, DVec3::new(0.0, 0.0, 8000.0), p.world_point(DVec2::new(256.0, 900.0)), 3.0)
+                .unwrap();
+        let mut before = Frame::new(120, 90);
+        for (i, v) in before.pixels_mut().iter_mut().enumerate() {
+            *v = if i % 7 < 3 { f32::NAN } else { i as f32 };
+        }
+        let (tw, th) = (120usize.div_ceil(16), 90usize.div_ceil(16));
+        // single tiles, runs of tiles, the cut-short ones
+        let marks: Vec<bool> = (0..tw * th).map(|i| (i % tw + i / tw) % 3 == 0 || i % tw >= 5).collect();
+        for only_nan in [true, false] {
+            let mut whole = before.clone();
+            render_dome(&cam, &d, &mut whole, only_nan, None);
+            let mut part = before.clone();
+            render_dome(&cam, &d, &mut part, only_nan, Some((16, &marks)));
+            for (i, ((&w, &q), &b)) in whole.pixels().iter().zip(part.pixels()).zip(before.pixels()).enumerate() {
+                let (x, y) = (i % 120, i / 120);
+                let want = if marks[(y / 16) * tw + x / 16] { w } else { b };
+                assert_eq!(q.to_bits(), want.to_bits(), "pixel ({x}, {y}), only_nan {only_nan}");
+            }
+            // the dome was written where the marks and NaN say
+            assert!(part.pixels().iter().zip(before.pixels()).any(|(a, b)| a.to_bits() != b.to_bits()));
         }
     }
 

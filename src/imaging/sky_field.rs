@@ -322,34 +322,62 @@ pub fn through_air(
 }
 
 /// Writes the dome's radiance along each pixel's ray into `frame`; with `only_nan`, only into pixels that are
-/// NaN (the misses of a sky-plane render).
-pub fn render_dome(camera: &Camera, dome: &Dome, frame: &mut Frame, only_nan: bool) {
+/// NaN (the misses of a sky-plane render); with `tiles` (a tile's side in pixels and a row-major mark for each
+/// tile), only into the marked tiles' pixels, and only those are read: each value is the one a whole frame's
+/// render gives its pixel.
+pub fn render_dome(camera: &Camera, dome: &Dome, frame: &mut Frame, only_nan: bool, tiles: Option<(usize, &[bool])>) {
     use rayon::prelude::*;
     let width = frame.width();
     let r = camera.camera_to_world;
     let f = camera.intrinsics.focal_px();
     let c = camera.intrinsics.principal_point();
+    if let Some((t, marks)) = tiles {
+        assert!(t > 0 && marks.len() == width.div_ceil(t) * frame.height().div_ceil(t), "a mark for each tile");
+    }
     // rows in batches: one row is too little work to be worth a task
     let rows_per_task = crate::physics::simd::rows_per_task(width, 2);
     frame.pixels_mut().par_chunks_mut(width).enumerate().with_min_len(rows_per_task).for_each(|(j, row)| {
-        // a scan of the whole row (no early exit) is one vector compare per sixteen pixels
-        let any_nan = || {
-            crate::physics::simd::widest(
-                #[inline(always)]
-                || row.iter().fold(false, |any, v| any | v.is_nan()),
-            )
-        };
-        if only_nan && !any_nan() {
-            return;
-        }
         let y = (j as f64 + 0.5 - c.y) / f;
         // the unnormalised ray is linear in the column
         let base = r * glam::DVec3::new((0.5 - c.x) / f, y, 1.0);
         let step = r.x_axis / f;
-        crate::physics::simd::widest(
-            #[inline(always)]
-            || dome.radiance_along(base, step, row, only_nan),
-        );
+        // the pixels `x0..x1` of the row
+        let mut span = |x0: usize, x1: usize| {
+            let part = &mut row[x0..x1];
+            // a scan of the whole span (no early exit) is one vector compare per sixteen pixels
+            let any_nan = || {
+                crate::physics::simd::widest(
+                    #[inline(always)]
+                    || part.iter().fold(false, |any, v| any | v.is_nan()),
+                )
+            };
+            if only_nan && !any_nan() {
+                return;
+            }
+            crate::physics::simd::widest(
+                #[inline(always)]
+                || dome.radiance_along_from(base, step, x0, part, only_nan),
+            );
+        };
+        let Some((t, marks)) = tiles else {
+            span(0, width);
+            return;
+        };
+        // each run of marked tiles along the row's band of tiles
+        let tw = width.div_ceil(t);
+        let band = &marks[(j / t) * tw..(j / t + 1) * tw];
+        let mut tx = 0;
+        while tx < tw {
+            if !band[tx] {
+                tx += 1;
+                continue;
+            }
+            let start = tx;
+            while tx < tw && band[tx] {
+                tx += 1;
+            }
+            span(start * t, (tx * t).min(width));
+        }
     });
 }
 

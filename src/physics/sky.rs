@@ -329,6 +329,18 @@ impl Dome {
     /// which no camera casts, gets the horizon's sky only where it is zero in f32 too.
     #[inline(always)]
     pub fn radiance_along(&self, base: DVec3, step: DVec3, out: &mut [f32], only_nan: bool) {
+        self.radiance_along_from(base, step, 0, out, only_nan);
+    }
+
+    /// [`Dome::radiance_along`] for the pixels `first..first + out.len()` of the row alone: `out[i]` gets the
+    /// ray `base + step·(first + i)`, the same bits as pixel `first + i` of the whole row (the pixel's index
+    /// enters as the same f32).
+    ///
+    /// # Panics
+    /// If the pixels reach 2²⁴ (their indices would not be exact in f32).
+    #[inline(always)]
+    pub fn radiance_along_from(&self, base: DVec3, step: DVec3, first: usize, out: &mut [f32], only_nan: bool) {
+        assert!(first + out.len() <= 1 << 24, "pixel indices exact in f32");
         let (base, step) = (base.as_vec3(), step.as_vec3());
         #[cfg(target_arch = "x86_64")]
         let done = {
@@ -337,11 +349,11 @@ impl Dome {
             match Level::detect() {
                 // SAFETY: the CPU has AVX-512
                 Level::Avx512 if table.len() == TABLE_SAMPLES => unsafe {
-                    x86::radiance_along_512(table, horizon, base, step, out, only_nan)
+                    x86::radiance_along_512(table, horizon, base, step, first, out, only_nan)
                 },
                 // SAFETY: the CPU has AVX2
                 Level::Avx2 if table.len() == TABLE_SAMPLES => unsafe {
-                    x86::radiance_along_256(table, horizon, base, step, out, only_nan)
+                    x86::radiance_along_256(table, horizon, base, step, first, out, only_nan)
                 },
                 _ => 0,
             }
@@ -352,7 +364,7 @@ impl Dome {
             if only_nan && !o.is_nan() {
                 continue;
             }
-            *o = self.radiance_f32(base, step, i);
+            *o = self.radiance_f32(base, step, first + i);
         }
     }
 
@@ -395,19 +407,22 @@ mod x86 {
 
     use super::TABLE_SAMPLES;
 
-    /// [`Dome::radiance_along`](super::Dome::radiance_along) for the whole blocks of sixteen pixels in `out`;
-    /// returns how many it wrote. Each value is the scalar loop's: the same f32 operations in the same order
-    /// (`base + step·i`, the squared length summed x, y, z, a correctly rounded square root and division, the
-    /// clamp, the index and fraction, the table's interpolation).
+    /// [`Dome::radiance_along_from`](super::Dome::radiance_along_from) for the whole blocks of sixteen pixels
+    /// in `out`; returns how many it wrote. Each value is the scalar loop's: the same f32 operations in the same
+    /// order (`base + step·i` for the row's pixel `i = first + ` the index in `out`, the squared length summed
+    /// x, y, z, a correctly rounded square root and division, the clamp, the index and fraction, the table's
+    /// interpolation).
     ///
     /// # Safety
-    /// The CPU must have AVX-512 (F, DQ, BW, VL); `table` must hold [`TABLE_SAMPLES`] values.
+    /// The CPU must have AVX-512 (F, DQ, BW, VL); `table` must hold [`TABLE_SAMPLES`] values; `first +
+    /// out.len()` must not pass 2²⁴.
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
     pub unsafe fn radiance_along_512(
         table: &[f32],
         horizon: f32,
         base: Vec3,
         step: Vec3,
+        first: usize,
         out: &mut [f32],
         only_nan: bool,
     ) -> usize {
@@ -420,7 +435,7 @@ mod x86 {
         let t = table.as_ptr();
         for b in 0..blocks {
             // i as f32, exact (i < 2²⁴)
-            let k = _mm512_cvtepi32_ps(_mm512_add_epi32(_mm512_set1_epi32((16 * b) as i32), lanes));
+            let k = _mm512_cvtepi32_ps(_mm512_add_epi32(_mm512_set1_epi32((first + 16 * b) as i32), lanes));
             let axis = |o: f32, s: f32| _mm512_add_ps(_mm512_set1_ps(o), _mm512_mul_ps(_mm512_set1_ps(s), k));
             let (x, y, z) = (axis(base.x, step.x), axis(base.y, step.y), axis(base.z, step.z));
             let dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(x, x), _mm512_mul_ps(y, y)), _mm512_mul_ps(z, z));
@@ -468,13 +483,15 @@ mod x86 {
     /// [`pairs8_avx2`](crate::physics::simd::pairs8_avx2): the same operations, so the same values.
     ///
     /// # Safety
-    /// The CPU must have AVX2; `table` must hold [`TABLE_SAMPLES`] values.
+    /// The CPU must have AVX2; `table` must hold [`TABLE_SAMPLES`] values; `first + out.len()` must not pass
+    /// 2²⁴.
     #[target_feature(enable = "avx2")]
     pub unsafe fn radiance_along_256(
         table: &[f32],
         horizon: f32,
         base: Vec3,
         step: Vec3,
+        first: usize,
         out: &mut [f32],
         only_nan: bool,
     ) -> usize {
@@ -486,7 +503,7 @@ mod x86 {
         let horizon = _mm256_set1_ps(horizon);
         for b in 0..blocks {
             // i as f32, exact (i < 2²⁴)
-            let k = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32((8 * b) as i32), lanes));
+            let k = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32((first + 8 * b) as i32), lanes));
             let axis = |o: f32, s: f32| _mm256_add_ps(_mm256_set1_ps(o), _mm256_mul_ps(_mm256_set1_ps(s), k));
             let (x, y, z) = (axis(base.x, step.x), axis(base.y, step.y), axis(base.z, step.z));
             let dot = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(x, x), _mm256_mul_ps(y, y)), _mm256_mul_ps(z, z));
@@ -592,6 +609,14 @@ mod tests {
                 let (b, s) = (base.as_vec3(), step.as_vec3());
                 for (i, &v) in row.iter().enumerate() {
                     assert_eq!(v.to_bits(), d.radiance_f32(b, s, i).to_bits(), "pixel {i} of {n}");
+                }
+                // and a part of the row its pixels' bits, its blocks starting anywhere
+                for first in [1, 3, 16, 21].into_iter().filter(|&f| f < n) {
+                    let mut part = vec![f32::NAN; n - first];
+                    d.radiance_along_from(base, step, first, &mut part, true);
+                    for (i, (&v, &w)) in part.iter().zip(&row[first..]).enumerate() {
+                        assert_eq!(v.to_bits(), w.to_bits(), "pixel {} of {n} from {first}", first + i);
+                    }
                 }
             }
         }
