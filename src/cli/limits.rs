@@ -7,8 +7,9 @@
 //! - `store`: write every pixel once (memory bandwidth; every stage pays it).
 //! - `bilinear`: one bilinear sample per pixel of a 1000 × 1000 f32 texture at coordinates stepped along the
 //!   row (a scaled view turned by 0.01 rad, so neighbouring pixels read neighbouring texels, as the sky's
-//!   ray cast does; its texels fetched by windows where they lie close together, else gathered, as the ray
-//!   cast's are), and the store: the bound of the `render` stage.
+//!   ray cast does; its texels fetched by windows where they lie close together, else gathered (AVX-512) or
+//!   loaded a lane's pair at a time (AVX2), as the ray cast's are), and the store: the bound of the `render`
+//!   stage.
 //! - `normal`: one standard normal deviate per pixel (Box–Muller on a counter-based hash, 24-bit uniforms, a
 //!   table-free logarithm and sine/cosine polynomials: the `box_muller` sampler's transform, sixteen pairs to
 //!   an AVX-512 register where the CPU has it) and the store.
@@ -37,7 +38,8 @@ const TEXTURE: usize = 1000;
 /// hundredths of a radian or less, most sixteen pixels' texels lie within a window or two of 32 floats and are
 /// fetched by loads and permutes ([`crate::physics::simd::texel_windows`]), and most eight pixels' within one
 /// window of 16 floats (AVX2, [`crate::physics::simd::sample8_avx2`]); a view turned by 0.3 rad (as this
-/// bound's was) crosses a texel row every five pixels, and its texels are gathered.
+/// bound's was) crosses a texel row every five pixels, and its texels are gathered (AVX2: loaded a lane's pair at
+/// a time).
 const TURN_RAD: f32 = 0.01;
 
 /// The bounds' parameters: the texture, its view and the detector.
@@ -86,8 +88,8 @@ impl Setup {
     }
 
     /// Row `j`'s bilinear samples: with AVX2 or AVX-512, 8 or 16 pixels at a time, their texels fetched the way
-    /// the sky's ray cast fetches them, by windows or gathers (LLVM does not vectorize the loop below with
-    /// gathers on its own); else one pixel after another.
+    /// the sky's ray cast fetches them, by windows, else by gathers (AVX-512) or a 64-bit load of each lane's pair
+    /// (AVX2) (LLVM does not vectorize the loop below with gathers on its own); else one pixel after another.
     #[inline(always)]
     fn sample_row(&self, j: usize, row: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
