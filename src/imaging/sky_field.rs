@@ -325,6 +325,9 @@ pub fn through_air(
 /// NaN (the misses of a sky-plane render); with `tiles` (a tile's side in pixels and a row-major mark for each
 /// tile), only into the marked tiles' pixels, and only those are read: each value is the one a whole frame's
 /// render gives its pixel.
+///
+/// # Panics
+/// If `tiles` gives a side of 0 or not one mark for each tile of the frame.
 pub fn render_dome(camera: &Camera, dome: &Dome, frame: &mut Frame, only_nan: bool, tiles: Option<(usize, &[bool])>) {
     use rayon::prelude::*;
     let width = frame.width();
