@@ -577,9 +577,7 @@ mod x86 {
                 unsafe {
                     let load = |s: usize| _mm512_maskz_loadu_ps(mask, base.add(s + r * steps + k));
                     let (a, b, c, d) = (load(starts[0]), load(starts[1]), load(starts[2]), load(starts[3]));
-                    let t = _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), tx));
-                    let bottom = _mm512_add_ps(c, _mm512_mul_ps(_mm512_sub_ps(d, c), tx));
-                    let v = _mm512_add_ps(t, _mm512_mul_ps(_mm512_sub_ps(bottom, t), ty));
+                    let v = crate::physics::simd::bilinear_mix16(a, b, c, d, tx, ty);
                     let o = dst.add(r * width + k);
                     let sum = _mm512_add_ps(_mm512_maskz_loadu_ps(mask, o), _mm512_mul_ps(weight, v));
                     _mm512_mask_storeu_ps(o, mask, sum);
@@ -622,9 +620,7 @@ mod x86 {
                 }
             };
             let (a, b, c, d) = (load(s[0]), load(s[1]), load(s[2]), load(s[3]));
-            let t = _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), tx));
-            let bottom = _mm256_add_ps(c, _mm256_mul_ps(_mm256_sub_ps(d, c), tx));
-            let v = _mm256_add_ps(t, _mm256_mul_ps(_mm256_sub_ps(bottom, t), ty));
+            let v = crate::physics::simd::bilinear_mix8(a, b, c, d, tx, ty);
             _mm256_add_ps(load(o), _mm256_mul_ps(weight, v))
         };
         for r in 0..count {

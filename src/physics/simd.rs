@@ -219,6 +219,27 @@ pub fn bilinear_mix16(
     _mm512_add_ps(top, _mm512_mul_ps(_mm512_sub_ps(bottom, top), fy))
 }
 
+/// [`bilinear_mix16`] for eight lanes with AVX2: the same operations in the same order, so the same values.
+///
+/// # Safety
+/// Callable only on a CPU with AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub fn bilinear_mix8(
+    tl: std::arch::x86_64::__m256,
+    tr: std::arch::x86_64::__m256,
+    bl: std::arch::x86_64::__m256,
+    br: std::arch::x86_64::__m256,
+    fx: std::arch::x86_64::__m256,
+    fy: std::arch::x86_64::__m256,
+) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    let top = _mm256_add_ps(tl, _mm256_mul_ps(_mm256_sub_ps(tr, tl), fx));
+    let bottom = _mm256_add_ps(bl, _mm256_mul_ps(_mm256_sub_ps(br, bl), fx));
+    _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy))
+}
+
 /// Whether sixteen lanes' texels at `index` (those in `mask`) in a row-major f32 image `width` wide and `len`
 /// long lie within two windows of 32 consecutive floats (and, `bilinear`, their right neighbours too, and the
 /// same floats one row down; every window inside the image): then two loads and a permute per window and row
@@ -415,7 +436,7 @@ pub unsafe fn pairs8_avx2<const ROWS: usize>(
 }
 
 /// Eight samples of a row-major f32 image `width` wide with AVX2, bilinear (the texel at each lane's `index` and
-/// its right, lower and lower-right neighbours by [`pairs8_avx2`], mixed as [`bilinear_mix16`] mixes them, so the
+/// its right, lower and lower-right neighbours by [`pairs8_avx2`], mixed by [`bilinear_mix8`] as [`bilinear_mix16`] mixes them, so the
 /// values are the scalar samplers') or nearest (the texel at `index`, by a window of 16 floats where the lanes'
 /// texels fit one, else gathered).
 ///
@@ -445,9 +466,7 @@ pub unsafe fn sample8_avx2(
     }
     // SAFETY: the caller guarantees the four texels of every lane are inside `px`
     let [(tl, tr), (bl, br)] = unsafe { pairs8_avx2(px, index, [0, width]) };
-    let top = _mm256_add_ps(tl, _mm256_mul_ps(_mm256_sub_ps(tr, tl), fx));
-    let bottom = _mm256_add_ps(bl, _mm256_mul_ps(_mm256_sub_ps(br, bl), fx));
-    _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy))
+    bilinear_mix8(tl, tr, bl, br, fx, fy)
 }
 
 #[cfg(test)]
