@@ -266,14 +266,30 @@ pub fn texel_windows(
     let last = _mm512_set1_epi32(if bilinear { 30 } else { 31 });
     let rows = if bilinear { width } else { 0 };
     let inside = |first: i32| first >= 0 && first as usize + rows + 32 <= len;
-    let first = _mm512_mask_reduce_min_epi32(mask, index);
+    // a mask of consecutive lanes (a span's) whose indices never fall from one lane to the next (along a row of
+    // a view, the usual case): the smallest index of any set of them is that of its lowest lane, read without a
+    // reduction
+    let run = mask >> mask.trailing_zeros().min(15);
+    let pairs = mask & (mask >> 1);
+    let rising = mask != 0
+        && run & run.wrapping_add(1) == 0
+        && _mm512_mask_cmpge_epi32_mask(pairs, _mm512_alignr_epi32::<1>(index, index), index) == pairs;
+    let lowest = |lanes: __mmask16| {
+        if rising {
+            let lane = _mm512_set1_epi32(lanes.trailing_zeros() as i32);
+            _mm_cvtsi128_si32(_mm512_castsi512_si128(_mm512_permutexvar_epi32(lane, index)))
+        } else {
+            _mm512_mask_reduce_min_epi32(lanes, index)
+        }
+    };
+    let first = lowest(mask);
     let rel = _mm512_sub_epi32(index, _mm512_set1_epi32(first));
     // every lane's index is at least `first`, so `rel` ≥ 0 and the unsigned compare is the signed one
     let far = _mm512_mask_cmpgt_epu32_mask(mask, rel, last);
     if far == 0 {
         return inside(first).then_some(([first as usize; 2], rel, 0));
     }
-    let second = _mm512_mask_reduce_min_epi32(far, index);
+    let second = lowest(far);
     let rel = _mm512_mask_sub_epi32(rel, far, index, _mm512_set1_epi32(second));
     let fits = _mm512_mask_cmpgt_epu32_mask(far, rel, last) == 0 && inside(first) && inside(second);
     fits.then_some(([first as usize, second as usize], rel, far))
@@ -579,6 +595,14 @@ mod tests {
         // the lanes the first cannot hold
         assert_eq!(near(&|k| 200 - 2 * k, 0xffff, true, len), Some([170, 170]));
         assert_eq!(near(&|k| 200 - 3 * k, 0xffff, true, len), Some([155, 188]));
+        // one lane below the first lane's texel (lanes that do not rise all along): the windows start at the
+        // lowest index, as by a reduction over every lane
+        assert_eq!(near(&|k| if k == 9 { 90 } else { 100 + 2 * k }, 0xffff, true, len), Some([90, 122]));
+        // lanes outside the mask do not count, nor does their place between lanes inside it
+        assert_eq!(near(&|k| if k == 0 { 50_000 } else { 100 + k }, 0xfffe, true, len), Some([101, 101]));
+        assert_eq!(near(&|k| [100, 101, 50_000, 90][k as usize % 4], 0b1011, true, len), Some([90, 90]));
+        // no lane at all: nothing to fetch
+        assert_eq!(near(&|k| 100 + k, 0, true, len), None);
         // the second window ending past the image is enough to gather
         assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 133 + 31), None);
         assert_eq!(near(&|k| 100 + 3 * k, 0xffff, false, 133 + 32), Some([100, 133]));
