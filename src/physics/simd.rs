@@ -452,9 +452,9 @@ pub unsafe fn pairs8_avx2<const ROWS: usize>(
 }
 
 /// Eight samples of a row-major f32 image `width` wide with AVX2, bilinear (the texel at each lane's `index` and
-/// its right, lower and lower-right neighbours by [`pairs8_avx2`], mixed by [`bilinear_mix8`] as [`bilinear_mix16`] mixes them, so the
-/// values are the scalar samplers') or nearest (the texel at `index`, by a window of 16 floats where the lanes'
-/// texels fit one, else gathered).
+/// its right, lower and lower-right neighbours by [`pairs8_avx2`], mixed by [`bilinear_mix8`] as
+/// [`bilinear_mix16`] mixes them, so the values are the scalar samplers') or nearest (the texel at `index`, by a
+/// window of 16 floats where the lanes' texels fit one, else gathered).
 ///
 /// # Safety
 /// The CPU must have AVX2; for every lane, `index` (and, bilinear, `index + 1`, `index + width` and
