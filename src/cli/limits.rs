@@ -386,7 +386,10 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
         since = super::steal::CpuTicks::now();
         Ok(())
     })?;
-    super::say("(µs per frame; a frame's time includes every stage and the schedule's own)")
+    super::say(
+        "(µs per frame; a frame's time includes every stage and the schedule's own; the render's includes the \
+         targets' radiometry, which runs beside it)",
+    )
 }
 
 /// The bilinear bound with the CPU's vectors.

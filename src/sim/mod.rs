@@ -4,7 +4,8 @@
 //! material, geometry, sensor data and per-frame results. One fixed step is one sensor frame; its systems run
 //! in this order, declared once in [`PipelinePlugin`]:
 //!
-//! Motion → Vibration → Radiometry → Projection → RenderToTexture → Targets → Fusion → Noise → Output.
+//! Motion → Vibration → Projection → RenderToTexture (with the targets' radiometry beside the sky render) →
+//! Targets → Fusion → Noise → Output.
 //!
 //! Systems are thin: they gather components, call one function of [`crate::physics`], [`crate::imaging`] or
 //! [`crate::labels`], and write the result back. Each completed frame leaves the schedule as a [`FrameReady`]
@@ -47,7 +48,7 @@ pub use output::{
     FrameImage, FrameReady, MirrorFrame, OutputPlugin, advance_clock, collect_labels, emit_frame, mirror_frame,
 };
 pub use projection::{ProjectionPlugin, project_targets};
-pub use radiometry::{RadiometryPlugin, update_signatures};
+pub use radiometry::SignatureInputs;
 pub use render::{RenderToTexturePlugin, render_sky};
 pub use resources::{FrameOutput, FramePool, Fusion, SceneParams, SimClock, SimSettings, TargetPatches};
 pub use spawn::{RunOptions, SetupError, despawn_scenario, forget_kept_results, spawn_scenario};
@@ -62,13 +63,11 @@ pub struct MotionSystems;
 /// Camera pointing and vibration.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct VibrationSystems;
-/// Target apparent radiance.
-#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
-pub struct RadiometrySystems;
 /// Ellipsoid → image ellipse.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct ProjectionSystems;
-/// Sky plane ray cast into the sensor frame, the dome for the misses, the optics blur.
+/// Sky plane ray cast into the sensor frame, the dome for the misses, the optics blur; beside them, the
+/// targets' apparent radiance.
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct RenderToTextureSystems;
 /// Target patches.
@@ -94,7 +93,6 @@ impl Plugin for PipelinePlugin {
             (
                 MotionSystems,
                 VibrationSystems,
-                RadiometrySystems,
                 ProjectionSystems,
                 RenderToTextureSystems,
                 TargetsSystems,
@@ -117,7 +115,6 @@ impl PluginGroup for IrSimPlugins {
             .add(PipelinePlugin)
             .add(MotionPlugin)
             .add(VibrationPlugin)
-            .add(RadiometryPlugin)
             .add(ProjectionPlugin)
             .add(RenderToTexturePlugin)
             .add(TargetsPlugin)

@@ -1,13 +1,11 @@
 //! Radiometry: skin temperature, radiance, reflection, transmittance and path radiance per target, in the
-//! detector's measure.
+//! detector's measure. It reads the targets, the observer and the scene and writes only the targets'
+//! [`Signature`]s, which neither the projection nor the sky render touch: the render's system runs it beside the
+//! render (see [`super::render_sky`]), on whichever of the pool's threads is free.
 
-use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
-use bevy::prelude::FixedUpdate;
 
-use super::{
-    Body, CameraPose, Kinematics, Observer, RadiometrySystems, SceneParams, Sensor, Signature, SimSettings, Skin,
-};
+use super::{Body, CameraPose, Kinematics, Observer, SceneParams, Sensor, Signature, SimSettings, Skin};
 use crate::physics::lowtran::{ALTITUDE_TOLERANCE_SCALE_KM, AtmosphereError, PathSpectrum};
 use crate::physics::lowtran_paths::LowtranAtmosphere;
 use crate::physics::signal::{ApparentContext, Sight, TargetState, apparent_radiance};
@@ -15,23 +13,33 @@ use crate::physics::skin::mach_number;
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// Computes each target's signature.
-pub struct RadiometryPlugin;
+/// What the radiometry reads and writes: the scene, the sensor, the observer's pose, and each target's state
+/// and [`Signature`].
+#[derive(bevy::ecs::system::SystemParam)]
+pub struct SignatureInputs<'w, 's> {
+    scene: Res<'w, SceneParams>,
+    settings: Res<'w, SimSettings>,
+    sensor: Query<'w, 's, &'static Sensor>,
+    observer: Query<'w, 's, &'static CameraPose, With<Observer>>,
+    targets:
+        Query<'w, 's, (&'static Kinematics, &'static Body, &'static Skin, &'static mut Signature), Without<Observer>>,
+}
 
-impl Plugin for RadiometryPlugin {
-    fn build(&self, app: &mut App) {
-        app.add_systems(FixedUpdate, update_signatures.in_set(RadiometrySystems));
+impl SignatureInputs<'_, '_> {
+    /// Runs the radiometric chain for every target whose inputs changed since its last computation (by more
+    /// than `[quality] radiometry_tolerance`, see `unchanged` in this module).
+    pub fn update(&mut self) {
+        let Self { scene, settings, sensor, observer, targets } = self;
+        update_all(scene, settings, sensor, observer, targets);
     }
 }
 
-/// Runs the radiometric chain for every target whose inputs changed since its last computation (by more than
-/// `[quality] radiometry_tolerance`, see `unchanged` in this module).
-pub fn update_signatures(
-    scene: Res<SceneParams>,
-    settings: Res<SimSettings>,
-    sensor: Query<&Sensor>,
-    observer: Query<&CameraPose, With<Observer>>,
-    mut targets: Query<(&Kinematics, &Body, &Skin, &mut Signature), Without<Observer>>,
+fn update_all(
+    scene: &SceneParams,
+    settings: &SimSettings,
+    sensor: &Query<&Sensor>,
+    observer: &Query<&CameraPose, With<Observer>>,
+    targets: &mut Query<(&Kinematics, &Body, &Skin, &mut Signature), Without<Observer>>,
 ) {
     let (Ok(sensor), Ok(pose)) = (sensor.single(), observer.single()) else { return };
     let eye = pose.steady.position_m;

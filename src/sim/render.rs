@@ -1,17 +1,18 @@
 //! Render to texture: the sky plane ray cast into the sensor's frame through the vibrated camera, the dome
-//! along every ray that misses it, and the optics blur.
+//! along every ray that misses it, and the optics blur; beside them, the targets' radiometry.
 
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::components::SteadyRender;
-use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, SimSettings, Sky};
+use super::timing::StageTimings;
+use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, SignatureInputs, SimSettings, Sky};
 use crate::imaging::background::{BackgroundBlur, SkyView};
 use crate::imaging::camera::{Camera, Intrinsics, Jitter};
 use crate::imaging::frame::{Frame, Upsampler};
 
-/// Renders the background.
+/// Renders the background, and beside it computes the targets' signatures.
 pub struct RenderToTexturePlugin;
 
 impl Plugin for RenderToTexturePlugin {
@@ -23,11 +24,38 @@ impl Plugin for RenderToTexturePlugin {
 /// Renders the blurred sky background for the vibrated camera; when the camera has not moved since the last
 /// render, reuses it; on a coarse grid, reads a staring camera's shaken view from the render of its steady view
 /// where `[quality] view_shift_tolerance_px` allows.
+///
+/// Beside the render, in a `rayon::join`, the targets' radiometry ([`SignatureInputs::update`]): the two share
+/// no data, and the render's parallel rows fill the threads around the radiometry's serial work (a frame of
+/// one target at 256 × 256 has tens of microseconds of it). Each target's signature is computed exactly as
+/// alone, so frames are the same bits as with the two one after the other. With [`StageTimings`]
+/// present, the radiometry's own time is added to its stage.
 pub fn render_sky(
     settings: Res<SimSettings>,
     observer: Query<&CameraPose, With<Observer>>,
     sky: Query<&Sky>,
     mut sensor: Query<(&Sensor, &mut SensorFrame)>,
+    mut signatures: SignatureInputs,
+    timings: Option<ResMut<StageTimings>>,
+) {
+    let ((), seconds) = rayon::join(
+        || render_view(&settings, &observer, &sky, &mut sensor),
+        || {
+            let start = std::time::Instant::now();
+            signatures.update();
+            start.elapsed().as_secs_f64()
+        },
+    );
+    if let Some(mut t) = timings {
+        t.add_radiometry(seconds);
+    }
+}
+
+fn render_view(
+    settings: &SimSettings,
+    observer: &Query<&CameraPose, With<Observer>>,
+    sky: &Query<&Sky>,
+    sensor: &mut Query<(&Sensor, &mut SensorFrame)>,
 ) {
     let (Ok(pose), Ok((sensor, mut sf)), Ok(sky)) = (observer.single(), sensor.single_mut(), sky.single()) else {
         return;

@@ -5,14 +5,15 @@ use bevy::ecs::prelude::*;
 use bevy::prelude::FixedUpdate;
 
 use super::{
-    FusionSystems, MotionSystems, NoiseSystems, OutputSystems, ProjectionSystems, RadiometrySystems,
-    RenderToTextureSystems, TargetsSystems, VibrationSystems,
+    FusionSystems, MotionSystems, NoiseSystems, OutputSystems, ProjectionSystems, RenderToTextureSystems,
+    TargetsSystems, VibrationSystems,
 };
 
 /// Wall-clock time spent in each stage, accumulated over the run (present only when timing is asked for).
 #[derive(Resource, Debug, Clone, Default)]
 pub struct StageTimings {
-    /// Seconds per stage, in pipeline order.
+    /// Seconds per stage, in the order of [`StageTimings::NAMES`]: each the wall-clock time between the stages
+    /// before and after it, but the radiometry's, which is its own time beside the render (and within it).
     pub seconds: [f64; 9],
     /// Steps timed.
     pub steps: u64,
@@ -20,9 +21,14 @@ pub struct StageTimings {
 }
 
 impl StageTimings {
-    /// Stage names, in pipeline order.
+    /// Stage names, in pipeline order (the radiometry runs beside the render).
     pub const NAMES: [&'static str; 9] =
         ["motion", "vibration", "radiometry", "projection", "render", "targets", "fusion", "noise", "output"];
+
+    /// Adds `seconds` to the radiometry's stage: the render's system times the radiometry it runs beside it.
+    pub(super) fn add_radiometry(&mut self, seconds: f64) {
+        self.seconds[2] += seconds;
+    }
 
     /// Mean milliseconds per frame for each stage, by name.
     pub fn mean_ms(&self) -> Vec<(&'static str, f64)> {
@@ -31,7 +37,8 @@ impl StageTimings {
     }
 }
 
-/// Records the time since the previous stamp into stage `N − 1` (stamp 0 starts the step).
+/// Records the time since the previous stamp into stage `N − 1` (stamp 0 starts the step, 9 ends it; 3 is not
+/// stamped: the radiometry runs beside the render, whose system adds its time to stage 2 itself).
 fn stamp<const N: usize>(mut timings: ResMut<StageTimings>) {
     let now = std::time::Instant::now();
     if N > 0
@@ -56,8 +63,7 @@ impl Plugin for TimingPlugin {
             (
                 stamp::<0>.before(MotionSystems).run_if(on),
                 stamp::<1>.after(MotionSystems).before(VibrationSystems).run_if(on),
-                stamp::<2>.after(VibrationSystems).before(RadiometrySystems).run_if(on),
-                stamp::<3>.after(RadiometrySystems).before(ProjectionSystems).run_if(on),
+                stamp::<2>.after(VibrationSystems).before(ProjectionSystems).run_if(on),
                 stamp::<4>.after(ProjectionSystems).before(RenderToTextureSystems).run_if(on),
                 stamp::<5>.after(RenderToTextureSystems).before(TargetsSystems).run_if(on),
                 stamp::<6>.after(TargetsSystems).before(FusionSystems).run_if(on),
