@@ -19,7 +19,8 @@
 //!
 //! The pipeline runs `irsim bench`'s built-in case of that size with one target (the `standard` preset) in a
 //! thread pool of the same size. Its stages include what the bounds leave out (the sky's planning, targets,
-//! labels); the ratios say how far each stage is from what the machine can do.
+//! labels; the render's, the targets' radiometry, which runs beside it); the ratios say how far each stage is
+//! from what the machine can do.
 
 use std::time::Instant;
 

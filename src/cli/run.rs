@@ -657,7 +657,8 @@ height_m = 4000
 pub(super) struct StageSplit {
     /// Wall time per frame, the schedule's own time included.
     pub frame_us: f64,
-    /// Per stage, in pipeline order.
+    /// Per stage, in [`crate::sim::StageTimings::NAMES`]' order (the radiometry's is its own time, within the
+    /// render's).
     pub stages_us: Vec<(&'static str, f64)>,
 }
 

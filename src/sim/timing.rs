@@ -21,7 +21,8 @@ pub struct StageTimings {
 }
 
 impl StageTimings {
-    /// Stage names, in pipeline order (the radiometry runs beside the render).
+    /// Stage names, in the order they are printed: the pipeline's, but for the radiometry, which runs beside
+    /// the render (after the projection).
     pub const NAMES: [&'static str; 9] =
         ["motion", "vibration", "radiometry", "projection", "render", "targets", "fusion", "noise", "output"];
 
