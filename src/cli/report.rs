@@ -1082,7 +1082,8 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
          fused. `reflection_skip_below_dn`: the sun's reflection is not computed where a bound on what it adds \
          to a pixel is below this (below the horizon it is zero and never computed). `radiometry_tolerance`: a \
          target's radiometry is computed again only when range, heading or speed change by more than this \
-         fraction. The radiometry runs beside the sky render: its stage's time is its own, not the frame's.\n\n| scenario | skip | ms saved per frame | µs saved in stage | max DN changed |\n|---|---|---|---|---|"
+         fraction. The radiometry runs beside the sky render: its stage's time is its own, not the \
+         frame's.\n\n| scenario | skip | ms saved per frame | µs saved in stage | max DN changed |\n|---|---|---|---|---|"
     );
     for row in &skip_rows {
         let _ = writeln!(md, "{row}");

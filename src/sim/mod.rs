@@ -8,10 +8,10 @@
 //! Targets → Fusion → Noise → Output.
 //!
 //! Systems are thin: they gather components, call into [`crate::physics`], [`crate::imaging`] or
-//! [`crate::labels`] (most one function, the render's two side by side), and write the result back. Each completed frame leaves the schedule as a [`FrameReady`]
-//! message. A front end adds [`IrSimPlugins`] to its app and [`spawn_scenario`]s a checked scenario into its
-//! world; [`headless_app`] is the front end of `irsim record`, `irsim bench` and the tests (each `update()`
-//! computes one frame).
+//! [`crate::labels`] (most one function, the render's two side by side), and write the result back. Each
+//! completed frame leaves the schedule as a [`FrameReady`] message. A front end adds [`IrSimPlugins`] to its
+//! app and [`spawn_scenario`]s a checked scenario into its world; [`headless_app`] is the front end of
+//! `irsim record`, `irsim bench` and the tests (each `update()` computes one frame).
 
 mod camera;
 mod components;

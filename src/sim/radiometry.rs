@@ -30,83 +30,74 @@ impl SignatureInputs<'_, '_> {
     /// than `[quality] radiometry_tolerance`, see `unchanged` in this module).
     pub fn update(&mut self) {
         let Self { scene, settings, sensor, observer, targets } = self;
-        update_all(scene, settings, sensor, observer, targets);
-    }
-}
-
-fn update_all(
-    scene: &SceneParams,
-    settings: &SimSettings,
-    sensor: &Query<&Sensor>,
-    observer: &Query<&CameraPose, With<Observer>>,
-    targets: &mut Query<(&Kinematics, &Body, &Skin, &mut Signature), Without<Observer>>,
-) {
-    let (Ok(sensor), Ok(pose)) = (sensor.single(), observer.single()) else { return };
-    let eye = pose.steady.position_m;
-    let ctx = ApparentContext {
-        band: sensor.resolved.model.band,
-        measure: sensor.measure(),
-        air: scene.air,
-        stagnation: scene.stagnation,
-        sun: scene.sun,
-        atmosphere: &scene.atmosphere,
-        reflection: Default::default(),
-        quadrature: &scene.quadrature,
-        planck: settings.quality.planck,
-        // in radiance at the aperture (infinite, so always skipped, where no radiance gives a DN)
-        reflection_skip_below: match settings.quality.reflection_skip_below_dn {
-            dn if dn > 0.0 => dn / sensor.dn_per_radiance,
-            _ => 0.0,
-        },
-        sight: None,
-    };
-    let tolerance = settings.quality.radiometry_tolerance;
-    // each target's chain reads only its own components and the scene: the targets run in parallel (rayon's
-    // pool, whose workers the frame keeps awake), each computed exactly as alone
-    let mut all: Vec<_> = targets.iter_mut().collect();
-    all.par_iter_mut().with_max_len(1).for_each(|(kin, body, skin, sig)| {
-        let p = kin.position_m;
-        let dir = kin.velocity_m_s.normalize_or_zero();
-        let key = [p.x, p.y, p.z, dir.x, dir.y, dir.z, kin.velocity_m_s.length(), eye.x, eye.y, eye.z];
-        if sig.key.is_some_and(|old| unchanged(&old, &key, tolerance)) {
-            return;
-        }
-        let mach = match skin.mach {
-            Some(m) => m,
-            None => mach_number(kin.velocity_m_s.length(), scene.air_temp_k(p.z)),
+        let (scene, settings): (&SceneParams, &SimSettings) = (scene, settings);
+        let (Ok(sensor), Ok(pose)) = (sensor.single(), observer.single()) else { return };
+        let eye = pose.steady.position_m;
+        let ctx = ApparentContext {
+            band: sensor.resolved.model.band,
+            measure: sensor.measure(),
+            air: scene.air,
+            stagnation: scene.stagnation,
+            sun: scene.sun,
+            atmosphere: &scene.atmosphere,
+            reflection: Default::default(),
+            quadrature: &scene.quadrature,
+            planck: settings.quality.planck,
+            // in radiance at the aperture (infinite, so always skipped, where no radiance gives a DN)
+            reflection_skip_below: match settings.quality.reflection_skip_below_dn {
+                dn if dn > 0.0 => dn / sensor.dn_per_radiance,
+                _ => 0.0,
+            },
+            sight: None,
         };
-        let state = TargetState {
-            position_m: p,
-            mach,
-            emissivity: skin.emissivity,
-            heating_k: skin.heating_k,
-            brdf: skin.brdf,
-            semi_axes_m: body.semi_axes_m,
-            attitude: body.body_to_world(kin.velocity_m_s),
-        };
-        let sig = &mut **sig;
-        let sight = match scene.atmosphere.lowtran() {
-            Some(lowtran) => sig
-                .sight
-                .update(lowtran, eye, p, settings.quality.atmosphere_tolerance)
-                .map(|spectrum| {
-                    let (sun_weights, measure_ratios) = (lowtran.sun_weights(), lowtran.measure_ratios());
-                    Some(Sight { spectrum, sun_weights, measure_ratios, skin_weights: &sig.skin_weights })
-                })
-                .map_err(|e| e.to_string()),
-            None => Ok(None),
-        };
-        let result = sight.and_then(|sight| {
-            let ctx = ApparentContext { reflection: skin.reflection, sight, ..ctx };
-            apparent_radiance(&state, eye, &ctx).map_err(|e| e.to_string())
+        let tolerance = settings.quality.radiometry_tolerance;
+        // each target's chain reads only its own components and the scene: the targets run in parallel (rayon's
+        // pool, whose workers the frame keeps awake), each computed exactly as alone
+        let mut all: Vec<_> = targets.iter_mut().collect();
+        all.par_iter_mut().with_max_len(1).for_each(|(kin, body, skin, sig)| {
+            let p = kin.position_m;
+            let dir = kin.velocity_m_s.normalize_or_zero();
+            let key = [p.x, p.y, p.z, dir.x, dir.y, dir.z, kin.velocity_m_s.length(), eye.x, eye.y, eye.z];
+            if sig.key.is_some_and(|old| unchanged(&old, &key, tolerance)) {
+                return;
+            }
+            let mach = match skin.mach {
+                Some(m) => m,
+                None => mach_number(kin.velocity_m_s.length(), scene.air_temp_k(p.z)),
+            };
+            let state = TargetState {
+                position_m: p,
+                mach,
+                emissivity: skin.emissivity,
+                heating_k: skin.heating_k,
+                brdf: skin.brdf,
+                semi_axes_m: body.semi_axes_m,
+                attitude: body.body_to_world(kin.velocity_m_s),
+            };
+            let sig = &mut **sig;
+            let sight = match scene.atmosphere.lowtran() {
+                Some(lowtran) => sig
+                    .sight
+                    .update(lowtran, eye, p, settings.quality.atmosphere_tolerance)
+                    .map(|spectrum| {
+                        let (sun_weights, measure_ratios) = (lowtran.sun_weights(), lowtran.measure_ratios());
+                        Some(Sight { spectrum, sun_weights, measure_ratios, skin_weights: &sig.skin_weights })
+                    })
+                    .map_err(|e| e.to_string()),
+                None => Ok(None),
+            };
+            let result = sight.and_then(|sight| {
+                let ctx = ApparentContext { reflection: skin.reflection, sight, ..ctx };
+                apparent_radiance(&state, eye, &ctx).map_err(|e| e.to_string())
+            });
+            (sig.signal, sig.error) = match result {
+                Ok(signal) => (Some(signal), None),
+                Err(e) => (None, Some(e)),
+            };
+            sig.mach = mach;
+            sig.key = Some(key);
         });
-        (sig.signal, sig.error) = match result {
-            Ok(signal) => (Some(signal), None),
-            Err(e) => (None, Some(e)),
-        };
-        sig.mach = mach;
-        sig.key = Some(key);
-    });
+    }
 }
 
 /// A target's line of sight through a LOWTRAN atmosphere: the spectrum last interpolated from the table and the

@@ -38,15 +38,16 @@ pub fn render_sky(
     mut signatures: SignatureInputs,
     timings: Option<ResMut<StageTimings>>,
 ) {
+    let timed = timings.is_some();
     let ((), seconds) = rayon::join(
         || render_view(&settings, &observer, &sky, &mut sensor),
         || {
-            let start = std::time::Instant::now();
+            let start = timed.then(std::time::Instant::now);
             signatures.update();
-            start.elapsed().as_secs_f64()
+            start.map(|s| s.elapsed().as_secs_f64())
         },
     );
-    if let Some(mut t) = timings {
+    if let (Some(mut t), Some(seconds)) = (timings, seconds) {
         t.add_radiometry(seconds);
     }
 }
