@@ -505,3 +505,36 @@ fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
     let r = cov / (var(&a, ma) * var(&b, mb)).sqrt();
     assert!(r > 0.99, "correlation {r}");
 }
+
+/// The targets' shapes drawn beside the sky render and scaled in the targets stage give every patch, peak and
+/// fusion mode, to the bit, that the targets stage gives drawing each target whole itself (one target, and ten
+/// drawn side by side).
+#[test]
+fn target_shapes_drawn_beside_the_render_are_the_patches_drawn_whole() {
+    use bevy::ecs::system::RunSystemOnce;
+    use irsim::sim::{Footprint, TargetPatches, draw_targets};
+
+    for name in ["paper_clear_sky", "swarm"] {
+        let s = load(&root().join(format!("scenarios/{name}.toml"))).unwrap();
+        let mut app = build_app(&s, RunOptions::default()).unwrap();
+        step(&mut app);
+        step(&mut app);
+        let world = app.world_mut();
+        let state = |world: &mut bevy::ecs::world::World| {
+            let p = world.resource::<TargetPatches>();
+            let patches: Vec<_> = p.patches[..p.used].iter().map(|(r, v)| (*r, v.clone())).collect();
+            let additive = p.additive.clone();
+            let mut q = world.query::<&Footprint>();
+            let peaks: Vec<_> = q.iter(world).map(|f| (f.patch, f.peak_radiance.to_bits())).collect();
+            (patches, additive, peaks)
+        };
+        let beside = state(world);
+        assert!(!beside.0.is_empty(), "{name}: a target is drawn");
+        assert!(beside.0.iter().all(|(_, v)| v.iter().any(|&x| x != 0.0)), "{name}: every patch holds its target");
+        assert_eq!(world.resource::<TargetPatches>().shapes_used, beside.0.len(), "{name}: shapes drawn");
+        // no shapes: the targets stage draws each target whole
+        world.resource_mut::<TargetPatches>().shapes_used = 0;
+        world.run_system_once(draw_targets).unwrap();
+        assert_eq!(state(world), beside, "{name}");
+    }
+}

@@ -19,8 +19,8 @@
 //!
 //! The pipeline runs `irsim bench`'s built-in case of that size with one target (the `standard` preset) in a
 //! thread pool of the same size. Its stages include what the bounds leave out (the sky's planning, targets,
-//! labels; the render's, the targets' radiometry, which runs beside it); the ratios say how far each stage is
-//! from what the machine can do.
+//! labels; the render's, the targets' radiometry and shapes, which run beside it); the ratios say how far each
+//! stage is from what the machine can do.
 
 use std::time::Instant;
 
@@ -389,7 +389,7 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
     })?;
     super::say(
         "(µs per frame; a frame's time includes every stage and the schedule's own; the render's includes the \
-         targets' radiometry, which runs beside it)",
+         targets' radiometry and shapes, which run beside it)",
     )
 }
 

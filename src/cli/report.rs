@@ -1083,7 +1083,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
          to a pixel is below this (below the horizon it is zero and never computed). `radiometry_tolerance`: a \
          target's radiometry is computed again only when range, heading or speed change by more than this \
          fraction. The radiometry runs beside the sky render: its stage's time is its own, not the \
-         frame's.\n\n| scenario | skip | ms saved per frame | µs saved in stage | max DN changed |\n|---|---|---|---|---|"
+         frame's; so do the targets' shapes, whose time is part of the targets stage's.\n\n| scenario | skip | ms saved per frame | µs saved in stage | max DN changed |\n|---|---|---|---|---|"
     );
     for row in &skip_rows {
         let _ = writeln!(md, "{row}");

@@ -658,7 +658,7 @@ pub(super) struct StageSplit {
     /// Wall time per frame, the schedule's own time included.
     pub frame_us: f64,
     /// Per stage, in [`crate::sim::StageTimings::NAMES`]' order (the radiometry's is its own time, within the
-    /// render's).
+    /// render's; the targets' includes their shapes' time, within the render's too).
     pub stages_us: Vec<(&'static str, f64)>,
 }
 
@@ -736,12 +736,14 @@ fn time_headless(scenario: &CheckedScenario, frames: u64, period: u64) -> Result
     })?;
     let fps = 1e6 / split.frame_us;
     let mut details = Vec::new();
-    // the radiometry runs beside the render: its time is its own, inside the render's
+    // the radiometry runs beside the render: its time is its own, inside the render's; so do the targets'
+    // shapes, whose time is part of the targets'
     let stages: Vec<String> = split
         .stages_us
         .iter()
         .map(|(name, us)| match *name {
             "radiometry" => format!("{name} {us:.0} (beside the render)"),
+            "targets" => format!("{name} {us:.0} (shapes beside the render)"),
             _ => format!("{name} {us:.0}"),
         })
         .collect();

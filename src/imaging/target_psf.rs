@@ -107,7 +107,9 @@ pub fn psf_region(ellipse: &ImageEllipse, psf: &Psf, width: usize, height: usize
 /// Renders `amplitude·∫_E PSF(p − x) dx` at the centres of the pixels of `rect` into `out` (row-major,
 /// `rect.width()` wide, overwritten); returns the largest value written. `spread`: no other patch is drawn
 /// beside this one, so a patch of a few hundred nodes is worth splitting across the pool's threads (the values
-/// are the same either way; two patches drawn side by side and split as well were slower).
+/// are the same either way; two patches drawn side by side and split as well were slower). The same values as
+/// [`render_target_shape`] and then [`scale_patch`], which the pipeline calls apart: the shape needs no
+/// background, so it is drawn beside the render.
 ///
 /// # Panics
 /// If `out` is shorter than the rectangle.
@@ -120,12 +122,29 @@ pub fn render_target(
     out: &mut [f32],
     spread: bool,
 ) -> f32 {
+    render_target_shape(ellipse, psf, spec, rect, out, spread);
+    scale_patch(&mut out[..rect.width() * rect.height()], amplitude)
+}
+
+/// The target's shape: `∫_E PSF(p − x) dx` (unit amplitude) at the centres of the pixels of `rect`, into `out`
+/// (row-major, `rect.width()` wide, overwritten); `spread` as in [`render_target`].
+///
+/// # Panics
+/// If `out` is shorter than the rectangle.
+pub fn render_target_shape(
+    ellipse: &ImageEllipse,
+    psf: &Psf,
+    spec: &TargetPsfSpec,
+    rect: PixelRect,
+    out: &mut [f32],
+    spread: bool,
+) {
     let w = rect.width();
     assert!(out.len() >= w * rect.height(), "patch buffer too short");
     let out = &mut out[..w * rect.height()];
     out.fill(0.0);
     if rect.is_empty() {
-        return 0.0;
+        return;
     }
     // the thread's buffer is taken out while the bands run: a thread waiting for a band may run another target
     // (rayon runs queued work while it waits), which must not find the buffer borrowed
@@ -142,8 +161,13 @@ pub fn render_target(
     if rings {
         fill_deep_pixels(ellipse, psf, rect, out);
     }
+}
+
+/// Multiplies a shape from [`render_target_shape`] by `amplitude` in place; returns the value of largest
+/// magnitude (the first of equal ones; 0 for an empty patch).
+pub fn scale_patch(values: &mut [f32], amplitude: f32) -> f32 {
     let mut peak = 0.0f32;
-    for v in out.iter_mut() {
+    for v in values.iter_mut() {
         *v *= amplitude;
         if v.abs() > peak.abs() {
             peak = *v;

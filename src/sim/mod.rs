@@ -4,8 +4,8 @@
 //! material, geometry, sensor data and per-frame results. One fixed step is one sensor frame; its systems run
 //! in this order, declared once in [`PipelinePlugin`]:
 //!
-//! Motion → Vibration → Projection → RenderToTexture (with the targets' radiometry beside the sky render) →
-//! Targets → Fusion → Noise → Output.
+//! Motion → Vibration → Projection → RenderToTexture (with the targets' radiometry and shapes beside the sky
+//! render) → Targets → Fusion → Noise → Output.
 //!
 //! Systems are thin: they gather components, call into [`crate::physics`], [`crate::imaging`] or
 //! [`crate::labels`] (most one function, the render's two side by side), and write the result back. Each
@@ -52,7 +52,7 @@ pub use radiometry::SignatureInputs;
 pub use render::{RenderToTexturePlugin, render_sky};
 pub use resources::{FrameOutput, FramePool, Fusion, SceneParams, SimClock, SimSettings, TargetPatches};
 pub use spawn::{RunOptions, SetupError, despawn_scenario, forget_kept_results, spawn_scenario};
-pub use targets::{TargetsPlugin, draw_targets};
+pub use targets::{TargetShapes, TargetsPlugin, draw_targets};
 pub use timing::{StageTimings, TimingPlugin};
 
 pub use crate::labels::{EllipseLabel, FrameLabels, TargetLabel};

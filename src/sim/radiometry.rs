@@ -1,7 +1,8 @@
 //! Radiometry: skin temperature, radiance, reflection, transmittance and path radiance per target, in the
 //! detector's measure. It reads the targets, the observer and the scene and writes only the targets'
 //! [`Signature`]s, which neither the projection nor the sky render touch: the render's system runs it beside the
-//! render (see [`super::render_sky`]), on whichever of the pool's threads is free.
+//! render (see [`super::render_sky`]), on whichever of the pool's threads is free, followed there by the targets'
+//! shapes ([`super::TargetShapes`]).
 
 use bevy::ecs::prelude::*;
 

@@ -1,5 +1,5 @@
 //! Render to texture: the sky plane ray cast into the sensor's frame through the vibrated camera, the dome
-//! along every ray that misses it, and the optics blur; beside them, the targets' radiometry.
+//! along every ray that misses it, and the optics blur; beside them, the targets' radiometry and shapes.
 
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
@@ -7,12 +7,14 @@ use bevy::prelude::FixedUpdate;
 
 use super::components::SteadyRender;
 use super::timing::StageTimings;
-use super::{CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, SignatureInputs, SimSettings, Sky};
+use super::{
+    CameraPose, Observer, RenderToTextureSystems, Sensor, SensorFrame, SignatureInputs, SimSettings, Sky, TargetShapes,
+};
 use crate::imaging::background::{BackgroundBlur, SkyView};
 use crate::imaging::camera::{Camera, Intrinsics, Jitter};
 use crate::imaging::frame::{Frame, Upsampler};
 
-/// Renders the background, and beside it computes the targets' signatures.
+/// Renders the background, and beside it computes the targets' signatures and draws their shapes.
 pub struct RenderToTexturePlugin;
 
 impl Plugin for RenderToTexturePlugin {
@@ -25,17 +27,19 @@ impl Plugin for RenderToTexturePlugin {
 /// render, reuses it; on a coarse grid, reads a staring camera's shaken view from the render of its steady view
 /// where `[quality] view_shift_tolerance_px` allows.
 ///
-/// Beside the render, in a `rayon::join`, the targets' radiometry ([`SignatureInputs::update`]): the two share
-/// no data, and the render's parallel rows fill the threads around the radiometry's serial work (a frame of
-/// one target at 256 × 256 has tens of microseconds of it). Each target's signature is computed exactly as
-/// alone, so frames are the same bits as with the two one after the other. With [`StageTimings`]
-/// present, the radiometry's own time is added to its stage.
+/// Beside the render, in a `rayon::join`, the targets' radiometry ([`SignatureInputs::update`]) and then their
+/// shapes ([`TargetShapes::draw`]): neither reads what the render writes, nor the render what they write, and
+/// the render's parallel rows fill the threads around their serial work (a frame of one target at 256 × 256
+/// has tens of microseconds of it). Each signature and shape is computed exactly as alone, so frames are the
+/// same bits as with the stages one after the other. With [`StageTimings`] present, the radiometry's own time
+/// is added to its stage, and the shapes' to the targets stage.
 pub fn render_sky(
     settings: Res<SimSettings>,
     observer: Query<&CameraPose, With<Observer>>,
     sky: Query<&Sky>,
     mut sensor: Query<(&Sensor, &mut SensorFrame)>,
     mut signatures: SignatureInputs,
+    mut shapes: TargetShapes,
     timings: Option<ResMut<StageTimings>>,
 ) {
     let timed = timings.is_some();
@@ -44,11 +48,14 @@ pub fn render_sky(
         || {
             let start = timed.then(std::time::Instant::now);
             signatures.update();
-            start.map(|s| s.elapsed().as_secs_f64())
+            let between = timed.then(std::time::Instant::now);
+            shapes.draw();
+            start.zip(between).map(|(s, b)| ((b - s).as_secs_f64(), b.elapsed().as_secs_f64()))
         },
     );
-    if let (Some(mut t), Some(seconds)) = (timings, seconds) {
-        t.add_radiometry(seconds);
+    if let (Some(mut t), Some((radiometry, shapes))) = (timings, seconds) {
+        t.add_radiometry(radiometry);
+        t.add_target_shapes(shapes);
     }
 }
 

@@ -85,6 +85,11 @@ pub struct TargetPatches {
     /// Per entry: added to the frame instead of fused (a target too faint for the fusion to matter,
     /// `[quality] fusion_skip_below_sigma`).
     pub additive: Vec<bool>,
+    /// The targets' shapes (unit amplitude), drawn beside the render ([`TargetShapes`](super::TargetShapes)):
+    /// `(target, rect, values)`, the vectors reused; the targets stage scales each into its patch.
+    pub shapes: Vec<(Entity, PixelRect, Vec<f32>)>,
+    /// How many entries of `shapes` were drawn this frame.
+    pub shapes_used: usize,
 }
 
 /// The fusion engine (planned transforms, buffers).

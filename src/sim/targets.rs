@@ -1,13 +1,19 @@
 //! Targets: the radiance each visible target adds over its background, as the projected ellipse convolved
 //! with the optics PSF (default) or the paper's generalized Gaussian (eqs 11–12).
+//!
+//! With the PSF, a target's patch is its shape (the ellipse ⊗ the PSF at unit contrast) times its contrast
+//! against the background at its centre. The shape needs neither the background nor the radiometry, so the
+//! render's system draws it beside the sky render ([`TargetShapes`]), and the targets stage, once the background
+//! is known, only scales it ([`draw_targets`]).
 
 use bevy::app::{App, Plugin};
 use bevy::ecs::prelude::*;
+use bevy::ecs::system::SystemParam;
 use bevy::prelude::FixedUpdate;
 use rayon::prelude::*;
 
 use super::{Footprint, Sensor, SensorFrame, Signature, SimSettings, TargetPatches, TargetsSystems};
-use crate::imaging::target_psf::render_target;
+use crate::imaging::target_psf::{render_target, render_target_shape, scale_patch};
 use crate::scenario::TargetModel;
 
 /// Draws the target patches.
@@ -19,18 +25,62 @@ impl Plugin for TargetsPlugin {
     }
 }
 
+/// What the targets' shapes are drawn from: each target's footprint (from the projection) and the sensor's
+/// PSF. The shapes need no background, so the render's system draws them beside the render, after the
+/// radiometry ([`super::render_sky`]); [`draw_targets`] then scales each by its target's contrast.
+#[derive(SystemParam)]
+pub struct TargetShapes<'w, 's> {
+    settings: Res<'w, SimSettings>,
+    sensor: Query<'w, 's, &'static Sensor>,
+    targets: Query<'w, 's, (Entity, &'static Footprint)>,
+    patches: ResMut<'w, TargetPatches>,
+}
+
+impl TargetShapes<'_, '_> {
+    /// Draws the shape (the projected ellipse ⊗ the PSF, unit amplitude) of every target in view that the PSF
+    /// model draws, each into a reused buffer, in parallel (a target drawn alone may split its patch across the
+    /// threads), with the same values as [`render_target`] before its scaling.
+    pub fn draw(&mut self) {
+        let Self { settings, sensor, targets, patches } = self;
+        patches.shapes_used = 0;
+        let Ok(sensor) = sensor.single() else { return };
+        let (TargetModel::Psf, Some(psf)) = (settings.blob.model, &sensor.psf) else { return };
+        let patches = &mut **patches;
+        let mut jobs = Vec::new();
+        for (entity, fp) in targets {
+            let (Some(ellipse), Some(roi)) = (fp.ellipse, fp.roi) else { continue };
+            if patches.shapes.len() == patches.shapes_used {
+                patches.shapes.push((entity, roi, Vec::new()));
+            }
+            let (target, rect, values) = &mut patches.shapes[patches.shapes_used];
+            (*target, *rect) = (entity, roi);
+            values.resize(roi.width() * roi.height(), 0.0);
+            jobs.push(ellipse);
+            patches.shapes_used += 1;
+        }
+        let spread = jobs.len() == 1;
+        let spec = settings.blob.target_psf();
+        jobs.par_iter()
+            .zip(&mut patches.shapes[..patches.shapes_used])
+            .with_max_len(1)
+            .for_each(|(ellipse, (_, roi, values))| render_target_shape(ellipse, psf, &spec, *roi, values, spread));
+    }
+}
+
 /// Renders each visible target into a reused patch buffer.
 ///
 /// The target replaces the background it covers: a pixel filled by it receives its apparent radiance
 /// `L_app` instead of the sky's `L_bg` (the noise-free, blurred background at the ellipse's centre), so the
 /// patch carries `ΔL = L_app − L_bg` times the fraction of the pixel's PSF-weighted footprint it covers: the
 /// ellipse ⊗ PSF sampled at the pixel centres, or, in the paper model, a generalized Gaussian of the same
-/// integral (`ΔL·A/∫shape`, A the ellipse's area in px²).
+/// integral (`ΔL·A/∫shape`, A the ellipse's area in px²). A PSF target's shape drawn beside the render
+/// ([`TargetShapes`]) becomes its patch, scaled by `ΔL`; one without (a target the render's system did not see)
+/// is drawn here, with the same values.
 pub fn draw_targets(
     settings: Res<SimSettings>,
     mut patches: ResMut<TargetPatches>,
     sensor: Query<(&Sensor, &SensorFrame)>,
-    mut targets: Query<(&Signature, &mut Footprint)>,
+    mut targets: Query<(Entity, &Signature, &mut Footprint)>,
 ) {
     let Ok((sensor, sf)) = sensor.single() else { return };
     let patches = &mut *patches;
@@ -38,7 +88,8 @@ pub fn draw_targets(
     let (w, h) = (sf.background.width(), sf.background.height());
     // first the targets to draw, each given the next patch buffer (in the query's order, as before) ...
     let mut jobs = Vec::new();
-    for (sig, mut fp) in &mut targets {
+    let mut shapes = patches.shapes_used;
+    for (entity, sig, mut fp) in &mut targets {
         let (Some(ellipse), Some(roi), Some(signal)) = (fp.ellipse, fp.roi, sig.signal) else { continue };
         let (cx, cy) = (ellipse.center.x.floor(), ellipse.center.y.floor());
         let bg = if cx >= 0.0 && cy >= 0.0 && (cx as usize) < w && (cy as usize) < h {
@@ -67,16 +118,31 @@ pub fn draw_targets(
         }
         let (rect, values) = &mut patches.patches[patches.used];
         *rect = roi;
-        values.resize(roi.width() * roi.height(), 0.0);
-        jobs.push((fp, ellipse, delta, bg, 0.0f64));
+        // the shape drawn beside the render, if it was: its buffer becomes the patch
+        let shape = patches.shapes[..shapes].iter().position(|&(e, r, _)| e == entity && r == roi);
+        let drawn = match shape {
+            Some(k) => {
+                std::mem::swap(values, &mut patches.shapes[k].2);
+                // the shapes not yet taken stay in the first `shapes` entries
+                shapes -= 1;
+                patches.shapes.swap(k, shapes);
+                true
+            }
+            None => {
+                values.resize(roi.width() * roi.height(), 0.0);
+                false
+            }
+        };
+        jobs.push((fp, ellipse, delta, bg, 0.0f64, drawn));
         patches.used += 1;
     }
     // ... then drawn in parallel, each into its own buffer (the same values as one after the other; a target
     // drawn alone may split its patch across the threads) ...
     let spread = jobs.len() == 1;
     jobs.par_iter_mut().zip(&mut patches.patches[..patches.used]).with_max_len(1).for_each(
-        |((fp, ellipse, delta, _, peak), (roi, values))| {
+        |((fp, ellipse, delta, _, peak, drawn), (roi, values))| {
             *peak = match (settings.blob.model, &sensor.psf, fp.blob) {
+                (TargetModel::Psf, Some(_), _) if *drawn => f64::from(scale_patch(values, *delta as f32)),
                 (TargetModel::Psf, Some(psf), _) => f64::from(render_target(
                     ellipse,
                     *delta as f32,
@@ -98,7 +164,7 @@ pub fn draw_targets(
     );
     // ... and their peaks and fusion mode recorded
     patches.additive.clear();
-    for (k, (mut fp, _, _, bg, peak)) in jobs.into_iter().enumerate() {
+    for (k, (mut fp, _, _, bg, peak, _)) in jobs.into_iter().enumerate() {
         fp.peak_radiance = peak;
         fp.patch = Some(k);
         // a target whose peak is under the set fraction of the noise is added rather than fused

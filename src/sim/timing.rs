@@ -13,7 +13,8 @@ use super::{
 #[derive(Resource, Debug, Clone, Default)]
 pub struct StageTimings {
     /// Seconds per stage, in the order of [`StageTimings::NAMES`]: each the wall-clock time between the stages
-    /// before and after it, but the radiometry's, which is its own time beside the render (and within it).
+    /// before and after it, but the radiometry's, which is its own time beside the render (and within it), and
+    /// the targets', to which the time of their shapes, drawn beside the render, is added.
     pub seconds: [f64; 9],
     /// Steps timed.
     pub steps: u64,
@@ -29,6 +30,12 @@ impl StageTimings {
     /// Adds `seconds` to the radiometry's stage: the render's system times the radiometry it runs beside it.
     pub(super) fn add_radiometry(&mut self, seconds: f64) {
         self.seconds[2] += seconds;
+    }
+
+    /// Adds `seconds` to the targets' stage: the render's system times the targets' shapes it draws beside the
+    /// render.
+    pub(super) fn add_target_shapes(&mut self, seconds: f64) {
+        self.seconds[5] += seconds;
     }
 
     /// Mean milliseconds per frame for each stage, by name.
