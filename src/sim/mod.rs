@@ -67,7 +67,7 @@ pub struct VibrationSystems;
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct ProjectionSystems;
 /// Sky plane ray cast into the sensor frame, the dome for the misses, the optics blur; beside them, the
-/// targets' apparent radiance.
+/// targets' apparent radiance and their shapes (the PSF model's).
 #[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct RenderToTextureSystems;
 /// Target patches.

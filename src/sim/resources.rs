@@ -88,7 +88,8 @@ pub struct TargetPatches {
     /// The targets' shapes (unit amplitude), drawn beside the render ([`TargetShapes`](super::TargetShapes)):
     /// `(target, rect, values)`, the vectors reused; the targets stage scales each into its patch.
     pub shapes: Vec<(Entity, PixelRect, Vec<f32>)>,
-    /// How many entries of `shapes` were drawn this frame.
+    /// How many entries of `shapes` hold a shape drawn this frame and not yet taken: all that were drawn until
+    /// the targets stage, which takes those of the targets it draws (and leaves the others first).
     pub shapes_used: usize,
 }
 

@@ -136,6 +136,8 @@ pub fn draw_targets(
         jobs.push((fp, ellipse, delta, bg, 0.0f64, drawn));
         patches.used += 1;
     }
+    // the shapes not taken (of targets not drawn this frame) are the only ones left
+    patches.shapes_used = shapes;
     // ... then drawn in parallel, each into its own buffer (the same values as one after the other; a target
     // drawn alone may split its patch across the threads) ...
     let spread = jobs.len() == 1;

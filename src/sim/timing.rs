@@ -46,7 +46,8 @@ impl StageTimings {
 }
 
 /// Records the time since the previous stamp into stage `N − 1` (stamp 0 starts the step, 9 ends it; 3 is not
-/// stamped: the radiometry runs beside the render, whose system adds its time to stage 2 itself).
+/// stamped: the radiometry runs beside the render, whose system adds its time to stage 2 itself, and the time of
+/// the targets' shapes, also drawn beside the render, to stage 5).
 fn stamp<const N: usize>(mut timings: ResMut<StageTimings>) {
     let now = std::time::Instant::now();
     if N > 0
