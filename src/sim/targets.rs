@@ -138,8 +138,8 @@ pub fn draw_targets(
     }
     // the shapes not taken (of targets not drawn this frame) are the only ones left
     patches.shapes_used = shapes;
-    // ... then drawn in parallel, each into its own buffer (the same values as one after the other; a target
-    // drawn alone may split its patch across the threads) ...
+    // ... then drawn (or their shapes scaled) in parallel, each into its own buffer (the same values as one after
+    // the other; a target drawn alone may split its patch across the threads) ...
     let spread = jobs.len() == 1;
     jobs.par_iter_mut().zip(&mut patches.patches[..patches.used]).with_max_len(1).for_each(
         |((fp, ellipse, delta, _, peak, drawn), (roi, values))| {
