@@ -50,7 +50,7 @@ pub use output::{
 pub use projection::{ProjectionPlugin, project_targets};
 pub use radiometry::SignatureInputs;
 pub use render::{RenderToTexturePlugin, render_sky};
-pub use resources::{FrameOutput, FramePool, Fusion, SceneParams, SimClock, SimSettings, TargetPatches};
+pub use resources::{FrameOutput, FramePool, Fusion, SceneParams, SimClock, SimSettings, TargetPatches, TargetShape};
 pub use spawn::{RunOptions, SetupError, despawn_scenario, forget_kept_results, spawn_scenario};
 pub use targets::{TargetShapes, TargetsPlugin, draw_targets};
 pub use timing::{StageTimings, TimingPlugin};

@@ -4,7 +4,7 @@ use bevy::ecs::prelude::*;
 
 use crate::imaging::frame::Frame;
 use crate::imaging::fusion::PoissonFusion;
-use crate::imaging::target_blob::PixelRect;
+use crate::imaging::target_blob::{ImageEllipse, PixelRect};
 use crate::labels::FrameLabels;
 use crate::physics::atmosphere::AirTemperature;
 use crate::physics::reflection::{SphereQuadrature, Sun};
@@ -85,12 +85,25 @@ pub struct TargetPatches {
     /// Per entry: added to the frame instead of fused (a target too faint for the fusion to matter,
     /// `[quality] fusion_skip_below_sigma`).
     pub additive: Vec<bool>,
-    /// The targets' shapes (unit amplitude), drawn beside the render ([`TargetShapes`](super::TargetShapes)):
-    /// `(target, rect, values)`, the vectors reused; the targets stage scales each into its patch.
-    pub shapes: Vec<(Entity, PixelRect, Vec<f32>)>,
+    /// The targets' shapes (unit amplitude), drawn beside the render ([`TargetShapes`](super::TargetShapes)),
+    /// their buffers reused; the targets stage scales each into its patch.
+    pub shapes: Vec<TargetShape>,
     /// How many entries of `shapes` hold a shape drawn this frame and not yet taken: all that were drawn until
     /// the targets stage, which takes those of the targets it draws (and leaves the others first).
     pub shapes_used: usize,
+}
+
+/// A target's shape drawn beside the render: the projected ellipse ⊗ the PSF at unit contrast on `rect`.
+#[derive(Debug)]
+pub struct TargetShape {
+    /// The target it is of.
+    pub target: Entity,
+    /// Its region of interest (the footprint's).
+    pub rect: PixelRect,
+    /// Its image ellipse (the footprint's).
+    pub ellipse: ImageEllipse,
+    /// Row-major over `rect`.
+    pub values: Vec<f32>,
 }
 
 /// The fusion engine (planned transforms, buffers).

@@ -12,7 +12,7 @@ use bevy::ecs::system::SystemParam;
 use bevy::prelude::FixedUpdate;
 use rayon::prelude::*;
 
-use super::{Footprint, Sensor, SensorFrame, Signature, SimSettings, TargetPatches, TargetsSystems};
+use super::{Footprint, Sensor, SensorFrame, Signature, SimSettings, TargetPatches, TargetShape, TargetsSystems};
 use crate::imaging::target_psf::{render_target, render_target_shape, scale_patch};
 use crate::scenario::TargetModel;
 
@@ -46,24 +46,23 @@ impl TargetShapes<'_, '_> {
         let Ok(sensor) = sensor.single() else { return };
         let (TargetModel::Psf, Some(psf)) = (settings.blob.model, &sensor.psf) else { return };
         let patches = &mut **patches;
-        let mut jobs = Vec::new();
-        for (entity, fp) in targets {
-            let (Some(ellipse), Some(roi)) = (fp.ellipse, fp.roi) else { continue };
+        for (target, fp) in targets {
+            let (Some(ellipse), Some(rect)) = (fp.ellipse, fp.roi) else { continue };
             if patches.shapes.len() == patches.shapes_used {
-                patches.shapes.push((entity, roi, Vec::new()));
+                patches.shapes.push(TargetShape { target, rect, ellipse, values: Vec::new() });
             }
-            let (target, rect, values) = &mut patches.shapes[patches.shapes_used];
-            (*target, *rect) = (entity, roi);
-            values.resize(roi.width() * roi.height(), 0.0);
-            jobs.push(ellipse);
+            // the entry's buffer is kept from frame to frame
+            let shape = &mut patches.shapes[patches.shapes_used];
+            (shape.target, shape.rect, shape.ellipse) = (target, rect, ellipse);
+            shape.values.resize(rect.width() * rect.height(), 0.0);
             patches.shapes_used += 1;
         }
-        let spread = jobs.len() == 1;
+        let shapes = &mut patches.shapes[..patches.shapes_used];
+        let spread = shapes.len() == 1;
         let spec = settings.blob.target_psf();
-        jobs.par_iter()
-            .zip(&mut patches.shapes[..patches.shapes_used])
-            .with_max_len(1)
-            .for_each(|(ellipse, (_, roi, values))| render_target_shape(ellipse, psf, &spec, *roi, values, spread));
+        shapes.par_iter_mut().with_max_len(1).for_each(|s| {
+            render_target_shape(&s.ellipse, psf, &spec, s.rect, &mut s.values, spread);
+        });
     }
 }
 
@@ -119,10 +118,10 @@ pub fn draw_targets(
         let (rect, values) = &mut patches.patches[patches.used];
         *rect = roi;
         // the shape drawn beside the render, if it was: its buffer becomes the patch
-        let shape = patches.shapes[..shapes].iter().position(|&(e, r, _)| e == entity && r == roi);
+        let shape = patches.shapes[..shapes].iter().position(|s| s.target == entity && s.rect == roi);
         let drawn = match shape {
             Some(k) => {
-                std::mem::swap(values, &mut patches.shapes[k].2);
+                std::mem::swap(values, &mut patches.shapes[k].values);
                 // the shapes not yet taken stay in the first `shapes` entries
                 shapes -= 1;
                 patches.shapes.swap(k, shapes);
