@@ -29,8 +29,11 @@
 //!
 //! The blurred texture is made only for the texels the view needs ([`PrefilterCache`]), from the whole image
 //! (its true edges replicated), block by block on a grid aligned to the image, so a crop's values do not depend
-//! on where the crop ends and a panning view filters each block once (blocks are kept for the next crops). Wide
-//! kernels go through FFTs, two phases to an inverse transform (one as the real part, one as the imaginary).
+//! on where the crop ends and a panning view filters each block once. A key's blocks are written into one grid
+//! of its fine nodes over the whole image (or, for an image too large, a window around the view), and a crop is
+//! a view of that grid, its rows a grid's row apart: a view panning past its crop's margin takes a new view of
+//! the same values, nothing copied. Wide kernels go through FFTs, two phases to an inverse transform (one as the
+//! real part, one as the imaginary).
 //!
 //! Cost, measured with `irsim bench SCENARIO --frames 300` (two interleaved rounds, this machine's 2 cores): on
 //! paper_clear_sky, whose tracking camera pans across the image, 294–295 frames/s when every crop was filtered
@@ -60,10 +63,14 @@ const FFT_BLOCK_TEXELS: usize = 128;
 const CACHE_ENTRIES: usize = 4;
 /// Bytes of prefiltered blocks kept for later crops (a panning view needs the blocks it saw a moment ago and
 /// a few new ones; a run that comes back to a Jacobian, or `irsim bench` running a scenario again, needs every
-/// key's blocks); the blocks one crop needs are kept whatever their size. sense_and_avoid's 7 keys take 192
+/// key's blocks); the blocks of the key in use are kept whatever their size. sense_and_avoid's 7 keys take 192
 /// blocks of 576 KiB (24 to 28 a key, on a grid of 3 × 3 nodes a texel), 108 MiB: at 64 MiB each pass of `irsim
 /// bench` made all of them again, 16–28 ms a key (docs/accuracy.md).
 const BLOCK_CACHE_BYTES: usize = 256 << 20;
+/// Largest grid of one key's blocks, bytes ([`Canvas`]): the whole image where its grid is no larger (its pages
+/// are mapped only where blocks are written), else a window around the crops in use. sense_and_avoid's image,
+/// 4096 × 1536 texels on a grid of 3 × 3 nodes a texel, takes 216 MiB.
+const CANVAS_BYTES: usize = 256 << 20;
 /// Bytes of texture filters kept for Jacobians seen before (a camera panning back, a run looped by `irsim
 /// bench`); the filter in use is kept whatever its size. A filter is a few hundred KiB at most on the shipped
 /// scenarios, and takes 0.5–2.5 ms to make (docs/accuracy.md).
@@ -452,12 +459,11 @@ impl JacobianKey {
 /// A texel rectangle `[x0, y0, x1, y1)`.
 type TexelRect = [usize; 4];
 
+/// A crop handed out: a texel rectangle of a key's [`Canvas`].
 #[derive(Debug)]
 struct Entry {
     key: JacobianKey,
     rect: TexelRect,
-    /// `None` in a plan (nothing is built).
-    plane: Option<SkyPlane>,
     last_used: u64,
 }
 
@@ -469,37 +475,93 @@ struct KeptFilter {
     last_used: u64,
 }
 
-/// One [`FFT_BLOCK_TEXELS`]-square block of the image, aligned to its texel grid, prefiltered for one key: every
-/// phase, on the fine grid (`per_texel · FFT_BLOCK_TEXELS` a side, row-major).
+/// One key's prefiltered image: its [`FFT_BLOCK_TEXELS`]-square blocks, aligned to the image's texel grid, each
+/// prefiltered once (every phase, on the fine grid of `per_texel` nodes a texel along each axis), held in one
+/// row-major grid of fine nodes over a window of the image, so that a crop is a view of it, never a copy.
 #[derive(Debug)]
-struct Block {
+struct Canvas {
     key: JacobianKey,
-    /// Grid nodes per texel along each axis: the block holds `(FFT_BLOCK_TEXELS · per_texel)²` values.
+    /// Grid nodes per texel along each axis: a block holds `(FFT_BLOCK_TEXELS · per_texel)²` values.
     per_texel: usize,
-    /// The block's first texel.
-    at: [usize; 2],
-    /// `None` in a plan.
-    values: Option<Vec<f32>>,
+    /// The texels it covers, aligned to [`FFT_BLOCK_TEXELS`] (its last blocks may reach past the image's edge).
+    window: TexelRect,
+    /// Which of its blocks hold their values, row-major.
+    present: Vec<bool>,
+    /// Blocks written since it was made (their pages stay mapped): what it counts against
+    /// [`BLOCK_CACHE_BYTES`].
+    written: usize,
+    /// The grid (`None` in a plan, and until a block is written): `stride()` floats a row.
+    values: Option<Arc<Vec<f32>>>,
     last_used: u64,
 }
 
-impl Block {
-    /// The bytes its values take (or, in a plan, would take).
+impl Canvas {
+    fn new(key: JacobianKey, per_texel: usize, window: TexelRect, last_used: u64) -> Self {
+        let s = FFT_BLOCK_TEXELS;
+        let blocks = (window[2] - window[0]) / s * ((window[3] - window[1]) / s);
+        Self { key, per_texel, window, present: vec![false; blocks], written: 0, values: None, last_used }
+    }
+
+    /// Floats a row of the grid.
+    fn stride(&self) -> usize {
+        (self.window[2] - self.window[0]) * self.per_texel
+    }
+
+    /// Index in `present` of the block whose first texel is `at`, if inside the window.
+    fn block(&self, [bx, by]: [usize; 2]) -> Option<usize> {
+        let s = FFT_BLOCK_TEXELS;
+        let w = self.window;
+        let inside = bx >= w[0] && by >= w[1] && bx < w[2] && by < w[3];
+        inside.then(|| (by - w[1]) / s * ((w[2] - w[0]) / s) + (bx - w[0]) / s)
+    }
+
+    /// The bytes of its written blocks.
     fn bytes(&self) -> usize {
-        (FFT_BLOCK_TEXELS * self.per_texel).pow(2) * size_of::<f32>()
+        self.written * (FFT_BLOCK_TEXELS * self.per_texel).pow(2) * size_of::<f32>()
+    }
+
+    /// Its grid, made (of pages the system maps as they are first written) where it had none, for writing.
+    fn values_mut(&mut self) -> &mut [f32] {
+        let len = self.stride() * (self.window[3] - self.window[1]) * self.per_texel;
+        let values: &mut Vec<f32> = Arc::make_mut(self.values.get_or_insert_with(|| Arc::new(vec![0.0; len])));
+        values
+    }
+
+    /// Writes the block whose first texel is `at` (its `(FFT_BLOCK_TEXELS · per_texel)²` values, row-major).
+    fn write(&mut self, at: [usize; 2], block: &[f32]) {
+        let i = self.block(at).expect("a block inside the window");
+        let (m, stride) = (self.per_texel, self.stride());
+        let bs = FFT_BLOCK_TEXELS * m;
+        let first = (at[1] - self.window[1]) * m * stride + (at[0] - self.window[0]) * m;
+        let values = self.values_mut();
+        for (y, row) in block.chunks_exact(bs).enumerate() {
+            values[first + y * stride..first + y * stride + bs].copy_from_slice(row);
+        }
+        self.present[i] = true;
+        self.written += 1;
+    }
+
+    /// The block whose first texel is `at`, copied out of the grid.
+    fn read(&self, at: [usize; 2]) -> Option<Vec<f32>> {
+        let values = self.values.as_ref()?;
+        let (m, stride) = (self.per_texel, self.stride());
+        let bs = FFT_BLOCK_TEXELS * m;
+        let first = (at[1] - self.window[1]) * m * stride + (at[0] - self.window[0]) * m;
+        Some((0..bs).flat_map(|y| &values[first + y * stride..first + y * stride + bs]).copied().collect())
     }
 }
 
 /// Prefiltered crops of one sky plane for one PSF, by Jacobian key: a few are kept, the least recently used
-/// replaced. A crop is put together from prefiltered blocks, kept (up to 256 MiB of them) for the next crops of the same
-/// key, so a view panning across the image filters each block once.
+/// replaced. A crop is a view of its key's grid of prefiltered blocks, which are kept (up to 256 MiB of them) for the
+/// next crops of the same key, so a view panning across the image filters each block once and copies nothing.
 #[derive(Debug, Default)]
 pub struct PrefilterCache {
     entries: Vec<Entry>,
-    blocks: Vec<Block>,
-    /// The pixels of the last crop replaced, for the next crop to be made in (a new buffer of megabytes is made
-    /// of pages the system maps and zeroes as they are first written).
-    spare: Vec<f32>,
+    canvases: Vec<Canvas>,
+    /// The crop last handed out.
+    view: Option<SkyPlane>,
+    /// The largest canvas, bytes ([`CANVAS_BYTES`] where `None`).
+    canvas_bytes: Option<usize>,
     /// The filters of the keys seen (and the keys whose kernels are too wide), up to [`FILTER_CACHE_BYTES`].
     filters: Vec<KeptFilter>,
     /// The transforms of the last key's kernels.
@@ -543,7 +605,14 @@ impl PrefilterCache {
         need: [f64; 4],
     ) -> Option<&SkyPlane> {
         let slot = self.slot(source, psf, key, settings, need, true)?;
-        self.entries[slot].plane.as_ref()
+        let Entry { key, rect, .. } = self.entries[slot];
+        let canvas = self.canvases.iter().find(|c| c.key == key).expect("a crop's key has its canvas");
+        let values = canvas.values.clone().expect("a built crop's canvas holds values");
+        let (m, stride, window) = (canvas.per_texel, canvas.stride(), canvas.window);
+        let offset = (rect[1] - window[1]) * m * stride + (rect[0] - window[0]) * m;
+        let image = SkyImage::view(values, offset, (rect[2] - rect[0]) * m, (rect[3] - rect[1]) * m, stride);
+        self.view = Some(source.with_region(image, [rect[0], rect[1]], m));
+        self.view.as_ref()
     }
 
     /// What [`PrefilterCache::plane`] would do, without building anything: counts the builds and their work.
@@ -576,7 +645,8 @@ impl PrefilterCache {
         );
         if self.source != Some(id) {
             self.entries.clear();
-            self.blocks.clear();
+            self.canvases.clear();
+            self.view = None;
             self.filters.clear();
             self.image_spectra = None;
             self.source = Some(id);
@@ -591,7 +661,10 @@ impl PrefilterCache {
         let covers = |r: &TexelRect| r[0] <= want[0] && r[1] <= want[1] && r[2] >= want[2] && r[3] >= want[3];
         if let Some(i) = self.entries.iter().position(|e| e.key == key && covers(&e.rect)) {
             self.entries[i].last_used = self.clock;
-            // the key's filter is in use too: not the first to go when filters are dropped
+            // the key's canvas and filter are in use too: not the first to go when they are dropped
+            if let Some(c) = self.canvases.iter_mut().find(|c| c.key == key) {
+                c.last_used = self.clock;
+            }
             self.touch_filter(key);
             return Some(i);
         }
@@ -601,31 +674,29 @@ impl PrefilterCache {
         let down = |v: usize| (v / BLOCK_TEXELS).saturating_sub(1) * BLOCK_TEXELS;
         let up = |v: usize, n: usize| ((v.div_ceil(BLOCK_TEXELS) + 1) * BLOCK_TEXELS).min(n);
         let rect = [down(want[0]), down(want[1]), up(want[2], w), up(want[3], h)];
-        let missing = self.mark_blocks(key, rect);
+        let c = self.canvas(key, filter.per_texel, rect, (w, h));
+        let missing = self.mark_blocks(c, rect);
         let s = FFT_BLOCK_TEXELS;
         self.work += (missing.len() * s * s) as f64 * build_taps(&filter);
-        let plane = build.then(|| self.build(source, &filter, key, rect, &missing));
-        if !build {
-            let per_texel = filter.per_texel;
-            self.blocks.extend(missing.iter().map(|&at| Block {
-                key,
-                per_texel,
-                at,
-                values: None,
-                last_used: self.clock,
-            }));
+        if build {
+            self.build(source, &filter, c, &missing);
+        } else {
+            let canvas = &mut self.canvases[c];
+            for &at in &missing {
+                let i = canvas.block(at).expect("a missing block inside the window");
+                canvas.present[i] = true;
+                canvas.written += 1;
+            }
         }
-        self.evict_blocks();
-        let entry = Entry { key, rect, plane, last_used: self.clock };
+        self.evict_canvases();
+        let entry = Entry { key, rect, last_used: self.clock };
         self.builds += 1;
         let slot = if self.entries.len() < CACHE_ENTRIES {
             self.entries.push(entry);
             self.entries.len() - 1
         } else {
             let (i, _) = least_recent(&self.entries, |e| e.last_used);
-            if let Some(old) = std::mem::replace(&mut self.entries[i], entry).plane {
-                self.spare = old.into_image().into_pixels();
-            }
+            self.entries[i] = entry;
             i
         };
         Some(slot)
@@ -677,51 +748,96 @@ impl PrefilterCache {
         Some(kept)
     }
 
-    /// The first texels of the blocks that cover `rect`, marked used; returns those not yet prefiltered for `key`.
-    fn mark_blocks(&mut self, key: JacobianKey, rect: TexelRect) -> Vec<[usize; 2]> {
+    /// The index of `key`'s canvas, marked used, made where there is none, or moved where its window does not
+    /// hold `rect` (keeping the blocks the old and new windows share; the crops outside the new one are
+    /// dropped). Its window is the whole image (`w × h` texels) where that grid fits the canvas budget, else the
+    /// blocks around `rect` and one more on every side.
+    fn canvas(&mut self, key: JacobianKey, per_texel: usize, rect: TexelRect, (w, h): (usize, usize)) -> usize {
         let s = FFT_BLOCK_TEXELS;
+        let holds = |c: &Canvas| {
+            c.window[0] <= rect[0] && c.window[1] <= rect[1] && c.window[2] >= rect[2] && c.window[3] >= rect[3]
+        };
+        let found = self.canvases.iter().position(|c| c.key == key);
+        if let Some(i) = found.filter(|&i| self.canvases[i].per_texel == per_texel && holds(&self.canvases[i])) {
+            self.canvases[i].last_used = self.clock;
+            return i;
+        }
+        let whole = [0, 0, w.div_ceil(s) * s, h.div_ceil(s) * s];
+        let bytes = |r: TexelRect| (r[2] - r[0]) * (r[3] - r[1]) * (per_texel * per_texel * size_of::<f32>());
+        let window = if bytes(whole) <= self.canvas_bytes.unwrap_or(CANVAS_BYTES) {
+            whole
+        } else {
+            let down = |v: usize| (v / s).saturating_sub(1) * s;
+            let up = |v: usize, n: usize| ((v.div_ceil(s) + 1) * s).min(n);
+            [down(rect[0]), down(rect[1]), up(rect[2], whole[2]), up(rect[3], whole[3])]
+        };
+        let mut canvas = Canvas::new(key, per_texel, window, self.clock);
+        if let Some(old) = found.map(|i| self.canvases.swap_remove(i)) {
+            self.view = None;
+            // the blocks both windows hold, carried over (a copy, as rare as a view leaving its window)
+            if old.per_texel == per_texel {
+                for (i, _) in old.present.iter().enumerate().filter(|&(_, &p)| p) {
+                    let bw = (old.window[2] - old.window[0]) / s;
+                    let at = [old.window[0] + i % bw * s, old.window[1] + i / bw * s];
+                    match (canvas.block(at), old.read(at)) {
+                        (Some(_), Some(values)) => canvas.write(at, &values),
+                        (Some(j), None) => {
+                            canvas.present[j] = true;
+                            canvas.written += 1;
+                        }
+                        _ => {}
+                    }
+                }
+            }
+            let within =
+                |r: &TexelRect| window[0] <= r[0] && window[1] <= r[1] && window[2] >= r[2] && window[3] >= r[3];
+            self.entries.retain(|e| e.key != key || (old.per_texel == per_texel && within(&e.rect)));
+        }
+        self.canvases.push(canvas);
+        self.canvases.len() - 1
+    }
+
+    /// The first texels of the blocks of canvas `c` that cover `rect` and are not yet prefiltered.
+    fn mark_blocks(&self, c: usize, rect: TexelRect) -> Vec<[usize; 2]> {
+        let s = FFT_BLOCK_TEXELS;
+        let canvas = &self.canvases[c];
         let mut missing = Vec::new();
         for by in (rect[1] / s..rect[3].div_ceil(s)).map(|k| k * s) {
             for bx in (rect[0] / s..rect[2].div_ceil(s)).map(|k| k * s) {
-                match self.blocks.iter_mut().find(|b| b.key == key && b.at == [bx, by]) {
-                    Some(b) => b.last_used = self.clock,
-                    None => missing.push([bx, by]),
+                let i = canvas.block([bx, by]).expect("the window holds the crop");
+                if !canvas.present[i] {
+                    missing.push([bx, by]);
                 }
             }
         }
         missing
     }
 
-    /// Drops the least recently used blocks beyond [`BLOCK_CACHE_BYTES`], never those the current crop uses.
-    fn evict_blocks(&mut self) {
-        let mut total: usize = self.blocks.iter().map(Block::bytes).sum();
+    /// Drops the least recently used canvases (and their crops) while their blocks take more than
+    /// [`BLOCK_CACHE_BYTES`], never the one in use.
+    fn evict_canvases(&mut self) {
+        let mut total: usize = self.canvases.iter().map(Canvas::bytes).sum();
         while total > BLOCK_CACHE_BYTES {
-            let (i, oldest) = least_recent(&self.blocks, |b| b.last_used);
+            let (i, oldest) = least_recent(&self.canvases, |c| c.last_used);
             if oldest == self.clock {
                 break;
             }
-            total -= self.blocks[i].bytes();
-            self.blocks.swap_remove(i);
+            let old = self.canvases.swap_remove(i);
+            total -= old.bytes();
+            self.entries.retain(|e| e.key != old.key);
         }
     }
 
-    /// `rect` of `source`'s image prefiltered by `filter` (the Jacobian of `key`), read from the whole image (its
-    /// edges replicated), put together from the blocks that cover it; `missing` (from
-    /// [`PrefilterCache::mark_blocks`]) are prefiltered first.
+    /// Prefilters the blocks `missing` (from [`PrefilterCache::mark_blocks`]) of canvas `c` by `filter` (the
+    /// Jacobian of its key), read from `source`'s whole image (its edges replicated), and writes them into it.
     ///
-    /// A texel's value must not depend on the crop it is built in (a frame's result depends on its own camera
+    /// A texel's value must not depend on the crop it is read in (a frame's result depends on its own camera
     /// alone, whichever crop the cache holds): every texel is computed in its block of [`FFT_BLOCK_TEXELS`],
     /// aligned to the image's own grid and read with the kernel's reach around it, at the same transform size
     /// (one transform of the whole crop would round differently for crops of other sizes), and the direct
     /// method computes it from its own neighbourhood.
-    fn build(
-        &mut self,
-        source: &SkyPlane,
-        filter: &TextureFilter,
-        key: JacobianKey,
-        rect: TexelRect,
-        missing: &[[usize; 2]],
-    ) -> SkyPlane {
+    fn build(&mut self, source: &SkyPlane, filter: &TextureFilter, c: usize, missing: &[[usize; 2]]) {
+        let key = self.canvases[c].key;
         let r = filter.radius();
         let m = filter.per_texel;
         let s = FFT_BLOCK_TEXELS;
@@ -757,54 +873,14 @@ impl PrefilterCache {
             }
             fresh
         };
-        // a blur of finite values is finite; checked once per block, not again for every crop made of it
+        // a blur of finite values is finite; checked once per block, not again for every crop read from it
         assert!(fresh.iter().all(|values| values.iter().all(|v| v.is_finite())), "a blur of finite values is finite");
-        self.blocks.extend(missing.iter().zip(fresh).map(|(&at, values)| Block {
-            key,
-            per_texel: m,
-            at,
-            values: Some(values),
-            last_used: self.clock,
-        }));
-        // the blocks covering `rect`, by block row and column (every one is in the cache: just marked or made)
-        let (cols_x, cols_y) = (rect[0] / s..rect[2].div_ceil(s), rect[1] / s..rect[3].div_ceil(s));
-        let mut grid: Vec<Option<&[f32]>> = vec![None; cols_x.len() * cols_y.len()];
-        for block in self.blocks.iter().filter(|b| b.key == key && b.last_used == self.clock) {
-            let (Some(values), [bx, by]) = (&block.values, block.at) else { continue };
-            if cols_x.contains(&(bx / s)) && cols_y.contains(&(by / s)) {
-                grid[(by / s - cols_y.start) * cols_x.len() + bx / s - cols_x.start] = Some(values);
-            }
+        // the crop last handed out shares the grid: dropped, so that it is written in place
+        self.view = None;
+        let canvas = &mut self.canvases[c];
+        for (&at, values) in missing.iter().zip(&fresh) {
+            canvas.write(at, values);
         }
-        let (cw, ch) = (rect[2] - rect[0], rect[3] - rect[1]);
-        let (fw, fh) = (cw * m, ch * m);
-        // the crop's fine rows, each from the blocks along it, in parallel (a crop is megabytes, copied from blocks
-        // most of which were made frames ago), into the last replaced crop's buffer: every value is written
-        // below, so only values beyond its length are filled first (and none are copied: a buffer too small is
-        // dropped)
-        let mut pixels = std::mem::take(&mut self.spare);
-        if pixels.capacity() < fw * fh {
-            pixels = Vec::new();
-        }
-        pixels.resize(fw * fh, 0.0);
-        pixels.par_chunks_mut(fw.max(1)).with_min_len(16).enumerate().for_each(|(i, out)| {
-            let fy = rect[1] * m + i;
-            let (by, row_in_block) = (fy / bs, fy % bs);
-            let blocks = &grid[(by - cols_y.start) * cols_x.len()..(by - cols_y.start + 1) * cols_x.len()];
-            let mut at = 0;
-            for (bx, block) in cols_x.clone().zip(blocks) {
-                let values = block.expect("the blocks of a crop are kept while it is made");
-                // the block's columns inside `rect`, fine
-                let (x0, x1) = ((bx * s).max(rect[0]), ((bx + 1) * s).min(rect[2]));
-                let row = &values[row_in_block * bs..(row_in_block + 1) * bs];
-                let part = &row[(x0 - bx * s) * m..(x1 - bx * s) * m];
-                out[at..at + part.len()].copy_from_slice(part);
-                at += part.len();
-            }
-            // every value of the row written (the buffer may hold another crop's)
-            assert_eq!(at, fw, "a crop's row is its blocks' columns");
-        });
-        let image = SkyImage::from_finite(fw.max(1), fh.max(1), pixels);
-        source.with_region(image, [rect[0], rect[1]], m)
     }
 }
 
@@ -911,8 +987,8 @@ impl PhaseSpectra {
         fft.process_with_scratch(grid, &mut scratch[..need]);
     }
 
-    /// The block of `image` whose first texel is `at`, prefiltered: every phase on the fine grid (as
-    /// [`Block::values`]).
+    /// The block of `image` whose first texel is `at`, prefiltered: every phase on the fine grid, row-major (as a
+    /// [`Canvas`] holds it).
     fn block(&self, image: &SkyImage, [bx, by]: [usize; 2]) -> Vec<f32> {
         let (n, r, m, s) = (self.side, self.radius, self.per_texel, FFT_BLOCK_TEXELS);
         let read = s + 2 * r;
@@ -1019,16 +1095,28 @@ mod tests {
             .unwrap()
     }
 
+    /// The crop [`PrefilterCache::plane`] hands out, and its texels.
+    fn crop(
+        cache: &mut PrefilterCache,
+        plane: &SkyPlane,
+        p: &Psf,
+        key: JacobianKey,
+        settings: PrefilterSettings,
+        need: [f64; 4],
+    ) -> (TexelRect, SkyPlane) {
+        let crop = cache.plane(plane, p, key, settings, need).expect("a texture").clone();
+        let entry = cache.entries.iter().max_by_key(|e| e.last_used).expect("the crop's entry");
+        (entry.rect, crop)
+    }
+
     /// The texture of `plane` prefiltered for `key` on a grid `m` nodes a texel, read at image coordinates `u`.
     fn texture_reads(plane: &SkyPlane, p: &Psf, key: JacobianKey, tol: f64, m: usize, us: &[DVec2]) -> Vec<f64> {
         let smallest = smallest_stretch(key.jacobian(tol));
         let settings = PrefilterSettings { tolerance: tol, spacing_px: 1.0 / (smallest * m as f64), grid_error: 0.0 };
         let mut cache = PrefilterCache::new();
-        let slot = cache.slot(plane, p, key, settings, [40.0, 40.0, 216.0, 216.0], true).expect("a texture");
-        let entry = &cache.entries[slot];
-        let crop = entry.plane.as_ref().expect("built");
-        let origin = DVec2::new(entry.rect[0] as f64, entry.rect[1] as f64);
-        assert_eq!(crop.image().width(), (entry.rect[2] - entry.rect[0]) * m, "{m} nodes a texel");
+        let (rect, crop) = crop(&mut cache, plane, p, key, settings, [40.0, 40.0, 216.0, 216.0]);
+        let origin = DVec2::new(rect[0] as f64, rect[1] as f64);
+        assert_eq!(crop.image().width(), (rect[2] - rect[0]) * m, "{m} nodes a texel");
         // fine node m·q + a has its centre at texel coordinate q + (a + ½)/m: a texel coordinate u is m·u on the
         // fine grid
         us.iter().map(|&u| f64::from(crop.value_at((u - origin) * m as f64))).collect()
@@ -1083,9 +1171,8 @@ mod tests {
         let need = [60.0, 60.0, 190.0, 190.0];
         let per_texel = |cache: &mut PrefilterCache, grid_error: f64| {
             let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error };
-            let slot = cache.slot(&plane, &p, key, settings, need, true).expect("a texture");
-            let e = &cache.entries[slot];
-            e.plane.as_ref().unwrap().image().width() / (e.rect[2] - e.rect[0])
+            let (rect, crop) = crop(cache, &plane, &p, key, settings, need);
+            crop.image().width() / (rect[2] - rect[0])
         };
         assert_eq!(per_texel(&mut cache, 0.0), 4);
         let budget = 0.5 * (estimate[0] + estimate[1]);
@@ -1118,30 +1205,82 @@ mod tests {
             cache.work()
         };
         let first = round(&mut cache);
-        assert_eq!(cache.blocks.len(), 7 * 28);
-        let bytes = cache.blocks.len() * (3 * FFT_BLOCK_TEXELS).pow(2) * size_of::<f32>();
+        assert_eq!(cache.canvases.iter().map(|c| c.written).sum::<usize>(), 7 * 28);
+        let bytes: usize = cache.canvases.iter().map(Canvas::bytes).sum();
         assert!(bytes > 64 << 20, "{bytes} bytes of blocks: more than the budget these were made again under");
         assert_eq!(round(&mut cache), first, "a block was prefiltered again");
     }
 
     #[test]
-    fn blocks_are_dropped_by_their_bytes_oldest_first() {
-        // 4000 blocks of one node a texel (64 KiB each, 250 MiB) made first, then 100 of 3 × 3 nodes (576 KiB
-        // each): the oldest small ones go until the blocks fit the budget, the crop in hand's never
-        let key = JacobianKey::new(DMat2::IDENTITY, 0.05).unwrap();
+    fn canvases_are_dropped_by_their_bytes_oldest_first() {
+        // 4000 keys' canvases of one block of one node a texel (64 KiB each, 250 MiB) made first, then one of
+        // 100 blocks of 3 × 3 nodes (576 KiB each) in use: the oldest small ones go, with their crops, until the
+        // blocks fit the budget; the one in use never does
+        let key = |i: usize| JacobianKey { scale_step: i as i32, entries: [1, 0, 0, 1] };
+        let s = FFT_BLOCK_TEXELS;
         let mut cache = PrefilterCache::new();
-        let block =
-            |per_texel: usize, i: usize, last_used: u64| Block { key, per_texel, at: [i, 0], values: None, last_used };
-        cache.blocks.extend((0..4000).map(|i| block(1, i, i as u64)));
+        for i in 0..4000 {
+            let mut canvas = Canvas::new(key(i), 1, [0, 0, s, s], i as u64);
+            canvas.written = 1;
+            cache.canvases.push(canvas);
+            cache.entries.push(Entry { key: key(i), rect: [0, 0, s, s], last_used: i as u64 });
+        }
         cache.clock = 5000;
-        cache.blocks.extend((0..100).map(|i| block(3, i, 5000)));
-        cache.evict_blocks();
-        let total: usize = cache.blocks.iter().map(Block::bytes).sum();
+        let mut in_use = Canvas::new(key(4000), 3, [0, 0, 100 * s, s], 5000);
+        in_use.written = 100;
+        cache.canvases.push(in_use);
+        cache.evict_canvases();
+        let total: usize = cache.canvases.iter().map(Canvas::bytes).sum();
         assert!(total <= BLOCK_CACHE_BYTES && total + (64 << 10) > BLOCK_CACHE_BYTES, "{total} bytes kept");
-        assert_eq!(cache.blocks.iter().filter(|b| b.per_texel == 3).count(), 100, "the crop in hand's blocks");
-        let oldest_kept = cache.blocks.iter().filter(|b| b.per_texel == 1).map(|b| b.last_used).min().unwrap();
-        let small = cache.blocks.iter().filter(|b| b.per_texel == 1).count() as u64;
-        assert_eq!(oldest_kept, 4000 - small, "the oldest went first");
+        assert!(cache.canvases.iter().any(|c| c.key == key(4000)), "the canvas in use");
+        let small: Vec<u64> = cache.canvases.iter().filter(|c| c.per_texel == 1).map(|c| c.last_used).collect();
+        let oldest_kept = *small.iter().min().unwrap();
+        assert_eq!(oldest_kept, 4000 - small.len() as u64, "the oldest went first");
+        // a dropped canvas's crops went with it
+        assert!(cache.entries.iter().all(|e| cache.canvases.iter().any(|c| c.key == e.key)));
+        assert_eq!(cache.entries.len(), small.len());
+    }
+
+    #[test]
+    fn crops_read_from_a_moving_window_are_those_of_the_whole_image() {
+        // a view panning across the image, its crops read from a canvas of the whole image and from one whose
+        // window (limited to two blocks of 3 × 3 nodes a texel, so the blocks around the crop) has to move
+        // along: the same values; and a moved window keeps the blocks it shares, which are not prefiltered again
+        let (p, tol) = (psf(), 0.01);
+        // 8 × 2 blocks of texels: a ripple and a hash
+        let (w, h) = (8 * FFT_BLOCK_TEXELS, 2 * FFT_BLOCK_TEXELS);
+        let values = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let hash = (i as u32).wrapping_mul(2_654_435_761) >> 24;
+                20.0 + (0.05 * x).sin() * (0.08 * y).cos() + hash as f32 / 256.0
+            })
+            .collect();
+        let image = SkyImage::from_f32(w, h, values).unwrap();
+        let placement = crate::imaging::sky_plane::SkyPlacement::paper_fig8();
+        let plane = SkyPlane::new(image, &placement, glam::DVec3::new(0.0, 0.0, 8000.0)).unwrap();
+        let key = JacobianKey::new(DMat2::IDENTITY * 0.5, tol).unwrap();
+        let spacing_px = 1.0 / (3.0 * smallest_stretch(key.jacobian(tol)));
+        let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error: 0.0 };
+        let mut whole = PrefilterCache::new();
+        let block_bytes = (3 * FFT_BLOCK_TEXELS).pow(2) * size_of::<f32>();
+        let mut windowed = PrefilterCache { canvas_bytes: Some(2 * block_bytes), ..Default::default() };
+        let mut moves = 0;
+        for step in 0..16 {
+            let x = 4.0 + 60.0 * step as f64;
+            let need = [x, 100.0 - 0.05 * x, x + 50.0, 140.0 - 0.05 * x];
+            let (rect, a) = crop(&mut whole, &plane, &p, key, settings, need);
+            let before = windowed.canvases.first().map(|c| c.window);
+            let (rect_w, b) = crop(&mut windowed, &plane, &p, key, settings, need);
+            assert_eq!(rect, rect_w);
+            assert_eq!(a.image(), b.image(), "step {step}");
+            assert_eq!(whole.canvases[0].window, [0, 0, w, h], "the whole image");
+            let window = windowed.canvases[0].window;
+            assert!(window[2] - window[0] < w, "a window: {window:?}");
+            moves += usize::from(before.is_some_and(|w| w != window));
+        }
+        assert!(moves >= 2, "the window moved {moves} times");
+        assert_eq!(whole.work(), windowed.work(), "a block prefiltered again");
     }
 
     #[test]

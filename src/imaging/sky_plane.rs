@@ -11,6 +11,7 @@
 //! each row's result depends only on its own pixels, so the output does not depend on the thread count.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
 use serde::{Deserialize, Serialize};
@@ -43,11 +44,36 @@ pub enum SkyError {
 }
 
 /// A grayscale sky image at full precision: 8-bit values 0–255, 16-bit 0–65535, float as given.
-#[derive(Debug, Clone, PartialEq)]
+///
+/// Its values are shared, so a clone is cheap. An image the crate loads or makes holds its rows one after
+/// another; a prefiltered texture is a view of a larger grid of values, its rows [`SkyImage::stride`] apart.
+#[derive(Clone)]
 pub struct SkyImage {
     width: usize,
     height: usize,
-    pixels: Vec<f32>,
+    /// Floats from the start of one row to the next.
+    stride: usize,
+    /// Where the first row starts in `values`.
+    offset: usize,
+    values: Arc<Vec<f32>>,
+}
+
+impl std::fmt::Debug for SkyImage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SkyImage")
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("stride", &self.stride)
+            .finish_non_exhaustive()
+    }
+}
+
+impl PartialEq for SkyImage {
+    /// The same size and values (wherever they are held).
+    fn eq(&self, other: &Self) -> bool {
+        (self.width, self.height) == (other.width, other.height)
+            && (0..self.height).all(|y| self.row(y) == other.row(y))
+    }
 }
 
 impl SkyImage {
@@ -69,19 +95,30 @@ impl SkyImage {
                 message: format!("value at ({}, {}) is not finite", i % width, i / width),
             });
         }
-        Ok(Self { width, height, pixels })
+        Ok(Self::rows(width, height, pixels))
+    }
+
+    /// An image holding `pixels`, its rows one after another.
+    fn rows(width: usize, height: usize, pixels: Vec<f32>) -> Self {
+        Self { width, height, stride: width, offset: 0, values: Arc::new(pixels) }
     }
 
     /// As [`SkyImage::from_f32`] for values known to be finite and as many as `width × height` (a blur of a
     /// checked image); checked in debug builds only.
     pub(crate) fn from_finite(width: usize, height: usize, pixels: Vec<f32>) -> Self {
         debug_assert!(width * height == pixels.len() && pixels.iter().all(|p| p.is_finite()));
-        Self { width, height, pixels }
+        Self::rows(width, height, pixels)
     }
 
-    /// Its pixels, row-major (a buffer to reuse).
-    pub(crate) fn into_pixels(self) -> Vec<f32> {
-        self.pixels
+    /// The `width × height` image whose rows start at `values[offset]`, `stride` floats apart (a region of a
+    /// larger grid of finite values, shared with it).
+    ///
+    /// # Panics
+    /// If the image is empty, a row is longer than the stride, or the last row ends beyond `values`.
+    pub(crate) fn view(values: Arc<Vec<f32>>, offset: usize, width: usize, height: usize, stride: usize) -> Self {
+        assert!(width >= 1 && height >= 1 && width <= stride, "a {width}×{height} view, {stride} floats a row");
+        assert!(offset + (height - 1) * stride + width <= values.len(), "a view inside its values");
+        Self { width, height, stride, offset, values }
     }
 
     /// Reads any image the `image` crate decodes (PNG, TIFF, PNM here). Gray images keep their integer values,
@@ -127,9 +164,21 @@ impl SkyImage {
         self.height
     }
 
-    /// Row-major values.
+    /// Row-major values, each row [`SkyImage::stride`] floats after the one before (the width, but for a
+    /// prefiltered texture's view).
     pub fn pixels(&self) -> &[f32] {
-        &self.pixels
+        &self.values[self.offset..self.offset + (self.height - 1) * self.stride + self.width]
+    }
+
+    /// Floats from the start of one row of [`SkyImage::pixels`] to the next.
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// Row `y`'s values.
+    fn row(&self, y: usize) -> &[f32] {
+        let start = self.offset + y * self.stride;
+        &self.values[start..start + self.width]
     }
 
     /// The `width × height` block whose top-left pixel is `(x0, y0)`, row-major; pixels beyond the image take the
@@ -147,7 +196,7 @@ impl SkyImage {
     fn at_clamped(&self, x: isize, y: isize) -> f32 {
         let x = x.clamp(0, self.width as isize - 1) as usize;
         let y = y.clamp(0, self.height as isize - 1) as usize;
-        self.pixels[y * self.width + x]
+        self.values[self.offset + y * self.stride + x]
     }
 }
 
@@ -365,11 +414,6 @@ pub struct SkyPlane {
 }
 
 impl SkyPlane {
-    /// Its image (a buffer to reuse).
-    pub(crate) fn into_image(self) -> SkyImage {
-        self.image
-    }
-
     /// Places `image` in the world. `camera_position_m` orients a plane given without a normal: vertical, facing
     /// the camera.
     ///
@@ -531,9 +575,10 @@ impl SkyPlane {
                 let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
                 let (w, h) = (self.image.width as isize, self.image.height as isize);
                 let (a, b, c, d) = if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
-                    let i = y0 as usize * self.image.width + x0 as usize;
-                    let px = &self.image.pixels;
-                    (px[i], px[i + 1], px[i + self.image.width], px[i + self.image.width + 1])
+                    let stride = self.image.stride;
+                    let i = y0 as usize * stride + x0 as usize;
+                    let px = self.image.pixels();
+                    (px[i], px[i + 1], px[i + stride], px[i + stride + 1])
                 } else {
                     (
                         self.image.at_clamped(x0, y0),
@@ -970,7 +1015,8 @@ impl RowGeometry {
         // first and second differences: q(k+1) − q(k) = b + c(2k + 1), and 2c
         let (mut dx, mut dy) = (fixed(span.b.x + span.c.x), fixed(span.b.y + span.c.y));
         let (ddx, ddy) = (fixed(2.0 * span.c.x), fixed(2.0 * span.c.y));
-        let px = &img.pixels;
+        // rows `stride` apart: the row pitch of every index below
+        let (px, w) = (img.pixels(), img.stride);
         #[cfg(target_arch = "x86_64")]
         if px.len() < i32::MAX as usize {
             let (q, d, dd) = ([x, y], [dx, dy], [ddx, ddy]);
