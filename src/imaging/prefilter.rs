@@ -61,9 +61,10 @@ const BLOCK_TEXELS: usize = 32;
 const FFT_BLOCK_TEXELS: usize = 128;
 /// Prefiltered crops kept (a view whose Jacobian sits on a lattice boundary alternates between two keys).
 const CACHE_ENTRIES: usize = 4;
-/// Bytes of prefiltered blocks kept for later crops (a panning view needs the blocks it saw a moment ago and
-/// a few new ones; a run that comes back to a Jacobian, or `irsim bench` running a scenario again, needs every
-/// key's blocks); the blocks of the key in use are kept whatever their size. sense_and_avoid's 7 keys take 192
+/// Bytes of prefiltered blocks kept for later crops, counted by the pages they are written on (a panning view
+/// needs the blocks it saw a moment ago and a few new ones; a run that comes back to a Jacobian, or `irsim
+/// bench` running a scenario again, needs every key's blocks); the blocks of the key in use are kept whatever
+/// their size. sense_and_avoid's 7 keys take 192
 /// blocks of 576 KiB (24 to 28 a key, on a grid of 3 × 3 nodes a texel), 108 MiB: at 64 MiB each pass of `irsim
 /// bench` made all of them again, 16–28 ms a key (docs/accuracy.md).
 const BLOCK_CACHE_BYTES: usize = 256 << 20;
@@ -71,6 +72,8 @@ const BLOCK_CACHE_BYTES: usize = 256 << 20;
 /// are mapped only where blocks are written), else a window around the crops in use. sense_and_avoid's image,
 /// 4096 × 1536 texels on a grid of 3 × 3 nodes a texel, takes 216 MiB.
 const CANVAS_BYTES: usize = 256 << 20;
+/// The pages a canvas's written blocks are counted by.
+const PAGE_BYTES: usize = 4096;
 /// Bytes of texture filters kept for Jacobians seen before (a camera panning back, a run looped by `irsim
 /// bench`); the filter in use is kept whatever its size. A filter is a few hundred KiB at most on the shipped
 /// scenarios, and takes 0.5–2.5 ms to make (docs/accuracy.md).
@@ -487,9 +490,11 @@ struct Canvas {
     window: TexelRect,
     /// Which of its blocks hold their values, row-major.
     present: Vec<bool>,
-    /// Blocks written since it was made (their pages stay mapped): what it counts against
-    /// [`BLOCK_CACHE_BYTES`].
-    written: usize,
+    /// Which of the grid's 4 KiB pages a block's rows were written on since it was made (they stay mapped).
+    pages: Vec<bool>,
+    /// How many: the grid's pages count against [`BLOCK_CACHE_BYTES`], not its blocks' bytes (a block's rows
+    /// of 512 bytes, one node a texel, lie a grid's row apart, each on a page of its own).
+    touched: usize,
     /// The grid (`None` in a plan, and until a block is written): `stride()` floats a row.
     values: Option<Arc<Vec<f32>>>,
     last_used: u64,
@@ -499,7 +504,18 @@ impl Canvas {
     fn new(key: JacobianKey, per_texel: usize, window: TexelRect, last_used: u64) -> Self {
         let s = FFT_BLOCK_TEXELS;
         let blocks = (window[2] - window[0]) / s * ((window[3] - window[1]) / s);
-        Self { key, per_texel, window, present: vec![false; blocks], written: 0, values: None, last_used }
+        let floats = (window[2] - window[0]) * (window[3] - window[1]) * per_texel * per_texel;
+        let pages = (floats * size_of::<f32>()).div_ceil(PAGE_BYTES);
+        Self {
+            key,
+            per_texel,
+            window,
+            present: vec![false; blocks],
+            pages: vec![false; pages],
+            touched: 0,
+            values: None,
+            last_used,
+        }
     }
 
     /// Floats a row of the grid.
@@ -515,30 +531,42 @@ impl Canvas {
         inside.then(|| (by - w[1]) / s * ((w[2] - w[0]) / s) + (bx - w[0]) / s)
     }
 
-    /// The bytes of its written blocks.
+    /// The bytes of the grid's pages its blocks were written on.
     fn bytes(&self) -> usize {
-        self.written * (FFT_BLOCK_TEXELS * self.per_texel).pow(2) * size_of::<f32>()
+        self.touched * PAGE_BYTES
     }
 
-    /// Its grid, made (of pages the system maps as they are first written) where it had none, for writing.
+    /// Its grid, made (of pages the system maps as they are first written) where it had none, for writing. The
+    /// crops handed out are dropped before a grid is written, so it is never shared here (were it, it would be
+    /// copied first, the views keeping the old values).
     fn values_mut(&mut self) -> &mut [f32] {
         let len = self.stride() * (self.window[3] - self.window[1]) * self.per_texel;
         let values: &mut Vec<f32> = Arc::make_mut(self.values.get_or_insert_with(|| Arc::new(vec![0.0; len])));
         values
     }
 
-    /// Writes the block whose first texel is `at` (its `(FFT_BLOCK_TEXELS · per_texel)²` values, row-major).
-    fn write(&mut self, at: [usize; 2], block: &[f32]) {
+    /// Marks the block whose first texel is `at` present, and the pages its rows lie on touched; writes its
+    /// values (`(FFT_BLOCK_TEXELS · per_texel)²`, row-major) where given (a plan gives none).
+    fn write(&mut self, at: [usize; 2], block: Option<&[f32]>) {
         let i = self.block(at).expect("a block inside the window");
         let (m, stride) = (self.per_texel, self.stride());
         let bs = FFT_BLOCK_TEXELS * m;
         let first = (at[1] - self.window[1]) * m * stride + (at[0] - self.window[0]) * m;
-        let values = self.values_mut();
-        for (y, row) in block.chunks_exact(bs).enumerate() {
-            values[first + y * stride..first + y * stride + bs].copy_from_slice(row);
+        if let Some(block) = block {
+            let values = self.values_mut();
+            for (y, row) in block.chunks_exact(bs).enumerate() {
+                values[first + y * stride..first + y * stride + bs].copy_from_slice(row);
+            }
+        }
+        for y in 0..bs {
+            let start = first + y * stride;
+            let bytes = start * size_of::<f32>()..(start + bs) * size_of::<f32>();
+            for page in &mut self.pages[bytes.start / PAGE_BYTES..=(bytes.end - 1) / PAGE_BYTES] {
+                self.touched += usize::from(!*page);
+                *page = true;
+            }
         }
         self.present[i] = true;
-        self.written += 1;
     }
 
     /// The block whose first texel is `at`, copied out of the grid.
@@ -678,14 +706,11 @@ impl PrefilterCache {
         let missing = self.mark_blocks(c, rect);
         let s = FFT_BLOCK_TEXELS;
         self.work += (missing.len() * s * s) as f64 * build_taps(&filter);
-        if build {
+        if build && !missing.is_empty() {
             self.build(source, &filter, c, &missing);
-        } else {
-            let canvas = &mut self.canvases[c];
+        } else if !build {
             for &at in &missing {
-                let i = canvas.block(at).expect("a missing block inside the window");
-                canvas.present[i] = true;
-                canvas.written += 1;
+                self.canvases[c].write(at, None);
             }
         }
         self.evict_canvases();
@@ -779,13 +804,8 @@ impl PrefilterCache {
                 for (i, _) in old.present.iter().enumerate().filter(|&(_, &p)| p) {
                     let bw = (old.window[2] - old.window[0]) / s;
                     let at = [old.window[0] + i % bw * s, old.window[1] + i / bw * s];
-                    match (canvas.block(at), old.read(at)) {
-                        (Some(_), Some(values)) => canvas.write(at, &values),
-                        (Some(j), None) => {
-                            canvas.present[j] = true;
-                            canvas.written += 1;
-                        }
-                        _ => {}
+                    if canvas.block(at).is_some() {
+                        canvas.write(at, old.read(at).as_deref());
                     }
                 }
             }
@@ -879,7 +899,7 @@ impl PrefilterCache {
         self.view = None;
         let canvas = &mut self.canvases[c];
         for (&at, values) in missing.iter().zip(&fresh) {
-            canvas.write(at, values);
+            canvas.write(at, Some(values));
         }
     }
 }
@@ -1205,7 +1225,7 @@ mod tests {
             cache.work()
         };
         let first = round(&mut cache);
-        assert_eq!(cache.canvases.iter().map(|c| c.written).sum::<usize>(), 7 * 28);
+        assert_eq!(cache.canvases.iter().map(|c| c.present.iter().filter(|&&p| p).count()).sum::<usize>(), 7 * 28);
         let bytes: usize = cache.canvases.iter().map(Canvas::bytes).sum();
         assert!(bytes > 64 << 20, "{bytes} bytes of blocks: more than the budget these were made again under");
         assert_eq!(round(&mut cache), first, "a block was prefiltered again");
@@ -1215,19 +1235,23 @@ mod tests {
     fn canvases_are_dropped_by_their_bytes_oldest_first() {
         // 4000 keys' canvases of one block of one node a texel (64 KiB each, 250 MiB) made first, then one of
         // 100 blocks of 3 × 3 nodes (576 KiB each) in use: the oldest small ones go, with their crops, until the
-        // blocks fit the budget; the one in use never does
+        // pages fit the budget; the one in use never does
         let key = |i: usize| JacobianKey { scale_step: i as i32, entries: [1, 0, 0, 1] };
         let s = FFT_BLOCK_TEXELS;
         let mut cache = PrefilterCache::new();
         for i in 0..4000 {
             let mut canvas = Canvas::new(key(i), 1, [0, 0, s, s], i as u64);
-            canvas.written = 1;
+            canvas.write([0, 0], None);
+            assert_eq!(canvas.bytes(), 64 << 10);
             cache.canvases.push(canvas);
             cache.entries.push(Entry { key: key(i), rect: [0, 0, s, s], last_used: i as u64 });
         }
         cache.clock = 5000;
         let mut in_use = Canvas::new(key(4000), 3, [0, 0, 100 * s, s], 5000);
-        in_use.written = 100;
+        for b in 0..100 {
+            in_use.write([b * s, 0], None);
+        }
+        assert_eq!(in_use.bytes(), 100 * (576 << 10));
         cache.canvases.push(in_use);
         cache.evict_canvases();
         let total: usize = cache.canvases.iter().map(Canvas::bytes).sum();
@@ -1239,6 +1263,14 @@ mod tests {
         // a dropped canvas's crops went with it
         assert!(cache.entries.iter().all(|e| cache.canvases.iter().any(|c| c.key == e.key)));
         assert_eq!(cache.entries.len(), small.len());
+        // a block of one node a texel in a grid 32 blocks (16 KiB) a row: its 128 rows of 512 bytes are on a page
+        // each, and count so
+        let mut wide = Canvas::new(key(0), 1, [0, 0, 32 * s, 2 * s], 0);
+        wide.write([5 * s, s], None);
+        assert_eq!(wide.bytes(), 128 * PAGE_BYTES);
+        // its neighbour along the row shares them
+        wide.write([6 * s, s], None);
+        assert_eq!(wide.bytes(), 128 * PAGE_BYTES);
     }
 
     #[test]

@@ -167,7 +167,8 @@ impl SkyImage {
     /// Row-major values, each row [`SkyImage::stride`] floats after the one before (the width, but for a
     /// prefiltered texture's view).
     pub fn pixels(&self) -> &[f32] {
-        &self.values[self.offset..self.offset + (self.height - 1) * self.stride + self.width]
+        let len = self.height.checked_sub(1).map_or(0, |rows| rows * self.stride + self.width);
+        &self.values[self.offset..self.offset + len]
     }
 
     /// Floats from the start of one row of [`SkyImage::pixels`] to the next.
@@ -1046,7 +1047,7 @@ impl RowGeometry {
 }
 
 /// The sample at a 24.40 fixed-point position (its whole pixel and, bilinear, the top 24 bits of its fraction,
-/// exact in f32) of a row-major image `w` wide: [`SkyPlane::fast_span`]'s per-pixel step, which its vector
+/// exact in f32) of a row-major image whose rows are `w` floats apart: [`SkyPlane::fast_span`]'s per-pixel step, which its vector
 /// paths reproduce bit for bit.
 #[inline(always)]
 fn fixed_sample(px: &[f32], w: usize, x: i64, y: i64, bilinear: bool) -> f32 {
@@ -1083,7 +1084,7 @@ mod x86 {
     ///
     /// # Safety
     /// The CPU must have AVX-512 (F, DQ, BW, VL); every position's pixel (and, bilinear, its right and lower
-    /// neighbours) must lie inside `px` (`w` wide), and `px.len()` must fit an `i32`.
+    /// neighbours) must lie inside `px` (rows `w` floats apart), and `px.len()` must fit an `i32`.
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx512f,avx512dq,avx512bw,avx512vl")]
     pub unsafe fn span(
@@ -1503,6 +1504,54 @@ mod tests {
             }
         }
         assert!(checked > 10_000, "{checked}");
+    }
+
+    #[test]
+    fn a_view_of_a_larger_grid_renders_as_its_own_copy_bit_for_bit() {
+        // a 200 × 150 image held at (37, 11) in a grid 301 floats a row whose other values are far off (any read
+        // of them would show), against the same image on its own: views into it, across its edges and past it,
+        // every sampler and fill, turned and not, exact and interpolated spans (the vector paths where the CPU
+        // has them)
+        let (w, h, stride, at) = (200, 150, 301, (37, 11));
+        let value = |x: usize, y: usize| (x % 23) as f32 + 0.37 * y as f32 + 0.01 * ((x * y) % 7) as f32;
+        let own: Vec<f32> = (0..w * h).map(|i| value(i % w, i / w)).collect();
+        let mut grid = vec![1.0e6f32; stride * (h + 20)];
+        for y in 0..h {
+            for x in 0..w {
+                grid[(at.1 + y) * stride + at.0 + x] = value(x, y);
+            }
+        }
+        let view = SkyImage::view(Arc::new(grid), at.1 * stride + at.0, w, h, stride);
+        assert_eq!(view.stride(), stride);
+        assert_eq!(view, SkyImage::from_f32(w, h, own.clone()).unwrap());
+        let intr = Intrinsics::try_new(96, 80, 0.1, 17e-6).unwrap();
+        let cam_pos = DVec3::new(0.0, 0.0, 8000.0);
+        let placement = SkyPlacement::paper_fig8();
+        let mut a = SkyPlane::new(SkyImage::from_f32(w, h, own).unwrap(), &placement, cam_pos).unwrap();
+        let mut b = SkyPlane::new(view, &placement, cam_pos).unwrap();
+        let mut compared = 0;
+        for (look_x, look_y) in [(100.0, 75.0), (0.0, 40.0), (190.0, 149.0), (400.0, -30.0), (60.0, 10.0)] {
+            for roll in [0.0, 27.0] {
+                let cam = Camera::look_at(intr, cam_pos, a.world_point(DVec2::new(look_x, look_y)), roll).unwrap();
+                for tolerance in [0.0, SPAN_TOLERANCE_PX, 0.5] {
+                    a.set_span_tolerance(tolerance);
+                    b.set_span_tolerance(tolerance);
+                    for sampling in [Sampling::Nearest, Sampling::Bilinear] {
+                        for fill in [MissFill::Edge, MissFill::Zero, MissFill::Constant { value: -3.0 }] {
+                            let (mut fa, mut fb) = (Frame::new(96, 80), Frame::new(96, 80));
+                            a.render(&cam, sampling, fill, &mut fa);
+                            b.render(&cam, sampling, fill, &mut fb);
+                            let differs =
+                                fa.pixels().iter().zip(fb.pixels()).position(|(x, y)| x.to_bits() != y.to_bits());
+                            assert_eq!(differs, None, "look {look_x} {look_y}, roll {roll}, {sampling:?}, {fill:?}");
+                            assert!(fb.pixels().iter().all(|&v| v < 1.0e5), "a value beyond the view read");
+                            compared += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert_eq!(compared, 5 * 2 * 3 * 2 * 3);
     }
 
     #[test]

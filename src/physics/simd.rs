@@ -164,7 +164,7 @@ pub fn exp(x: f64) -> f64 {
     p * scale(k1) * scale(k2)
 }
 
-/// Sixteen bilinear samples of a row-major f32 image `width` wide with AVX-512 gathers: the texel at each lane's
+/// Sixteen bilinear samples of a row-major f32 image whose rows are `width` floats apart, with AVX-512 gathers: the texel at each lane's
 /// `index` and its right, lower and lower-right neighbours, mixed by the lane's fractions the way the scalar
 /// samplers do (each row `left + (right − left)·fx`, then `top + (bottom − top)·fy`, multiplies and adds
 /// separate), so the values are the scalar's. Only the lanes in `mask` read the image (the others are 0).
@@ -240,8 +240,8 @@ pub fn bilinear_mix8(
     _mm256_add_ps(top, _mm256_mul_ps(_mm256_sub_ps(bottom, top), fy))
 }
 
-/// Whether sixteen lanes' texels at `index` (those in `mask`) in a row-major f32 image `width` wide and `len`
-/// long lie within two windows of 32 consecutive floats (and, `bilinear`, their right neighbours too, and the
+/// Whether sixteen lanes' texels at `index` (those in `mask`) in a row-major f32 image whose rows are `width` floats apart
+/// and `len` long lie within two windows of 32 consecutive floats (and, `bilinear`, their right neighbours too, and the
 /// same floats one row down; every window inside the image): then two loads and a permute per window and row
 /// fetch them, in place of a gather's sixteen loads per texel. The first window starts at the lowest index; the
 /// lanes it cannot hold go to a second window, from the lowest index among them: a row of a view at up to two
@@ -320,7 +320,7 @@ pub unsafe fn window_fetch16(
     if windows[1] == windows[0] { low } else { _mm512_mask_blend_ps(second, low, window(windows[1])) }
 }
 
-/// Sixteen samples of a row-major f32 image `width` wide, bilinear ([`bilinear16_avx512`]'s) or nearest (the
+/// Sixteen samples of a row-major f32 image whose rows are `width` floats apart, bilinear ([`bilinear16_avx512`]'s) or nearest (the
 /// texel at `index`): the texels fetched by [`texel_windows`] where they lie close together, as along a row of
 /// a view that is not turned much against the image, else gathered. The same values either way; the lanes
 /// outside `mask` are unspecified.
@@ -451,7 +451,7 @@ pub unsafe fn pairs8_avx2<const ROWS: usize>(
     })
 }
 
-/// Eight samples of a row-major f32 image `width` wide with AVX2, bilinear (the texel at each lane's `index` and
+/// Eight samples of a row-major f32 image whose rows are `width` floats apart, with AVX2, bilinear (the texel at each lane's `index` and
 /// its right, lower and lower-right neighbours by [`pairs8_avx2`], mixed by [`bilinear_mix8`] as
 /// [`bilinear_mix16`] mixes them, so the values are the scalar samplers') or nearest (the texel at `index`, by a
 /// window of 16 floats where the lanes' texels fit one, else gathered).
