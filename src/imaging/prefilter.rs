@@ -569,6 +569,30 @@ impl Canvas {
         self.present[i] = true;
     }
 
+    /// Writes the values of the blocks whose first texels are `blocks` (each `(FFT_BLOCK_TEXELS · per_texel)²`,
+    /// row-major) into the grid, its rows in parallel (megabytes a key, on pages the system maps and zeroes as
+    /// they are first written); [`Canvas::write`] marks them.
+    fn write_rows(&mut self, blocks: &[[usize; 2]], values: &[Vec<f32>]) {
+        let (m, stride, window) = (self.per_texel, self.stride(), self.window);
+        let bs = FFT_BLOCK_TEXELS * m;
+        // the grid's rows the blocks cover, and each block's first row and column in it
+        let places: Vec<[usize; 2]> =
+            blocks.iter().map(|at| [(at[0] - window[0]) * m, (at[1] - window[1]) * m]).collect();
+        let (Some(top), Some(bottom)) = (places.iter().map(|p| p[1]).min(), places.iter().map(|p| p[1] + bs).max())
+        else {
+            return;
+        };
+        let grid = self.values_mut();
+        grid[top * stride..bottom * stride].par_chunks_mut(stride).enumerate().for_each(|(k, row)| {
+            let y = top + k;
+            for (&[x0, y0], block) in places.iter().zip(values) {
+                if (y0..y0 + bs).contains(&y) {
+                    row[x0..x0 + bs].copy_from_slice(&block[(y - y0) * bs..(y - y0 + 1) * bs]);
+                }
+            }
+        });
+    }
+
     /// The block whose first texel is `at`, copied out of the grid.
     fn read(&self, at: [usize; 2]) -> Option<Vec<f32>> {
         let values = self.values.as_ref()?;
@@ -898,8 +922,9 @@ impl PrefilterCache {
         // the crop last handed out shares the grid: dropped, so that it is written in place
         self.view = None;
         let canvas = &mut self.canvases[c];
-        for (&at, values) in missing.iter().zip(&fresh) {
-            canvas.write(at, Some(values));
+        canvas.write_rows(missing, &fresh);
+        for &at in missing {
+            canvas.write(at, None);
         }
     }
 }
