@@ -811,15 +811,7 @@ impl PrefilterCache {
             self.canvases[i].last_used = self.clock;
             return i;
         }
-        let whole = [0, 0, w.div_ceil(s) * s, h.div_ceil(s) * s];
-        let bytes = |r: TexelRect| (r[2] - r[0]) * (r[3] - r[1]) * (per_texel * per_texel * size_of::<f32>());
-        let window = if bytes(whole) <= self.canvas_bytes.unwrap_or(CANVAS_BYTES) {
-            whole
-        } else {
-            let down = |v: usize| (v / s).saturating_sub(1) * s;
-            let up = |v: usize, n: usize| ((v.div_ceil(s) + 1) * s).min(n);
-            [down(rect[0]), down(rect[1]), up(rect[2], whole[2]), up(rect[3], whole[3])]
-        };
+        let window = window_around(rect, per_texel, (w, h), self.canvas_bytes.unwrap_or(CANVAS_BYTES));
         let mut canvas = Canvas::new(key, per_texel, window, self.clock);
         if let Some(old) = found.map(|i| self.canvases.swap_remove(i)) {
             self.view = None;
@@ -927,6 +919,32 @@ impl PrefilterCache {
             canvas.write(at, None);
         }
     }
+}
+
+/// The blocks of a canvas for `rect` (texels) of a `w × h` image at `per_texel` nodes a texel: the whole image
+/// where its grid takes at most `limit` bytes, else the box of blocks centred on `rect`'s, grown by as many
+/// blocks on every side as keep it within `limit` (never smaller than `rect`'s blocks) and shifted inside the
+/// image, so that a view panning across a large image moves its window (copying the blocks the two share) only
+/// when it has crossed most of it.
+fn window_around(rect: TexelRect, per_texel: usize, (w, h): (usize, usize), limit: usize) -> TexelRect {
+    let s = FFT_BLOCK_TEXELS;
+    let block_bytes = (s * per_texel).pow(2) * size_of::<f32>();
+    let (wb, hb) = (w.div_ceil(s), h.div_ceil(s));
+    let (rx, ry) = (rect[0] / s, rect[1] / s);
+    let (rw, rh) = (rect[2].div_ceil(s) - rx, rect[3].div_ceil(s) - ry);
+    let most = (limit / block_bytes).max(rw * rh);
+    let size = |k: usize| ((rw + 2 * k).min(wb), (rh + 2 * k).min(hb));
+    let mut k = 0;
+    while size(k) != (wb, hb) && size(k + 1).0 * size(k + 1).1 <= most {
+        k += 1;
+    }
+    let (nx, ny) = size(k);
+    if (nx, ny) == (wb, hb) && nx * ny <= most {
+        return [0, 0, wb * s, hb * s];
+    }
+    let x0 = rx.saturating_sub((nx - rw) / 2).min(wb - nx);
+    let y0 = ry.saturating_sub((ny - rh) / 2).min(hb - ny);
+    [x0 * s, y0 * s, (x0 + nx) * s, (y0 + ny) * s]
 }
 
 /// The index of the least recently used of `items` (not empty), and when it was last used.
@@ -1296,6 +1314,28 @@ mod tests {
         // its neighbour along the row shares them
         wide.write([6 * s, s], None);
         assert_eq!(wide.bytes(), 128 * PAGE_BYTES);
+    }
+
+    #[test]
+    fn a_window_is_the_whole_image_where_it_fits_else_the_most_blocks_around_the_crop() {
+        let s = FFT_BLOCK_TEXELS;
+        let block = s * s * size_of::<f32>();
+        // 40 × 20 blocks: whole where they fit
+        let (w, h) = (40 * s - 7, 20 * s);
+        assert_eq!(window_around([s, s, 2 * s, 2 * s], 1, (w, h), 800 * block), [0, 0, 40 * s, 20 * s]);
+        // 100 blocks: a crop of 2 × 2 grown by 4 on every side (10 × 10), centred
+        let rect = [20 * s + 5, 10 * s, 22 * s - 3, 12 * s];
+        assert_eq!(window_around(rect, 1, (w, h), 100 * block), [16 * s, 6 * s, 26 * s, 16 * s]);
+        // near the corner: shifted inside the image, still 10 × 10
+        assert_eq!(window_around([s, 0, 3 * s, 2 * s], 1, (w, h), 100 * block), [0, 0, 10 * s, 10 * s]);
+        // 3 × 3 nodes a texel: a block takes 9 blocks' bytes, so 100 blocks' bytes hold 11 of them (a 3 × 3 box)
+        assert_eq!(window_around(rect, 3, (w, h), 100 * block), [20 * s, 10 * s, 22 * s, 12 * s]);
+        assert_eq!(window_around(rect, 3, (w, h), 9 * 16 * block), [19 * s, 9 * s, 23 * s, 13 * s]);
+        // never smaller than the crop's blocks
+        assert_eq!(window_around(rect, 1, (w, h), 0), [20 * s, 10 * s, 22 * s, 12 * s]);
+        // a strip of an image 3 blocks tall grows along the other axis
+        let strip = window_around([20 * s, 0, 22 * s, 3 * s], 1, (40 * s, 3 * s), 30 * block);
+        assert_eq!(strip, [16 * s, 0, 26 * s, 3 * s]);
     }
 
     #[test]
