@@ -799,8 +799,8 @@ impl PrefilterCache {
 
     /// The index of `key`'s canvas, marked used, made where there is none, or moved where its window does not
     /// hold `rect` (keeping the blocks the old and new windows share; the crops outside the new one are
-    /// dropped). Its window is the whole image (`w × h` texels) where that grid fits the canvas budget, else the
-    /// blocks around `rect` and one more on every side.
+    /// dropped). Its window is [`window_around`] `rect`: the whole image (`w × h` texels) where that grid fits the
+    /// canvas budget.
     fn canvas(&mut self, key: JacobianKey, per_texel: usize, rect: TexelRect, (w, h): (usize, usize)) -> usize {
         let s = FFT_BLOCK_TEXELS;
         let holds = |c: &Canvas| {
@@ -849,8 +849,8 @@ impl PrefilterCache {
         missing
     }
 
-    /// Drops the least recently used canvases (and their crops) while their blocks take more than
-    /// [`BLOCK_CACHE_BYTES`], never the one in use.
+    /// Drops the least recently used canvases (and their crops) while the pages their blocks were written on
+    /// take more than [`BLOCK_CACHE_BYTES`], never the one in use.
     fn evict_canvases(&mut self) {
         let mut total: usize = self.canvases.iter().map(Canvas::bytes).sum();
         while total > BLOCK_CACHE_BYTES {
