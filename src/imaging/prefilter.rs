@@ -545,19 +545,18 @@ impl Canvas {
         values
     }
 
-    /// Marks the block whose first texel is `at` present, and the pages its rows lie on touched; writes its
-    /// values (`(FFT_BLOCK_TEXELS · per_texel)²`, row-major) where given (a plan gives none).
-    fn write(&mut self, at: [usize; 2], block: Option<&[f32]>) {
+    /// Where texel `at` (inside the window) starts in the grid.
+    fn offset(&self, at: [usize; 2]) -> usize {
+        let m = self.per_texel;
+        (at[1] - self.window[1]) * m * self.stride() + (at[0] - self.window[0]) * m
+    }
+
+    /// Marks the block whose first texel is `at` present, and the pages its rows lie on touched (in a plan, as
+    /// though its values were written).
+    fn mark(&mut self, at: [usize; 2]) {
         let i = self.block(at).expect("a block inside the window");
-        let (m, stride) = (self.per_texel, self.stride());
-        let bs = FFT_BLOCK_TEXELS * m;
-        let first = (at[1] - self.window[1]) * m * stride + (at[0] - self.window[0]) * m;
-        if let Some(block) = block {
-            let values = self.values_mut();
-            for (y, row) in block.chunks_exact(bs).enumerate() {
-                values[first + y * stride..first + y * stride + bs].copy_from_slice(row);
-            }
-        }
+        let (first, stride) = (self.offset(at), self.stride());
+        let bs = FFT_BLOCK_TEXELS * self.per_texel;
         for y in 0..bs {
             let start = first + y * stride;
             let bytes = start * size_of::<f32>()..(start + bs) * size_of::<f32>();
@@ -571,36 +570,41 @@ impl Canvas {
 
     /// Writes the values of the blocks whose first texels are `blocks` (each `(FFT_BLOCK_TEXELS · per_texel)²`,
     /// row-major) into the grid, its rows in parallel (megabytes a key, on pages the system maps and zeroes as
-    /// they are first written); [`Canvas::write`] marks them.
-    fn write_rows(&mut self, blocks: &[[usize; 2]], values: &[Vec<f32>]) {
-        let (m, stride, window) = (self.per_texel, self.stride(), self.window);
-        let bs = FFT_BLOCK_TEXELS * m;
-        // the grid's rows the blocks cover, and each block's first row and column in it
+    /// they are first written), and marks them.
+    fn write(&mut self, blocks: &[[usize; 2]], values: &[Vec<f32>]) {
+        let stride = self.stride();
+        let bs = FFT_BLOCK_TEXELS * self.per_texel;
+        // each block's first node: its row and column in the grid
         let places: Vec<[usize; 2]> =
-            blocks.iter().map(|at| [(at[0] - window[0]) * m, (at[1] - window[1]) * m]).collect();
-        let (Some(top), Some(bottom)) = (places.iter().map(|p| p[1]).min(), places.iter().map(|p| p[1] + bs).max())
-        else {
-            return;
-        };
-        let grid = self.values_mut();
-        grid[top * stride..bottom * stride].par_chunks_mut(stride).enumerate().for_each(|(k, row)| {
-            let y = top + k;
-            for (&[x0, y0], block) in places.iter().zip(values) {
-                if (y0..y0 + bs).contains(&y) {
-                    row[x0..x0 + bs].copy_from_slice(&block[(y - y0) * bs..(y - y0 + 1) * bs]);
+            blocks.iter().map(|&at| [self.offset(at) % stride, self.offset(at) / stride]).collect();
+        if let (Some(top), Some(bottom)) = (places.iter().map(|p| p[1]).min(), places.iter().map(|p| p[1] + bs).max()) {
+            let grid = self.values_mut();
+            grid[top * stride..bottom * stride].par_chunks_mut(stride).enumerate().for_each(|(k, row)| {
+                let y = top + k;
+                for (&[x0, y0], block) in places.iter().zip(values) {
+                    if (y0..y0 + bs).contains(&y) {
+                        row[x0..x0 + bs].copy_from_slice(&block[(y - y0) * bs..(y - y0 + 1) * bs]);
+                    }
                 }
-            }
-        });
+            });
+        }
+        for &at in blocks {
+            self.mark(at);
+        }
     }
 
     /// The block whose first texel is `at`, copied out of the grid.
     fn read(&self, at: [usize; 2]) -> Option<Vec<f32>> {
         let values = self.values.as_ref()?;
-        let (m, stride) = (self.per_texel, self.stride());
-        let bs = FFT_BLOCK_TEXELS * m;
-        let first = (at[1] - self.window[1]) * m * stride + (at[0] - self.window[0]) * m;
+        let (first, stride) = (self.offset(at), self.stride());
+        let bs = FFT_BLOCK_TEXELS * self.per_texel;
         Some((0..bs).flat_map(|y| &values[first + y * stride..first + y * stride + bs]).copied().collect())
     }
+}
+
+/// Whether texel rectangle `outer` holds `inner`.
+fn holds(outer: &TexelRect, inner: &TexelRect) -> bool {
+    outer[0] <= inner[0] && outer[1] <= inner[1] && outer[2] >= inner[2] && outer[3] >= inner[3]
 }
 
 /// Prefiltered crops of one sky plane for one PSF, by Jacobian key: a few are kept, the least recently used
@@ -660,9 +664,9 @@ impl PrefilterCache {
         let Entry { key, rect, .. } = self.entries[slot];
         let canvas = self.canvases.iter().find(|c| c.key == key).expect("a crop's key has its canvas");
         let values = canvas.values.clone().expect("a built crop's canvas holds values");
-        let (m, stride, window) = (canvas.per_texel, canvas.stride(), canvas.window);
-        let offset = (rect[1] - window[1]) * m * stride + (rect[0] - window[0]) * m;
-        let image = SkyImage::view(values, offset, (rect[2] - rect[0]) * m, (rect[3] - rect[1]) * m, stride);
+        let m = canvas.per_texel;
+        let offset = canvas.offset([rect[0], rect[1]]);
+        let image = SkyImage::view(values, offset, (rect[2] - rect[0]) * m, (rect[3] - rect[1]) * m, canvas.stride());
         self.view = Some(source.with_region(image, [rect[0], rect[1]], m));
         self.view.as_ref()
     }
@@ -710,8 +714,7 @@ impl PrefilterCache {
         let lo = |v: f64| (v - 2.0).floor().max(0.0) as usize;
         let hi = |v: f64, n: usize| ((v + 2.0).ceil().max(0.0) as usize).min(n);
         let want = [lo(need[0]).min(w), lo(need[1]).min(h), hi(need[2], w), hi(need[3], h)];
-        let covers = |r: &TexelRect| r[0] <= want[0] && r[1] <= want[1] && r[2] >= want[2] && r[3] >= want[3];
-        if let Some(i) = self.entries.iter().position(|e| e.key == key && covers(&e.rect)) {
+        if let Some(i) = self.entries.iter().position(|e| e.key == key && holds(&e.rect, &want)) {
             self.entries[i].last_used = self.clock;
             // the key's canvas and filter are in use too: not the first to go when they are dropped
             if let Some(c) = self.canvases.iter_mut().find(|c| c.key == key) {
@@ -734,7 +737,7 @@ impl PrefilterCache {
             self.build(source, &filter, c, &missing);
         } else if !build {
             for &at in &missing {
-                self.canvases[c].write(at, None);
+                self.canvases[c].mark(at);
             }
         }
         self.evict_canvases();
@@ -803,11 +806,10 @@ impl PrefilterCache {
     /// canvas budget.
     fn canvas(&mut self, key: JacobianKey, per_texel: usize, rect: TexelRect, (w, h): (usize, usize)) -> usize {
         let s = FFT_BLOCK_TEXELS;
-        let holds = |c: &Canvas| {
-            c.window[0] <= rect[0] && c.window[1] <= rect[1] && c.window[2] >= rect[2] && c.window[3] >= rect[3]
-        };
         let found = self.canvases.iter().position(|c| c.key == key);
-        if let Some(i) = found.filter(|&i| self.canvases[i].per_texel == per_texel && holds(&self.canvases[i])) {
+        if let Some(i) =
+            found.filter(|&i| self.canvases[i].per_texel == per_texel && holds(&self.canvases[i].window, &rect))
+        {
             self.canvases[i].last_used = self.clock;
             return i;
         }
@@ -817,17 +819,18 @@ impl PrefilterCache {
             self.view = None;
             // the blocks both windows hold, carried over (a copy, as rare as a view leaving its window)
             if old.per_texel == per_texel {
-                for (i, _) in old.present.iter().enumerate().filter(|&(_, &p)| p) {
-                    let bw = (old.window[2] - old.window[0]) / s;
-                    let at = [old.window[0] + i % bw * s, old.window[1] + i / bw * s];
-                    if canvas.block(at).is_some() {
-                        canvas.write(at, old.read(at).as_deref());
-                    }
+                let bw = (old.window[2] - old.window[0]) / s;
+                let kept: Vec<[usize; 2]> = (old.present.iter().enumerate().filter(|&(_, &p)| p))
+                    .map(|(i, _)| [old.window[0] + i % bw * s, old.window[1] + i / bw * s])
+                    .filter(|&at| canvas.block(at).is_some())
+                    .collect();
+                // a plan's canvas holds no values: its blocks are marked alone
+                match kept.iter().map(|&at| old.read(at)).collect::<Option<Vec<_>>>() {
+                    Some(values) => canvas.write(&kept, &values),
+                    None => kept.iter().for_each(|&at| canvas.mark(at)),
                 }
             }
-            let within =
-                |r: &TexelRect| window[0] <= r[0] && window[1] <= r[1] && window[2] >= r[2] && window[3] >= r[3];
-            self.entries.retain(|e| e.key != key || (old.per_texel == per_texel && within(&e.rect)));
+            self.entries.retain(|e| e.key != key || (old.per_texel == per_texel && holds(&window, &e.rect)));
         }
         self.canvases.push(canvas);
         self.canvases.len() - 1
@@ -913,11 +916,7 @@ impl PrefilterCache {
         assert!(fresh.iter().all(|values| values.iter().all(|v| v.is_finite())), "a blur of finite values is finite");
         // the crop last handed out shares the grid: dropped, so that it is written in place
         self.view = None;
-        let canvas = &mut self.canvases[c];
-        canvas.write_rows(missing, &fresh);
-        for &at in missing {
-            canvas.write(at, None);
-        }
+        self.canvases[c].write(missing, &fresh);
     }
 }
 
@@ -1284,7 +1283,7 @@ mod tests {
         let mut cache = PrefilterCache::new();
         for i in 0..4000 {
             let mut canvas = Canvas::new(key(i), 1, [0, 0, s, s], i as u64);
-            canvas.write([0, 0], None);
+            canvas.mark([0, 0]);
             assert_eq!(canvas.bytes(), 64 << 10);
             cache.canvases.push(canvas);
             cache.entries.push(Entry { key: key(i), rect: [0, 0, s, s], last_used: i as u64 });
@@ -1292,7 +1291,7 @@ mod tests {
         cache.clock = 5000;
         let mut in_use = Canvas::new(key(4000), 3, [0, 0, 100 * s, s], 5000);
         for b in 0..100 {
-            in_use.write([b * s, 0], None);
+            in_use.mark([b * s, 0]);
         }
         assert_eq!(in_use.bytes(), 100 * (576 << 10));
         cache.canvases.push(in_use);
@@ -1309,10 +1308,10 @@ mod tests {
         // a block of one node a texel in a grid 32 blocks (16 KiB) a row: its 128 rows of 512 bytes are on a page
         // each, and count so
         let mut wide = Canvas::new(key(0), 1, [0, 0, 32 * s, 2 * s], 0);
-        wide.write([5 * s, s], None);
+        wide.mark([5 * s, s]);
         assert_eq!(wide.bytes(), 128 * PAGE_BYTES);
         // its neighbour along the row shares them
-        wide.write([6 * s, s], None);
+        wide.mark([6 * s, s]);
         assert_eq!(wide.bytes(), 128 * PAGE_BYTES);
     }
 

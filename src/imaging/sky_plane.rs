@@ -95,11 +95,11 @@ impl SkyImage {
                 message: format!("value at ({}, {}) is not finite", i % width, i / width),
             });
         }
-        Ok(Self::rows(width, height, pixels))
+        Ok(Self::contiguous(width, height, pixels))
     }
 
     /// An image holding `pixels`, its rows one after another.
-    fn rows(width: usize, height: usize, pixels: Vec<f32>) -> Self {
+    fn contiguous(width: usize, height: usize, pixels: Vec<f32>) -> Self {
         Self { width, height, stride: width, offset: 0, values: Arc::new(pixels) }
     }
 
@@ -107,7 +107,7 @@ impl SkyImage {
     /// checked image); checked in debug builds only.
     pub(crate) fn from_finite(width: usize, height: usize, pixels: Vec<f32>) -> Self {
         debug_assert!(width * height == pixels.len() && pixels.iter().all(|p| p.is_finite()));
-        Self::rows(width, height, pixels)
+        Self::contiguous(width, height, pixels)
     }
 
     /// The `width × height` image whose rows start at `values[offset]`, `stride` floats apart (a region of a
