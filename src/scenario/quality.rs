@@ -6,9 +6,9 @@
 //! `standard` is what a scenario without `[quality]` gets. `reference` puts every switch at its exact setting,
 //! or where a switch has none (a truncated kernel, a quadrature), at the finest the program offers; `draft` gives
 //! up accuracy for speed: in the committed report (docs/speed-vs-error, made on an AMD EPYC with 2 vCPUs) its
-//! frames are 2.30–10.32× faster than `standard`'s on the shipped scenarios (the least on supersonic_climb, a
+//! frames are 2.47–12.30× faster than `standard`'s on the shipped scenarios (the least on supersonic_climb, a
 //! tracking camera's 640 × 512 frame whose detector readout, the same work in both presets but for the normal
-//! deviates' sampler, is most of draft's time), its whole runs 2.40–4.26× shorter, and
+//! deviates' sampler, is most of draft's time), its whole runs 2.31–4.38× shorter, and
 //! differ from `reference` by 0.46–19.0 DN rms (the most on paper_cloudy_sky, where the
 //! blurred sky is read nearest, made on a 2 px grid, from a cloud layer of 2 px texels: cloud edges move and
 //! soften; alone, on sense_and_avoid, the 2 px grid costs 9.7 DN rms and its targets' centroids 0.14 px, the
