@@ -24,12 +24,13 @@
 //! the last one durable (one `syncfs` of the output's file system on Linux, through the directory opened when the
 //! recording began, so that a write-back error on any file since then is reported; a sync of each file elsewhere), then
 //! puts the labels in place (on Linux the labels, MOT file and manifest are written under temporary names before
-//! that `syncfs`, which makes them durable with the frames, and renamed into place after it). A checkpoint during the run is written by a thread of its own from a copy of the texts, so the
-//! simulation does not wait for the disk (a checkpoint still being written when the next is due delays that one); the
-//! last one, at the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint, and
-//! never leaves labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file,
-//! then the manifest, so a process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written`
-//! one checkpoint behind the labels, never ahead of them.
+//! that `syncfs`, which makes them durable with the frames, and renamed into place after it; the last checkpoint
+//! syncs once more, for the names). A checkpoint during the run is written by a thread of its own from a copy of the
+//! texts, so the simulation does not wait for the disk (a checkpoint still being written when the next is due delays
+//! that one); the last one, at the end, is waited for. A crash of the machine loses at most the frames since the
+//! last checkpoint, and never leaves labels that list a frame the disk does not hold. A checkpoint writes the
+//! labels, then the MOT file, then the manifest, so a process killed in the middle of one (`kill -9`) may leave the
+//! manifest's `frames_written` one checkpoint behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
@@ -932,6 +933,8 @@ struct CheckpointJob {
     /// The labels and MOT texts, where the files on disk do not hold them yet.
     texts: Option<(String, String)>,
     manifest: String,
+    /// The recording's last checkpoint: no write-back pass follows it, so it makes its files' names durable too.
+    last: bool,
 }
 
 impl CheckpointJob {
@@ -947,7 +950,8 @@ impl CheckpointJob {
             if cfg!(target_os = "linux") && !self.unsynced.is_empty() {
                 let texts = [labels.as_bytes(), mot.as_bytes(), self.manifest.as_bytes()];
                 let (handle, failed) = (self.dir_handle.as_deref(), &self.writeback.failed);
-                if let Some(done) = write_synced_with_frames(&self.dir, handle, &mut self.unsynced, failed, texts) {
+                let sync = (handle, failed, self.last);
+                if let Some(done) = write_synced_with_frames(&self.dir, sync, &mut self.unsynced, texts) {
                     return done;
                 }
             }
@@ -973,16 +977,18 @@ impl CheckpointJob {
 /// before the sync that makes the files written since the last checkpoint (`unsynced`) durable, so that the one
 /// `syncfs` makes them durable too, then renamed into place in that order: the same files on disk, in the same
 /// order, as writing each atomically after the sync, without a sync of their own for each (three journal
-/// commits). At the end of a recording of 60 frames of 44 KB into ext4 (a probe of the same calls, 16
-/// alternating rounds, AMD EPYC): 4.18 ms that way, 3.09 this way (medians).
+/// commits, which also made the renames before them durable). The renames are made durable by the next sync: the
+/// write-back thread's next pass or the next checkpoint's, or, for the recording's `last` checkpoint, one more
+/// `syncfs` here (a journal commit: the files' bytes are on the disk already). At the end of a recording of 60
+/// frames of 44 KB into ext4 (a probe of the same calls without that last sync, 16 alternating rounds, AMD EPYC):
+/// 4.18 ms that way, 3.09 this way (medians).
 ///
 /// `None` where a temporary file could not be written (a full disk): the temporary files are removed and
 /// the caller writes the texts one by one ([`CheckpointJob::write_files`]), which says how far it got.
 fn write_synced_with_frames(
     dir: &Path,
-    handle: Option<&std::fs::File>,
+    (handle, writeback_failed, last): (Option<&std::fs::File>, &std::sync::atomic::AtomicI32, bool),
     unsynced: &mut Vec<PathBuf>,
-    writeback_failed: &std::sync::atomic::AtomicI32,
     texts: [&[u8]; 3],
 ) -> Option<Result<(), (Reached, RecordError)>> {
     let paths = ["labels.jsonl", "gt_mot.txt", "manifest.json"].map(|name| dir.join(name));
@@ -1014,6 +1020,10 @@ fn write_synced_with_frames(
             }
             return Some(Err((reached[i], io_err(p, e))));
         }
+    }
+    // the names in place for good (the files are in place whatever this says)
+    if last && let Err(e) = sync_written(dir, handle, &[], writeback_failed) {
+        return Some(Err((Reached::Texts, e)));
     }
     Some(Ok(()))
 }
@@ -1277,6 +1287,7 @@ impl Recorder {
             unsynced: if texts { std::mem::take(&mut self.unsynced) } else { Vec::new() },
             texts: texts.then(|| (self.labels_text.clone(), self.mot_text.clone())),
             manifest: serde_json::to_string_pretty(&m).expect("manifest serializes"),
+            last: status != "running",
         }
     }
 
@@ -1529,6 +1540,7 @@ mod tests {
             unsynced: vec![frame.clone()],
             texts: Some(("labels\n".into(), "mot\n".into())),
             manifest: "{}".into(),
+            last: true,
         };
         // the temporary files of the texts, which a failed checkpoint leaves none of
         let temporaries = |d: &Path| -> Vec<String> {
