@@ -545,10 +545,16 @@ impl Canvas {
         values
     }
 
+    /// The grid's column and row of texel `at`'s first node (`at` inside the window).
+    fn node(&self, at: [usize; 2]) -> [usize; 2] {
+        let m = self.per_texel;
+        [(at[0] - self.window[0]) * m, (at[1] - self.window[1]) * m]
+    }
+
     /// Where texel `at` (inside the window) starts in the grid.
     fn offset(&self, at: [usize; 2]) -> usize {
-        let m = self.per_texel;
-        (at[1] - self.window[1]) * m * self.stride() + (at[0] - self.window[0]) * m
+        let [x, y] = self.node(at);
+        y * self.stride() + x
     }
 
     /// Marks the block whose first texel is `at` present, and the pages its rows lie on touched (in a plan, as
@@ -574,9 +580,8 @@ impl Canvas {
     fn write(&mut self, blocks: &[[usize; 2]], values: &[Vec<f32>]) {
         let stride = self.stride();
         let bs = FFT_BLOCK_TEXELS * self.per_texel;
-        // each block's first node: its row and column in the grid
-        let places: Vec<[usize; 2]> =
-            blocks.iter().map(|&at| [self.offset(at) % stride, self.offset(at) / stride]).collect();
+        // each block's first node: its column and row in the grid
+        let places: Vec<[usize; 2]> = blocks.iter().map(|&at| self.node(at)).collect();
         if let (Some(top), Some(bottom)) = (places.iter().map(|p| p[1]).min(), places.iter().map(|p| p[1] + bs).max()) {
             let grid = self.values_mut();
             grid[top * stride..bottom * stride].par_chunks_mut(stride).enumerate().for_each(|(k, row)| {
