@@ -81,6 +81,9 @@ impl Measure {
 const SPLIT_X: f64 = 2.0;
 /// Above this `x` the band radiance is far below the smallest subnormal for any admissible temperature.
 const X_NEGLIGIBLE: f64 = 1e15;
+/// Upper pieces narrower than this go straight to the quadrature ([`upper_piece_scaled`]): `e^{−½} = 0.61`,
+/// clear of the ½ where the tails' difference would be taken instead.
+const NARROW_PIECE: f64 = 0.5;
 
 /// `B_{2j}/((2j+3)·(2j)!)` for j = 0, 1, …: the even-k coefficients of `P(x)/x³` as a series in `x²`.
 const BERNOULLI_COEF: [f64; 22] = [
@@ -362,7 +365,17 @@ fn ln_upper_piece(a: f64, b: f64, p: i32) -> f64 {
 }
 
 /// `∫_a^b g = m·e^{ln_scale}` for `2 ≤ a < b`, with `ln_scale = −a`.
+///
+/// The difference of the two tails is taken where `e^{−(b−a)}·S(b)/S(a) ≤ ½` (no cancellation), else the
+/// quadrature. `S` rises on `[2, ∞)` (`S′ = S − xᵖ/(1 − e^{−x})`, which is at least 0.26·S for `p = 3` and
+/// 0.18·S for `p = 2` up to `x = 10`, falling as about `p/x` beyond, 0.004·S at 700: 30-digit quadrature), so the
+/// ratio is at least `e^{−(b−a)}`, above ½ for `b − a` under `ln 2`; a piece narrower than [`NARROW_PIECE`] (a
+/// LOWTRAN bin is `b − a ≈ 0.05` at 10 µm and 290 K) goes to the quadrature without the two series, the branch
+/// they would have chosen.
 fn upper_piece_scaled(a: f64, b: f64, p: i32) -> (f64, f64) {
+    if b - a < NARROW_PIECE {
+        return gauss_legendre_scaled(a, b, p);
+    }
     let sa = tail_scaled(a, p);
     let ratio = (-(b - a)).exp() * tail_scaled(b, p) / sa;
     if ratio <= 0.5 { (sa * (1.0 - ratio), -a) } else { gauss_legendre_scaled(a, b, p) }
@@ -666,6 +679,24 @@ mod tests {
         let f = tail_scaled(SPLIT_X, 2) * (-SPLIT_X).exp();
         let want = 2.0 * 1.202_056_903_159_594_2;
         assert!(((p + f) - want).abs() / want < 1e-15, "{p} + {f} vs {want}");
+    }
+
+    #[test]
+    fn narrow_upper_pieces_are_those_the_tails_send_to_the_quadrature() {
+        // S rises on [2, ∞), so the tails' ratio over a piece narrower than NARROW_PIECE is above e^{−½}: the
+        // shortcut takes the branch the two series would have
+        for p in [2, 3] {
+            let mut a = SPLIT_X;
+            while a < 800.0 {
+                let sa = tail_scaled(a, p);
+                for width in [1e-9, 1e-4, 0.01, 0.05, 0.2, 0.45, NARROW_PIECE * (1.0 - 1e-12)] {
+                    let b = a + width;
+                    let ratio = (-(b - a)).exp() * tail_scaled(b, p) / sa;
+                    assert!(ratio > 0.6, "p {p}, a {a}, b {b}: {ratio}");
+                }
+                a = a * 1.01 + 1e-3;
+            }
+        }
     }
 
     #[test]
