@@ -425,40 +425,40 @@ fn tail_scaled(x: f64, p: i32) -> f64 {
     sum
 }
 
-/// `∫_a^b g` by 20-point Gauss–Legendre, as `m·e^{ln_scale}` with the factor `e^{−a}` taken out for `a ≥ 2`.
+/// Gauss–Legendre orders for pieces of `g` up to each width in `x` ([`gauss_legendre_scaled`]), then 20 for
+/// wider ones. `g` is analytic but for poles at `±2πik` (`k ≠ 0`), at least 2π from the real axis, so the
+/// error falls as `(width/2)^{2n}`. Measured in 40-digit arithmetic with the double-precision nodes and weights,
+/// over `a` from 0.001 to 400 and `p` 2 and 3, the largest relative error at each width: 2.3·10⁻¹⁶ (4 points
+/// at 0.06), 9·10⁻¹⁷ (5 at 0.2), 3.5·10⁻¹⁷ (6 at 0.4), 2.7·10⁻¹⁶ (8 at 1), where 20 points erred by up to
+/// 1.1·10⁻¹⁵ on the same pieces: the nodes' rounding, not the order, sets it. A LOWTRAN bin of 0.1 µm at
+/// 10 µm and 290 K is 0.05 wide.
+const GAUSS_ORDERS: [(f64, usize); 4] = [(0.06, 4), (0.2, 5), (0.4, 6), (1.0, 8)];
+
+/// `∫_a^b g` by Gauss–Legendre of the order [`GAUSS_ORDERS`] gives its width, as `m·e^{ln_scale}` with the
+/// factor `e^{−a}` taken out for `a ≥ 2` (there `1 − e^{−x}` is formed as `1 − e^{−a}·e^{−(x−a)}`, at least
+/// 0.86 and free of cancellation, one exponential a node).
 fn gauss_legendre_scaled(a: f64, b: f64, p: i32) -> (f64, f64) {
-    let (nodes, weights) = gauss_legendre_20();
-    let half = 0.5 * (b - a);
+    let width = b - a;
+    let order = GAUSS_ORDERS.iter().find(|&&(w, _)| width <= w).map_or(20, |&(_, n)| n);
+    let (nodes, weights) = gauss_legendre_table(order);
+    let half = 0.5 * width;
     let mid = 0.5 * (a + b);
     let scaled = a >= SPLIT_X;
+    let below_a = if scaled { (-a).exp() } else { 0.0 };
     let mut sum = 0.0;
     for (&t, &w) in nodes.iter().zip(weights) {
         let x = mid + half * t;
         let xp = if p == 3 { x * x * x } else { x * x };
         let value = if scaled {
             // xᵖ e^{−(x−a)} / (1 − e^{−x})
-            xp * (-(x - a)).exp() / -(-x).exp_m1()
+            let e = (-(x - a)).exp();
+            xp * e / (1.0 - below_a * e)
         } else {
             xp / x.exp_m1()
         };
         sum += w * value;
     }
     (sum * half, if scaled { -a } else { 0.0 })
-}
-
-/// Nodes and weights of 20-point Gauss–Legendre quadrature on [−1, 1], computed once by Newton iteration.
-fn gauss_legendre_20() -> &'static ([f64; 20], [f64; 20]) {
-    static TABLE: OnceLock<([f64; 20], [f64; 20])> = OnceLock::new();
-    TABLE.get_or_init(gauss_legendre::<20>)
-}
-
-/// Gauss–Legendre nodes and weights of order `N` on [−1, 1].
-fn gauss_legendre<const N: usize>() -> ([f64; N], [f64; N]) {
-    let (x, w) = gauss_legendre_nodes(N);
-    let (mut nodes, mut weights) = ([0.0; N], [0.0; N]);
-    nodes.copy_from_slice(&x);
-    weights.copy_from_slice(&w);
-    (nodes, weights)
 }
 
 /// Gauss–Legendre nodes and weights of order `n ≥ 1` on [−1, 1], by Newton iteration on `P_n`.
@@ -659,12 +659,19 @@ mod tests {
 
     #[test]
     fn gauss_legendre_integrates_polynomials_exactly() {
-        let (x, w) = gauss_legendre::<20>();
+        let (x, w) = gauss_legendre_table(20);
         // ∫_{-1}^{1} t^38 dt = 2/39
         let s: f64 = x.iter().zip(w).map(|(t, w)| w * t.powi(38)).sum();
         assert!((s - 2.0 / 39.0).abs() < 1e-15);
         let total: f64 = w.iter().sum();
         assert!((total - 2.0).abs() < 1e-14);
+        // and every order the series' pieces use: t^(2n − 2) exactly
+        for &(_, n) in &GAUSS_ORDERS {
+            let (x, w) = gauss_legendre_table(n);
+            let k = 2 * n as i32 - 2;
+            let s: f64 = x.iter().zip(w).map(|(t, w)| w * t.powi(k)).sum();
+            assert!((s - 2.0 / f64::from(k + 1)).abs() < 1e-15, "{n}");
+        }
     }
 
     #[test]
