@@ -27,6 +27,8 @@ use std::f64::consts::PI;
 
 /// Below this length of `v + l` the half vector is treated as undefined.
 const HALF_VECTOR_MIN: f64 = 1e-12;
+/// Most normals [`TowardPair::f_unit_lanes`] takes at once.
+pub const LANES: usize = 64;
 
 /// An invalid BRDF parameter: its name, value and allowed range.
 pub type BrdfError = super::ParamError;
@@ -100,7 +102,7 @@ impl TowardPair<'_> {
     /// `f_per_sr` within 1e-13 relative (test `unit_normal_form_matches_the_general_form`; the log form's own
     /// rounding grows with the exponent); where `exp(−tan²α/m²)` is at or below e⁻⁷⁰⁸ (3.3e-308), so far in the
     /// lobe's tail that it nears underflow, the specular part is 0.
-    /// The ellipsoid's reflectance calls it for each of a sphere grid's points.
+    /// The ellipsoid's reflectance takes it for many normals at once ([`TowardPair::f_unit_lanes`]).
     #[inline]
     pub fn f_unit(&self, n: DVec3, nv: f64, nl: f64) -> f64 {
         self.f_with(n, nv, nl, |nh, sin| {
@@ -116,6 +118,51 @@ impl TowardPair<'_> {
             let c2 = nh * nh;
             exponent.exp() / (self.pi_m2 * (c2 * c2))
         })
+    }
+
+    /// [`TowardPair::f_unit`] of many normals: lane `k` of `f` is `f_unit(n[k], nv[k], nl[k])` to the bit, the
+    /// normals given by component (all slices of one length, at most [`LANES`]). The operations of `f_unit`, in
+    /// its order, run as one loop of selects that the caller's vector width compiles (inside
+    /// [`crate::physics::simd::widest`]), all but the exponential; a second loop takes each lane's exponential, the
+    /// one call, where its lobe needs it, and finishes the lane.
+    #[inline(always)]
+    pub fn f_unit_lanes(&self, [nx, ny, nz]: [&[f64]; 3], nv: &[f64], nl: &[f64], f: &mut [f64]) {
+        let count = f.len();
+        assert!(count <= LANES && [nx.len(), ny.len(), nz.len(), nv.len(), nl.len()].iter().all(|&n| n == count));
+        let diffuse = self.brdf.kd / PI;
+        let Some((h, vh, fresnel)) = self.half else {
+            for k in 0..count {
+                let (nv, nl) = (nv[k] + 0.0, nl[k] + 0.0);
+                f[k] = if nv >= 0.0 && nl >= 0.0 { diffuse } else { 0.0 };
+            }
+            return;
+        };
+        // per lane: whether f is not 0, the exponent, the distribution's denominator, G/((n·v)(n·l)), and
+        // whether the exponential is taken (else D is 0)
+        let (mut ok, mut need) = ([false; LANES], [false; LANES]);
+        let (mut exponent, mut below, mut g_over) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        for k in 0..count {
+            let (nv, nl) = (nv[k] + 0.0, nl[k] + 0.0);
+            let (x, y, z) = (nx[k], ny[k], nz[k]);
+            let nh = (x * h.x + y * h.y) + z * h.z;
+            // |n × h|
+            let (cx, cy, cz) = (y * h.z - h.y * z, z * h.x - h.z * x, x * h.y - h.x * y);
+            let t = ((cx * cx + cy * cy) + cz * cz).sqrt() / nh;
+            let e = -(t * t) / self.m2;
+            let c2 = nh * nh;
+            ok[k] = nv >= 0.0 && nl >= 0.0;
+            need[k] = ok[k] && nh > 0.0 && e > -708.0;
+            exponent[k] = e;
+            below[k] = self.pi_m2 * (c2 * c2);
+            g_over[k] = (1.0 / (nv * nl)).min(2.0 * nh / (vh * nl)).min(2.0 * nh / (vh * nv));
+        }
+        let ks = self.brdf.ks;
+        for k in 0..count {
+            // D ≠ 0 only where n·h > 0, so specular_term's own test of n·h passes wherever D is not 0
+            let d = if need[k] { exponent[k].exp() / below[k] } else { 0.0 };
+            let specular = if d == 0.0 { 0.0 } else { fresnel * d * g_over[k] / PI };
+            f[k] = if ok[k] { diffuse + ks * specular } else { 0.0 };
+        }
     }
 
     /// `f` for the unit normal `n` with `nv = n·v` and `nl = n·l` (0 where either is negative), Beckmann's `D`
@@ -440,6 +487,46 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn lanes_are_f_unit_bit_for_bit() {
+        // normals all round the sphere (n·v and n·l of either sign, the lobe's centre and its far tail), in
+        // blocks of every length up to LANES, against f_unit one at a time
+        let dir = |theta: f64, phi: f64| DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+        let mut specular = 0;
+        for m in [1e-4, 0.05, 0.3, 2.0, 10.0] {
+            let brdf = CookTorrance { kd: 0.3, ks: 0.7, f0: 0.04, roughness: m };
+            for (v, l) in [
+                (DVec3::Z, DVec3::Z),
+                (dir(0.4, 0.3), dir(1.2, 2.9)),
+                (dir(1.5, 0.0), dir(1.5, 3.0)),
+                (DVec3::X, -DVec3::X),
+            ] {
+                let pair = brdf.toward(v, l);
+                let normals: Vec<DVec3> = (0..1000)
+                    .map(|i| dir(std::f64::consts::PI * (i as f64 + 0.5) / 1000.0, 2.399_963 * i as f64))
+                    .collect();
+                let mut start = 0;
+                for count in (1..=LANES).cycle() {
+                    if start + count > normals.len() {
+                        break;
+                    }
+                    let block = &normals[start..start + count];
+                    let component = |c: usize| block.iter().map(|n| n[c]).collect::<Vec<f64>>();
+                    let (nv, nl): (Vec<f64>, Vec<f64>) = block.iter().map(|n| (n.dot(v), n.dot(l))).unzip();
+                    let mut f = vec![0.0; count];
+                    pair.f_unit_lanes([&component(0), &component(1), &component(2)], &nv, &nl, &mut f);
+                    for (k, n) in block.iter().enumerate() {
+                        let want = pair.f_unit(*n, nv[k], nl[k]);
+                        assert_eq!(f[k].to_bits(), want.to_bits(), "m {m}, n {n}, v {v}, l {l}: {} {want}", f[k]);
+                        specular += usize::from(want > brdf.kd / PI * (1.0 + 1e-9));
+                    }
+                    start += count;
+                }
+            }
+        }
+        assert!(specular > 1000, "{specular}");
     }
 
     #[test]
