@@ -11,8 +11,9 @@
 //! - for `t ≥ 2`, the upper tail `F(x) = ∫_x^∞ g = Σₙ e^{−nx}(x³/n + 3x²/n² + 6x/n³ + 6/n⁴)`, kept in the
 //!   log domain (`F = e^{−x}·S(x)`) so that bands far in the Wien tail neither underflow early nor lose digits;
 //! - for `t < 2`, the lower part `P(x) = ∫_0^x g = Σ_k B_k x^{k+3}/((k+3)·k!)` (Bernoulli series, radius 2π);
-//! - where a difference of two such values would cancel (a narrow band), 20-point Gauss–Legendre quadrature of
-//!   `g` directly, which is exact to rounding there because `g` is analytic within 2π of the real axis.
+//! - where a difference of two such values would cancel (a narrow band), Gauss–Legendre quadrature of `g`
+//!   directly, which is exact to rounding there because `g` is analytic within 2π of the real axis: 4 to 8 nodes
+//!   for pieces up to 1 wide in `x` (a LOWTRAN bin is about 0.05), 20 for wider ones (`GAUSS_ORDERS`).
 //!
 //! A band straddling `t = 2` is split there, so every piece is a sum of positive terms. The result is assembled
 //! as one `exp` of a log, which returns exactly 0 when the true radiance is below the smallest subnormal.
