@@ -491,8 +491,9 @@ mod tests {
 
     #[test]
     fn lanes_are_f_unit_bit_for_bit() {
-        // normals all round the sphere (n·v and n·l of either sign, the lobe's centre and its far tail), in
-        // blocks of every length up to LANES, against f_unit one at a time
+        // normals all round the sphere (n·v and n·l of either sign, the lobe's centre and its far tail, and
+        // grazing: n·v or n·l exactly 0 or −0), in blocks of every length from 1 to LANES, against f_unit one at
+        // a time, both at the baseline's width and inside `widest` (the CPU's)
         let dir = |theta: f64, phi: f64| DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
         let mut specular = 0;
         for m in [1e-4, 0.05, 0.3, 2.0, 10.0] {
@@ -504,8 +505,8 @@ mod tests {
                 (DVec3::X, -DVec3::X),
             ] {
                 let pair = brdf.toward(v, l);
-                let normals: Vec<DVec3> = (0..1000)
-                    .map(|i| dir(std::f64::consts::PI * (i as f64 + 0.5) / 1000.0, 2.399_963 * i as f64))
+                let normals: Vec<DVec3> = (0..2100)
+                    .map(|i| dir(std::f64::consts::PI * (i as f64 + 0.5) / 2100.0, 2.399_963 * i as f64))
                     .collect();
                 let mut start = 0;
                 for count in (1..=LANES).cycle() {
@@ -514,12 +515,27 @@ mod tests {
                     }
                     let block = &normals[start..start + count];
                     let component = |c: usize| block.iter().map(|n| n[c]).collect::<Vec<f64>>();
-                    let (nv, nl): (Vec<f64>, Vec<f64>) = block.iter().map(|n| (n.dot(v), n.dot(l))).unzip();
-                    let mut f = vec![0.0; count];
-                    pair.f_unit_lanes([&component(0), &component(1), &component(2)], &nv, &nl, &mut f);
+                    // every few lanes n·v or n·l set to 0 or −0 (f_unit takes them as given)
+                    let grazing = |k: usize, x: f64, y: f64| match (start + k) % 13 {
+                        3 => (0.0, y),
+                        5 => (-0.0, y),
+                        7 => (x, 0.0),
+                        9 => (x, -0.0),
+                        _ => (x, y),
+                    };
+                    let (nv, nl): (Vec<f64>, Vec<f64>) =
+                        block.iter().enumerate().map(|(k, n)| grazing(k, n.dot(v), n.dot(l))).unzip();
+                    let (x, y, z) = (component(0), component(1), component(2));
+                    let (mut f, mut wide) = (vec![0.0; count], vec![0.0; count]);
+                    pair.f_unit_lanes([&x, &y, &z], &nv, &nl, &mut f);
+                    crate::physics::simd::widest(
+                        #[inline(always)]
+                        || pair.f_unit_lanes([&x, &y, &z], &nv, &nl, &mut wide),
+                    );
                     for (k, n) in block.iter().enumerate() {
                         let want = pair.f_unit(*n, nv[k], nl[k]);
                         assert_eq!(f[k].to_bits(), want.to_bits(), "m {m}, n {n}, v {v}, l {l}: {} {want}", f[k]);
+                        assert_eq!(wide[k].to_bits(), want.to_bits(), "widest: m {m}, n {n}, v {v}, l {l}");
                         specular += usize::from(want > brdf.kd / PI * (1.0 + 1e-9));
                     }
                     start += count;
