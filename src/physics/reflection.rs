@@ -70,11 +70,12 @@ pub enum ReflectionGeometry {
 /// A fixed quadrature over the unit sphere, planned once and reused for every ellipsoid average.
 #[derive(Debug, Clone)]
 pub struct SphereQuadrature {
-    /// Unit directions, by component, and their solid-angle weights (sum 4π), point by point.
+    /// Unit directions, by component, point by point.
     x: Vec<f64>,
     y: Vec<f64>,
     z: Vec<f64>,
-    weight: Vec<f64>,
+    /// Every point's solid-angle weight (the cells have equal areas; 4π over the points).
+    weight: f64,
 }
 
 impl SphereQuadrature {
@@ -86,7 +87,7 @@ impl SphereQuadrature {
     pub fn new(n_z: usize, n_phi: usize) -> Self {
         let (n_z, n_phi) = (n_z.max(2), n_phi.max(4));
         let weight = 4.0 * std::f64::consts::PI / (n_z * n_phi) as f64;
-        let mut q = Self { x: Vec::new(), y: Vec::new(), z: Vec::new(), weight: vec![weight; n_z * n_phi] };
+        let mut q = Self { x: Vec::new(), y: Vec::new(), z: Vec::new(), weight };
         for i in 0..n_z {
             let z = -1.0 + 2.0 * (i as f64 + 0.5) / n_z as f64;
             let r = (1.0 - z * z).max(0.0).sqrt();
@@ -102,7 +103,7 @@ impl SphereQuadrature {
 
     /// Points.
     fn len(&self) -> usize {
-        self.weight.len()
+        self.x.len()
     }
 }
 
@@ -195,7 +196,7 @@ impl PointTerms<'_> {
         let count = area.len();
         assert!(count <= LANES && weighted.len() == count);
         let range = start..start + count;
-        let (sx, sy, sz, sw) = (&q.x[range.clone()], &q.y[range.clone()], &q.z[range.clone()], &q.weight[range]);
+        let (sx, sy, sz, w) = (&q.x[range.clone()], &q.y[range.clone()], &q.z[range], q.weight);
         // moved in, so that no store through `area` or `weighted` could change where the loops read (they
         // vectorize)
         widest(
@@ -203,7 +204,7 @@ impl PointTerms<'_> {
             move || {
                 let (inv, v, l) = (self.inv, self.v, self.l);
                 // every slice exactly `count` long, so that the loops index them without a bounds test
-                let (sx, sy, sz, sw) = (&sx[..count], &sy[..count], &sz[..count], &sw[..count]);
+                let (sx, sy, sz) = (&sx[..count], &sy[..count], &sz[..count]);
                 let (area, weighted) = (&mut area[..count], &mut weighted[..count]);
                 let (mut nx, mut ny, mut nz) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
                 let (mut nv, mut nl, mut wp, mut lit) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [false; LANES]);
@@ -215,7 +216,7 @@ impl PointTerms<'_> {
                     nl[k] = (nx[k] * l.x + ny[k] * l.y) + nz[k] * l.z;
                     let seen = !(projected <= 0.0);
                     lit[k] = seen && nl[k] > 0.0;
-                    wp[k] = sw[k] * projected;
+                    wp[k] = w * projected;
                     area[k] = if seen { wp[k] } else { 0.0 };
                     // a point that is not lit takes no BRDF (n·v < 0 makes it 0 without its exponential)
                     nv[k] = if lit[k] { projected / length } else { -1.0 };
@@ -365,7 +366,7 @@ mod tests {
                         let terms = PointTerms { inv: axes.recip(), v: vb, l: lb, brdf: brdf.toward(vb, lb) };
                         let (mut area, mut weighted) = (0.0, 0.0);
                         for i in 0..q.len() {
-                            let (a, b) = terms.one(DVec3::new(q.x[i], q.y[i], q.z[i]), q.weight[i]);
+                            let (a, b) = terms.one(DVec3::new(q.x[i], q.y[i], q.z[i]), q.weight);
                             area += a;
                             weighted += b;
                         }
