@@ -169,8 +169,13 @@ fn bench_report_writes_finite_tables_and_plots() {
     assert!(md.contains("| `ziggurat` |") && md.contains("| `table` |"), "the normal samplers' rows: {md}");
     assert!(md.contains("## OpenCV's seamlessClone"), "{md}");
     // each stage beside its bound, and recording against headless
-    assert!(md.contains("| 256 × 256 | 1 |") && md.contains("| 640 × 512 | 1 |"), "the bounds' rows: {md}");
-    assert!(md.contains("| 256 × 256, 1 target |") && md.contains("| 640 × 512, 8 targets |"), "recording: {md}");
+    assert!(
+        md.contains("| 256 × 256 | 1 | 1 |")
+            && md.contains("| 640 × 512 | 1 | 1 |")
+            && md.contains("| 640 × 512 | 10 | 1 |"),
+        "the bounds' rows: {md}"
+    );
+    assert!(md.contains("| 256 × 256, 1 target |") && md.contains("| 640 × 512, 10 targets |"), "recording: {md}");
     let opencv = std::process::Command::new("python3").args(["-c", "import cv2, numpy"]).status();
     if std::env::var_os("IRSIM_REQUIRE_OPENCV").is_some() || opencv.is_ok_and(|s| s.success()) {
         assert!(md.contains("| 17×17 | 225 |"), "OpenCV's row: {md}");

@@ -17,8 +17,9 @@
 //!   rounding and clamping: the bound of the `noise` stage.
 //! - `fused`: bilinear sample → signal → noise → ADC → round, in one pass: the bound of a whole frame.
 //!
-//! The pipeline runs `irsim bench`'s built-in case of that size with one target (the `standard` preset) in a
-//! thread pool of the same size. Its stages include what the bounds leave out (the sky's planning, targets,
+//! The pipeline runs `irsim bench`'s built-in case of that size (the `standard` preset) in a thread pool of the
+//! same size: with one target at both sizes, and at 640 × 512 also with [`WIDE_CASE_TARGETS`], as many as the
+//! swarm scenario flies (the bounds are timed again beside it). Its stages include what the bounds leave out (the sky's planning, targets,
 //! labels; the render's, the targets' radiometry and shapes, which run beside it); the ratios say how far each
 //! stage is from what the machine can do.
 
@@ -27,13 +28,16 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::CliError;
-use super::run::{bench_dir, bench_scenario, time_stages};
+use super::run::{WIDE_CASE_TARGETS, bench_dir, bench_scenario, time_stages};
 use crate::physics::random::{NormalSampler, SplitMix64, box_muller_fill, mix64, with_normal_fill};
 use crate::physics::simd::{Level, widest};
 use crate::scenario::load::load_for_frames;
 
 /// Side of the bounds' texture, texels (not a power of two: rows 4 KiB apart would share cache sets).
 const TEXTURE: usize = 1000;
+
+/// The cases measured: width, height and targets of `irsim bench`'s built-in scenario.
+const CASES: [(usize, usize, usize); 3] = [(256, 256, 1), (640, 512, 1), (640, 512, WIDE_CASE_TARGETS)];
 
 /// How far the bounds' view is turned against the texture, rad. Along a row of a view turned by a few
 /// hundredths of a radian or less, most sixteen pixels' texels lie within a window or two of 32 floats and are
@@ -243,6 +247,8 @@ fn time_sampler(sampler: NormalSampler, width: usize, height: usize, frames: u64
 pub(super) struct LimitsRow {
     pub width: usize,
     pub height: usize,
+    /// Targets of the pipeline's scenario.
+    pub targets: usize,
     pub threads: usize,
     /// Per [`Bound::ALL`]: store, bilinear, normal, readout, fused.
     pub bounds: Vec<f64>,
@@ -277,8 +283,9 @@ fn rounds_of(frames: u64, rounds: usize) -> (usize, u64) {
     (rounds, frames.div_ceil(rounds as u64))
 }
 
-/// Times the per-pixel lower bounds beside `irsim bench`'s built-in case (one target, `standard`) at 256×256 and
-/// 640×512 on 1 and 2 threads (as many as the machine has), `frames` frames each, split over `rounds` rounds that
+/// Times the per-pixel lower bounds beside `irsim bench`'s built-in case (`standard`) at 256×256 with one target
+/// and at 640×512 with one and with [`WIDE_CASE_TARGETS`] ([`CASES`]), on 1 and 2 threads (as many as the machine
+/// has), `frames` frames each, split over `rounds` rounds that
 /// take the bounds and the pipeline in turn (each number that of its fastest round: a bound's median frame, the
 /// pipeline's mean); `each` sees every row as it is measured (its error stops the measurement).
 ///
@@ -294,10 +301,10 @@ pub(super) fn measure_limits(
     let threads_max = std::thread::available_parallelism().map_or(1, |n| n.get()).min(2);
     let (rounds, per_round) = rounds_of(frames, rounds);
     let mut rows = Vec::new();
-    for (w, h) in [(256usize, 256usize), (640, 512)] {
+    for (w, h, targets) in CASES {
         let setup = Setup::new(w, h);
-        let path = dir.join(format!("limits_{w}x{h}.toml"));
-        std::fs::write(&path, bench_scenario(w as u32, h as u32, 1)).map_err(|e| failed(e.to_string()))?;
+        let path = dir.join(format!("limits_{w}x{h}_{targets}.toml"));
+        std::fs::write(&path, bench_scenario(w as u32, h as u32, targets)).map_err(|e| failed(e.to_string()))?;
         let scenario = load_for_frames(&path, Some(frames)).map_err(|e| CliError::Invalid(e.to_string()))?;
         for threads in 1..=threads_max {
             let pool =
@@ -329,6 +336,7 @@ pub(super) fn measure_limits(
             let row = LimitsRow {
                 width: w,
                 height: h,
+                targets,
                 threads,
                 bounds: bounds.iter().map(|t| fastest(t)).collect(),
                 render_us: fastest(&render),
@@ -354,12 +362,12 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
     let (rounds, per_round) = rounds_of(frames, LIMITS_ROUNDS);
     super::say(&format!(
         "per-pixel lower bounds beside the pipeline ({} vectors, {rounds} interleaved rounds of {per_round} frames, \
-         each number its fastest round's: a bound's median frame, the pipeline's mean; pipeline: irsim bench's case, \
-         1 target, standard)",
+         each number its fastest round's: a bound's median frame, the pipeline's mean; pipeline: irsim bench's case \
+         with the targets given, standard)",
         Level::detect().name()
     ))?;
     super::say(
-        "size      threads | store bilinear normal readout  fused | render  noise  frame | render/bilinear noise/readout frame/fused",
+        "size      targets threads | store bilinear normal readout  fused | render  noise  frame | render/bilinear noise/readout frame/fused",
     )?;
     // each row's share of steal time, from the end of the row before
     let mut since = super::steal::CpuTicks::now();
@@ -368,8 +376,9 @@ pub fn limits(frames: u64) -> Result<(), CliError> {
         let cols: Vec<String> = row.bounds.iter().map(|b| format!("{b:.0}")).collect();
         let [render, noise, frame] = row.ratios();
         let line = format!(
-            "{:<9} {:>7} | {:>5} {:>8} {:>6} {:>7} {:>6} | {:>6.0} {:>6.0} {:>6.0} | {render:>15.1}x {noise:>12.1}x {frame:>10.1}x",
+            "{:<9} {:>7} {:>7} | {:>5} {:>8} {:>6} {:>7} {:>6} | {:>6.0} {:>6.0} {:>6.0} | {render:>15.1}x {noise:>12.1}x {frame:>10.1}x",
             format!("{}x{}", row.width, row.height),
+            row.targets,
             row.threads,
             cols[0],
             cols[1],

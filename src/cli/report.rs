@@ -14,7 +14,7 @@ use std::time::Instant;
 use plotters::prelude::*;
 
 use super::CliError;
-use super::run::{bench_dir, bench_scenario, with_quality_spec};
+use super::run::{WIDE_CASE_TARGETS, bench_dir, bench_scenario, with_quality_spec};
 use crate::dataset::card;
 use crate::labels::FrameLabels;
 use crate::record::write_atomic;
@@ -95,7 +95,7 @@ impl Plan {
                 error_frames: 3,
                 time_frames: 20,
                 max_scenarios: 3,
-                cases: vec![(256, 256, 1), (640, 512, 8)],
+                cases: vec![(256, 256, 1), (640, 512, WIDE_CASE_TARGETS)],
                 targets: vec![1, 4, 16],
                 target_size: (640, 512),
                 sizes: vec![128, 256, 512],
@@ -111,7 +111,7 @@ impl Plan {
                 // a texture build costs tens of frames' time: a short window would show where one fell
                 time_frames: 100,
                 max_scenarios: usize::MAX,
-                cases: vec![(256, 256, 1), (256, 256, 8), (640, 512, 1), (640, 512, 8)],
+                cases: vec![(256, 256, 1), (256, 256, 8), (640, 512, 1), (640, 512, WIDE_CASE_TARGETS)],
                 targets: vec![1, 2, 4, 8, 16, 32, 64],
                 target_size: (640, 512),
                 sizes: vec![128, 256, 512, 1024, 2048],
@@ -1123,10 +1123,11 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
         "`irsim bench --limits` in this run ({} frames each in {} interleaved rounds, each number its fastest round's: a \
          bound's median frame, the pipeline's mean; {} vectors): simple kernels that bound each \
          per-pixel stage from below (one bilinear sample of a texture per pixel; the detector's readout in place; \
-         sample, noise and ADC fused in one pass), beside `irsim bench`'s built-in case (one target, `standard`) \
-         in a pool of the same size. µs per frame; a frame includes every stage and the schedule's own.\n\n\
-         | size | threads | bilinear | readout | fused | render | noise | frame | render / bilinear | noise / \
-         readout | frame / fused |\n|---|---|---|---|---|---|---|---|---|---|---|",
+         sample, noise and ADC fused in one pass), beside `irsim bench`'s built-in case (`standard`, one target, and \
+         at 640 × 512 also {WIDE_CASE_TARGETS}, the bounds timed again beside it) in a pool of the same size. µs per \
+         frame; a frame includes every stage and the schedule's own.\n\n\
+         | size | targets | threads | bilinear | readout | fused | render | noise | frame | render / bilinear | noise / \
+         readout | frame / fused |\n|---|---|---|---|---|---|---|---|---|---|---|---|",
         plan.limits_frames,
         plan.rounds,
         crate::physics::simd::Level::detect().name(),
@@ -1136,8 +1137,8 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
         let [bilinear, readout, fused] = r.bilinear_readout_fused();
         let _ = writeln!(
             md,
-            "| {} × {} | {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {render:.1}× | {noise:.1}× | {frame:.1}× |",
-            r.width, r.height, r.threads, bilinear, readout, fused, r.render_us, r.noise_us, r.frame_us,
+            "| {} × {} | {} | {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {render:.1}× | {noise:.1}× | {frame:.1}× |",
+            r.width, r.height, r.targets, r.threads, bilinear, readout, fused, r.render_us, r.noise_us, r.frame_us,
         );
     }
     let _ = writeln!(
@@ -1148,7 +1149,7 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
         plan.recording_frames
     );
     let dir = super::run::bench_dir("report-recording")?;
-    for (w, h, n) in [(256u32, 256u32, 1usize), (640, 512, 8)] {
+    for (w, h, n) in [(256u32, 256u32, 1usize), (640, 512, WIDE_CASE_TARGETS)] {
         let path = dir.join(format!("bench_{w}x{h}_{n}.toml"));
         std::fs::write(&path, super::run::bench_scenario(w, h, n)).map_err(failed)?;
         let scenario =
