@@ -17,11 +17,11 @@
 //!   rounding and clamping: the bound of the `noise` stage.
 //! - `fused`: bilinear sample → signal → noise → ADC → round, in one pass: the bound of a whole frame.
 //!
-//! The pipeline runs `irsim bench`'s built-in case of that size (the `standard` preset) in a thread pool of the
-//! same size: with one target at both sizes, and at 640 × 512 also with [`WIDE_CASE_TARGETS`], as many as the
-//! swarm scenario flies (the bounds are timed again beside it). Its stages include what the bounds leave out (the sky's planning, targets,
-//! labels; the render's, the targets' radiometry and shapes, which run beside it); the ratios say how far each
-//! stage is from what the machine can do.
+//! The pipeline runs `irsim bench`'s built-in case of that size (the `standard` preset) in a thread pool of the same
+//! size: with one target at both sizes, and at 640 × 512 also with ten (`run::WIDE_CASE_TARGETS`), as many as the swarm
+//! scenario flies (the bounds are timed again beside it). Its stages include what the bounds leave out (the sky's
+//! planning, targets, labels; the render's, the targets' radiometry and shapes, which run beside it); the ratios say
+//! how far each stage is from what the machine can do.
 
 use std::time::Instant;
 
