@@ -1092,6 +1092,7 @@ pub fn report(a: &ReportArgs) -> Result<(), CliError> {
 
     progress("against the machine");
     machine_section(&mut md, &plan)?;
+    guards_section(&mut md);
     progress("OpenCV");
     super::opencv::section(&mut md, &plan.opencv_sides);
     progress("atmosphere");
@@ -1176,6 +1177,134 @@ fn machine_section(md: &mut String, plan: &Plan) -> Result<(), CliError> {
          writing the files): README, \"Recording labelled sequences\".\n"
     );
     Ok(())
+}
+
+/// A kernel that runs with the CPU's vectors (chosen at run time), the tests that hold it to the scalar code or to
+/// its law, and what they check: `(kernel, source, [(test file, test)], what)`.
+type Guard = (&'static str, &'static str, &'static [(&'static str, &'static str)], &'static str);
+
+/// Every per-pixel kernel written for the CPU's vectors, with the tests that guard it ([`guards_section`]; a test
+/// checks that each test named here exists).
+const GUARDS: &[Guard] = &[
+    (
+        "sky ray cast (nearest and bilinear spans, texel windows)",
+        "imaging::sky_plane, physics::simd",
+        &[
+            ("src/imaging/sky_plane.rs", "the_vector_span_is_the_scalar_recurrence_bit_for_bit"),
+            ("src/imaging/sky_plane.rs", "a_span_that_turns_beyond_the_image_is_not_stepped_in_fixed_point"),
+            ("src/imaging/sky_plane.rs", "interpolated_coordinates_stay_within_the_tolerance"),
+        ],
+        "AVX-512 and AVX2 spans the scalar recurrence bit for bit, forwards and backwards, 1 to 100 pixels, \
+         windowed and gathered; the stepped coordinates within the span tolerance of the exact ray",
+    ),
+    (
+        "normal deviates (Box–Muller sixteen pairs a register; ziggurat; table)",
+        "physics::random",
+        &[
+            ("src/physics/random.rs", "the_box_muller_fill_is_the_scalar_transform_bit_for_bit"),
+            ("src/physics/random.rs", "box_muller_s_functions_are_accurate"),
+            ("src/physics/random.rs", "normal_deviates_follow_the_normal_law"),
+            ("src/physics/random.rs", "every_16_bit_field_gives_the_scalar_deviate_in_a_run"),
+        ],
+        "the vector fill the scalar transform bit for bit; its logarithm, sine and cosine against libm; mean, \
+         variance, Kolmogorov–Smirnov distance and the tails beyond 2, 3, 3.5 and 4 σ on 2²¹ deviates of each \
+         sampler",
+    ),
+    (
+        "detector readout (electrons, noise, gain, ADC, rounding, clamp)",
+        "physics::noise",
+        &[
+            ("src/physics/noise.rs", "the_fused_pass_is_the_general_path_bit_for_bit"),
+            ("src/physics/noise.rs", "exact_poisson_samples_fit_the_law"),
+            ("src/physics/noise.rs", "a_block_with_a_pixel_under_the_threshold_draws_exact_counts_there_alone"),
+            ("src/physics/noise.rs", "row_parallel_noise_does_not_depend_on_thread_count"),
+            ("src/physics/noise.rs", "quantization_rounds_halves_up_and_clamps"),
+        ],
+        "the fused vector pass the general path bit for bit; χ² of the exact Poisson counts; the same frame on \
+         any number of threads; rounding half up and clamping",
+    ),
+    (
+        "optics: the blur's rows and columns, a target's PSF rows",
+        "imaging::psf",
+        &[
+            ("src/imaging/psf.rs", "tiles_blurred_where_needed_are_the_separable_sums_bit_for_bit"),
+            ("src/imaging/psf.rs", "blurs_where_needed_of_random_sizes_and_tiles_are_the_separable_sums_bit_for_bit"),
+            (
+                "src/imaging/psf.rs",
+                "the_banded_separable_pass_is_the_whole_frame_passes_bit_for_bit_on_any_number_of_threads",
+            ),
+            ("src/imaging/psf.rs", "separable_direct_and_fft_agree"),
+            ("src/imaging/psf.rs", "add_point_matches_value_at_every_pixel_centre"),
+        ],
+        "the blur where needed and the banded pass the separable sums bit for bit, on any number of threads; \
+         direct against FFT; a point source's rows the PSF's value at every pixel centre",
+    ),
+    (
+        "the dome along sixteen rays at a time (f32)",
+        "physics::sky",
+        &[
+            ("src/physics/sky.rs", "a_row_of_rays_gives_each_ray_s_radiance"),
+            ("src/physics/sky.rs", "table_matches_direct_evaluation"),
+        ],
+        "a row of rays each ray's radiance; the table against direct evaluation",
+    ),
+    (
+        "Poisson fusion: transposes and the loops around the f32 sine transform",
+        "imaging::fusion",
+        &[
+            ("src/imaging/fusion.rs", "the_transpose_is_the_transpose_at_every_simd_level_and_shape"),
+            ("src/imaging/fusion.rs", "the_vector_loops_around_the_f32_transform_are_the_scalar_ones_bit_for_bit"),
+            (
+                "src/imaging/fusion.rs",
+                "the_f32_solve_of_the_difference_is_the_f64_solve_within_four_hundredths_of_a_gray_level",
+            ),
+        ],
+        "every SIMD level and shape the scalar transpose; the vector loops the scalar ones bit for bit; the f32 \
+         solve within 0.04 DN of the f64 one",
+    ),
+    (
+        "16-bit PNG: Huffman codes joined in vector registers (VBMI or BW)",
+        "imaging::png16",
+        &[
+            ("src/imaging/png16.rs", "frames_read_back_exactly_through_other_decoders"),
+            ("src/imaging/png16.rs", "eight_codes_to_a_store_write_the_stream_one_code_at_a_time_writes"),
+        ],
+        "the frames decoded by other decoders exactly; the vector coder's stream the one-code-at-a-time stream",
+    ),
+    (
+        "ellipsoid reflectance, 64 points at a time",
+        "physics::reflection, physics::brdf",
+        &[
+            ("src/physics/reflection.rs", "lanes_are_the_points_one_at_a_time"),
+            ("src/physics/brdf.rs", "lanes_are_f_unit_bit_for_bit"),
+        ],
+        "the lanes the point-by-point sums and the BRDF bit for bit, every block length 1–64, grazing 0 and −0",
+    ),
+    (
+        "the whole pipeline",
+        "every stage",
+        &[
+            ("tests/cli_record.rs", "every_instruction_set_and_thread_count_gives_the_same_frames"),
+            ("tests/sim.rs", "golden_frame_hashes"),
+        ],
+        "the same frame bytes with AVX-512, AVX2 and the baseline, on 1 and 2 threads; the golden frame hashes",
+    ),
+];
+
+/// The tests that guard each vector kernel ([`GUARDS`]), as a table.
+fn guards_section(md: &mut String) {
+    let _ = writeln!(
+        md,
+        "### The tests that guard the vector kernels\n\nThe per-pixel kernels run with the widest vectors the CPU has \
+         (AVX-512, AVX2 or the baseline, chosen at run time; `IRSIM_SIMD` caps it). These tests hold each to the \
+         scalar code (bit for bit) or to its law, and run in CI:\n\n| kernel | module | tests | what they check \
+         |\n|---|---|---|---|"
+    );
+    for (kernel, module, tests, what) in GUARDS {
+        let names: Vec<String> = tests.iter().map(|(file, test)| format!("`{test}` ({file})")).collect();
+        let _ = writeln!(md, "| {kernel} | `{module}` | {} | {what} |", names.join("<br>"));
+    }
+    let _ = writeln!(md);
 }
 
 /// The normal samplers (`normal_sampler`): time per deviate, and their law against the normal one on `n`
@@ -1282,6 +1411,25 @@ fn toml_text<T: serde::Serialize>(v: &T) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_guarding_test_named_exists() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        for (kernel, _, tests, _) in GUARDS {
+            for (file, test) in *tests {
+                let source = std::fs::read_to_string(root.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+                // the function, and a test attribute within the few lines above it
+                let at =
+                    source.find(&format!("fn {test}()")).unwrap_or_else(|| panic!("{kernel}: no {test} in {file}"));
+                let before = &source[..at];
+                let lines: Vec<&str> = before.lines().rev().take(4).collect();
+                assert!(lines.iter().any(|l| l.trim() == "#[test]"), "{kernel}: {test} in {file} is not a test");
+            }
+        }
+        let mut md = String::new();
+        guards_section(&mut md);
+        assert_eq!(md.lines().filter(|l| l.starts_with("| ")).count(), GUARDS.len() + 1, "{md}");
+    }
 
     #[test]
     fn rounds_take_every_case_in_turn_and_keep_each_fastest() {
