@@ -1302,7 +1302,10 @@ fn guards_section(md: &mut String) {
     );
     for (kernel, module, tests, what) in GUARDS {
         let names: Vec<String> = tests.iter().map(|(file, test)| format!("`{test}` ({file})")).collect();
-        let _ = writeln!(md, "| {kernel} | `{module}` | {} | {what} |", names.join("<br>"));
+        // module paths as code, a plain word as it is
+        let modules: Vec<String> =
+            module.split(", ").map(|m| if m.contains("::") { format!("`{m}`") } else { m.to_owned() }).collect();
+        let _ = writeln!(md, "| {kernel} | {} | {} | {what} |", modules.join(", "), names.join("<br>"));
     }
     let _ = writeln!(md);
 }
