@@ -107,6 +107,28 @@ fn runs_are_deterministic_and_thread_count_independent() {
     assert_ne!(a, d);
 }
 
+#[test]
+fn many_targets_labels_are_the_same_on_any_number_of_threads() {
+    // swarm's ten labels are made side by side (`sim::output`): in the order of their ids, and the same values
+    // (bit for bit: compared as equal structs) whatever the pool
+    let s = load(&root().join("scenarios/swarm.toml")).unwrap();
+    let labels = || {
+        let mut app = build_app(&s, RunOptions::default()).unwrap();
+        (0..3).map(|_| step(&mut app)).collect::<Vec<_>>()
+    };
+    let a = labels();
+    for frame in &a {
+        let ids: Vec<u32> = frame.targets.iter().map(|t| t.id).collect();
+        assert_eq!(ids.len(), 10, "{ids:?}");
+        assert!(ids.windows(2).all(|w| w[0] < w[1]), "labels out of id order: {ids:?}");
+        assert!(frame.targets.iter().filter(|t| t.in_frame).all(|t| t.scr > 0.0 && t.apparent_temp_k > 0.0));
+    }
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        assert_eq!(a, pool.install(labels), "{threads} threads give other labels than the default pool");
+    }
+}
+
 /// Frame hashes of `scenarios/paper_clear_sky.toml`, frames 0–2, default options.
 ///
 /// If this test fails after a change that is meant to change the output (a new model, a fixed bug), update
