@@ -553,8 +553,9 @@ fn bench_limits_prints_each_bound_and_ratio() {
             .collect();
         assert!(!rows.is_empty(), "{size}, {targets} targets: {out}");
         for numbers in rows {
-            // size, targets, threads, five bounds, three stages, three ratios: every one positive and finite
-            assert!(numbers.len() >= 14, "{numbers:?}");
+            // width and height, targets, threads, five bounds, three stages, three ratios: every one positive and
+            // finite
+            assert!(numbers.len() >= 15, "{numbers:?}");
             assert!(numbers.iter().all(|v| v.is_finite() && *v > 0.0), "{numbers:?}");
         }
     }

@@ -121,6 +121,7 @@ fn many_targets_labels_are_the_same_on_any_number_of_threads() {
         let ids: Vec<u32> = frame.targets.iter().map(|t| t.id).collect();
         assert_eq!(ids.len(), 10, "{ids:?}");
         assert!(ids.windows(2).all(|w| w[0] < w[1]), "labels out of id order: {ids:?}");
+        assert!(frame.targets.iter().any(|t| t.in_frame), "no target in frame");
         assert!(frame.targets.iter().filter(|t| t.in_frame).all(|t| t.scr > 0.0 && t.apparent_temp_k > 0.0));
     }
     for threads in [1, 3] {
