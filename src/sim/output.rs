@@ -5,6 +5,7 @@ use bevy::asset::RenderAssetUsages;
 use bevy::ecs::prelude::*;
 use bevy::image::Image;
 use bevy::prelude::FixedUpdate;
+use rayon::prelude::*;
 use wgpu_types::{Extent3d, TextureDimension, TextureFormat};
 
 use super::{
@@ -77,12 +78,6 @@ pub fn mirror_frame(mut commands: Commands, mut sensor: Query<(Entity, &SensorFr
     }
 }
 
-/// Fewest targets whose labels are made side by side on the pool's threads (a single label is made on the stage's
-/// own). The output stage of `irsim bench`'s 640 × 512 case against all on one thread, medians of alternating
-/// runs, µs a frame (two sets of 8–10 runs, an AMD EPYC with 2 vCPUs): 2 targets 5 → 4 and 6 → 6, 4 targets 8 → 6,
-/// 10 targets 23.5 → 14 and 23 → 20; swarm (10 targets) 30.5 → 24.5 and 32.5 → 22.
-const PARALLEL_LABELS: usize = 2;
-
 /// Fills [`FrameOutput`] with this frame's labels (and mask).
 #[allow(clippy::too_many_arguments)]
 pub fn collect_labels(
@@ -146,14 +141,12 @@ pub fn collect_labels(
         }
         label
     };
-    // each label is its target's alone (its brightness temperature's Newton steps, the clutter around it): two
-    // targets' labels or more are made side by side, kept in the order of their ids
-    if sorted.len() >= PARALLEL_LABELS {
-        use rayon::prelude::*;
-        out.labels.targets.par_extend(sorted.par_iter().map(label_of));
-    } else {
-        out.labels.targets.extend(sorted.iter().map(label_of));
-    }
+    // each label is its target's alone (its brightness temperature's Newton steps, the clutter around it), so the
+    // labels are made side by side, kept in the order of their ids (a single one is not split off). The output
+    // stage of `irsim bench`'s 640 × 512 case against all on one thread, medians of alternating runs, µs a frame
+    // (two sets of 8–10 runs, an AMD EPYC with 2 vCPUs): 1 target 3 → 3, 2 targets 5 → 4 and 6 → 6, 4 targets
+    // 8 → 6, 10 targets 23.5 → 14 and 23 → 20; swarm (10 targets) 30.5 → 24.5 and 32.5 → 22
+    out.labels.targets.par_extend(sorted.par_iter().map(label_of));
     if settings.masks {
         let mut drawn: Vec<MaskPatch<'_>> = sorted
             .iter()
