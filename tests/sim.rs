@@ -444,6 +444,9 @@ fn an_unseen_sky_layer_is_made_when_first_seen_as_at_set_up() {
         let mut psf = s.sensor.psf.expect("the lens has a PSF");
         psf.sky_blur = SkyBlur::Prefilter;
         s.sensor.psf = Some(psf);
+        // no margin of clear sky in either: whether a layer gets one is planned from the run's views, which
+        // differ between the two runs
+        s.quality.layer_margin_px = 0.0;
         s
     };
     // 30° up, and at the layer
@@ -492,6 +495,8 @@ fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
         // a layer under its largest side (the fine one 1961 × 393 texels)
         let mut s = scenario(&layer_ahead("[0, 30000, 3000]").replace("max_texels = 512", "max_texels = 4096"));
         s.quality.sky_texel_px = texel_px;
+        // the layer alone, without the clear sky baked around it
+        s.quality.layer_margin_px = 0.0;
         let mut app = build_app(&s, RunOptions { noise: false, vibration: false, ..RunOptions::default() }).unwrap();
         let world = app.world_mut();
         let sky = world.query::<&Sky>().single(world).unwrap().clone();
@@ -527,6 +532,74 @@ fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
     let var = |v: &[f64], m: f64| v.iter().map(|x| (x - m).powi(2)).sum::<f64>();
     let r = cov / (var(&a, ma) * var(&b, mb)).sqrt();
     assert!(r > 0.99, "correlation {r}");
+}
+
+/// A generated layer baked with a margin of clear sky (`[quality] layer_margin_px`): the layer's texels are
+/// where they were, the margin holds the dome along each texel's direction from the observer, and the frame's
+/// tiles where the layer ends, which without the margin took the dome along each ray and a per-frame blur, are
+/// read from the prefiltered texture, within [`WORST_DN`] of that (noise off).
+/// The largest change the margin may make to a frame of [`a_margin_of_clear_sky_serves_the_layer_edge_from_the_texture`]:
+/// 16 DN measured, where the layer's edge cuts a cloud (130 DN over the sky): without the margin the cloud
+/// stops at the layer's edge, with it the bilinear read ramps from the cloud's last texel to the margin's first.
+const WORST_DN: f32 = 20.0;
+
+#[test]
+fn a_margin_of_clear_sky_serves_the_layer_edge_from_the_texture() {
+    use irsim::imaging::background::SkyBlur;
+    use irsim::sim::{SensorFrame, Sky};
+    // looking at the layer's top edge (5 km up), which crosses the frame; a still observer
+    let run = |margin_px: f64| {
+        let mut s = scenario(&layer_ahead("[0, 30000, 5000]"));
+        let mut psf = s.sensor.psf.expect("the lens has a PSF");
+        psf.sky_blur = SkyBlur::Prefilter;
+        s.sensor.psf = Some(psf);
+        s.quality.layer_margin_px = margin_px;
+        let mut app = build_app(&s, RunOptions { noise: false, ..RunOptions::default() }).unwrap();
+        let mut frames = Vec::new();
+        let mut stats = Vec::new();
+        for _ in 0..4 {
+            step(&mut app);
+            frames.push(current_frame(&mut app).clone());
+            let world = app.world_mut();
+            stats.push(world.query::<&SensorFrame>().single(world).unwrap().background_stats);
+        }
+        let world = app.world_mut();
+        let sky = world.query::<&Sky>().single(world).unwrap().clone();
+        (sky, frames, stats)
+    };
+    let (bare, bare_frames, bare_stats) = run(0.0);
+    let (padded, padded_frames, padded_stats) = run(96.0);
+    let (a, b) = (bare.plane().unwrap(), padded.plane().unwrap());
+    let (w, h) = (a.image().width(), a.image().height());
+    let m = (b.image().width() - w) / 2;
+    assert!(m > 0 && (b.image().width(), b.image().height()) == (w + 2 * m, h + 2 * m), "a margin all round");
+    for y in 0..b.image().height() {
+        for x in 0..b.image().width() {
+            let texel = f64::from(b.image().pixels()[y * b.image().stride() + x]);
+            let centre = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+            let expected = if (m..m + w).contains(&x) && (m..m + h).contains(&y) {
+                // the layer's own texel, at the same world point
+                let own = DVec2::new((x - m) as f64 + 0.5, (y - m) as f64 + 0.5);
+                assert!(b.world_point(centre).distance(a.world_point(own)) < 1e-6, "texel ({x}, {y}) moved");
+                f64::from(a.image().pixels()[(y - m) * a.image().stride() + x - m])
+            } else {
+                f64::from(bare.dome.radiance_toward(b.world_point(centre) - DVec3::new(0.0, 0.0, 2000.0)))
+            };
+            assert!((texel - expected).abs() <= 1e-5 * expected.abs(), "texel ({x}, {y}): {texel} against {expected}");
+        }
+    }
+    for (k, (sa, sb)) in bare_stats.iter().zip(&padded_stats).enumerate() {
+        assert!(sa.blur.tiles_needed > 0, "frame {k}: without the margin the layer's edge is blurred each frame");
+        assert_eq!(sb.blur.tiles_needed, 0, "frame {k}: with it, no tile is");
+        assert_eq!(sb.tiles_prefiltered, sb.blur.tiles, "frame {k}: every tile from the texture");
+    }
+    let mut worst = 0.0f32;
+    for (fa, fb) in bare_frames.iter().zip(&padded_frames) {
+        for (x, y) in fa.pixels().iter().zip(fb.pixels()) {
+            worst = worst.max((x - y).abs());
+        }
+    }
+    assert!(worst > 0.0 && worst <= WORST_DN, "largest change {worst} DN");
 }
 
 /// The targets' shapes drawn beside the sky render and scaled in the targets stage give every patch, peak and

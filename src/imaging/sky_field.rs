@@ -229,8 +229,11 @@ pub fn calibrate(
 pub struct LayerBake<'a> {
     /// The layer.
     pub layer: &'a CloudLayer,
-    /// Where it sits (any image of the layer's size placed as the scenario says).
+    /// Where it sits (any image of the baked size, the layer's with the margin, placed as the scenario says
+    /// with the margin around it).
     pub plane: &'a SkyPlane,
+    /// Texels of clear sky baked around the layer on every side (`[quality] layer_margin_px`).
+    pub margin: usize,
     /// The observer's starting position, m.
     pub eye_m: glam::DVec3,
     /// The clear sky behind it.
@@ -250,20 +253,29 @@ pub struct LayerBake<'a> {
 /// Height over which a layer's clouds fade in above the cloud base, m.
 pub const CLOUD_BASE_FADE_M: f64 = 100.0;
 
-/// The layer as radiance texels over the dome (see the module's documentation).
+/// The layer as radiance texels over the dome (see the module's documentation), with `margin` texels of the
+/// dome alone (no cloud) on every side: `(width + 2·margin) × (height + 2·margin)` texels.
 ///
 /// # Errors
 /// Only if the layer is empty.
 pub fn bake_layer(b: &LayerBake<'_>) -> Result<SkyImage, SkyError> {
     use rayon::prelude::*;
     let (w, h) = (b.layer.width, b.layer.height);
-    let mut out = vec![0f32; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+    let m = b.margin;
+    let (bw, bh) = (w + 2 * m, h + 2 * m);
+    let mut out = vec![0f32; bw * bh];
+    out.par_chunks_mut(bw).enumerate().for_each(|(y, row)| {
         for (x, texel) in row.iter_mut().enumerate() {
-            let i = y * w + x;
             let p = b.plane.world_point(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
             let d = p - b.eye_m;
             let dome = f64::from(b.dome.radiance_toward(d));
+            // the layer's own texel, if this one is not in the margin
+            let inside = (x.checked_sub(m).filter(|&lx| lx < w)).zip(y.checked_sub(m).filter(|&ly| ly < h));
+            let Some((lx, ly)) = inside else {
+                *texel = dome as f32;
+                continue;
+            };
+            let i = ly * w + lx;
             let base = b.cloud_base_m.map_or(1.0, |base| ((p.z - base) / CLOUD_BASE_FADE_M).clamp(0.0, 1.0));
             let alpha = f64::from(b.layer.opacity[i]) * base;
             *texel = if alpha > 0.0 {
@@ -275,7 +287,7 @@ pub fn bake_layer(b: &LayerBake<'_>) -> Result<SkyImage, SkyError> {
             };
         }
     });
-    SkyImage::from_f32(w, h, out)
+    SkyImage::from_f32(bw, bh, out)
 }
 
 /// Radiance `at` a world point `p` as seen from `eye_m`: `τ·at` plus the path's own radiance (the atmosphere's,

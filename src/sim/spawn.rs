@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use bevy::ecs::prelude::*;
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 
 use super::camera::resolve_aim;
 use super::render::{coarse_camera, render_background, render_steady, steady_margin};
@@ -337,7 +337,8 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
             let maker = LayerMaker {
                 spec: layer_spec(gen_spec, seed),
                 size: plan.size,
-                placement,
+                margin: plan.margin,
+                placement: with_margin(&placement, plan.size, plan.margin),
                 eye_m: eye,
                 dome: Arc::clone(&dome),
                 air: scene.air,
@@ -379,6 +380,9 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
 struct LayerMaker {
     spec: SkyGenSpec,
     size: (usize, usize),
+    /// Texels of clear sky baked around the layer ([`LayerPlan::margin`]).
+    margin: usize,
+    /// The placement of the layer with its margin.
     placement: SkyPlacement,
     eye_m: DVec3,
     dome: Arc<Dome>,
@@ -390,13 +394,14 @@ struct LayerMaker {
 }
 
 impl LayerMaker {
-    /// `layer` baked into radiance over the dome, placed as `geometry` (the same plane holding any image of the
-    /// layer's size), at the default span tolerance.
+    /// `layer` baked into radiance over the dome with its margin, placed as `geometry` (the same plane holding
+    /// any image of the layer's size with the margin), at the default span tolerance.
     fn plane(&self, layer: &CloudLayer, geometry: &SkyPlane) -> Result<SkyPlane, SetupError> {
         let air = |z: f64| self.air.clamped_k(z);
         let image = bake_layer(&LayerBake {
             layer,
             plane: geometry,
+            margin: self.margin,
             eye_m: self.eye_m,
             dome: &self.dome,
             air_temp_k: &air,
@@ -410,11 +415,14 @@ impl LayerMaker {
     }
 }
 
-/// A generated layer's size, its placement (the plane holding a blank image of that size, or the placement's
-/// error), and whether no planned view may see it, its misses taking the dome: such a layer is made when a view
-/// first may ([`Sky::deferred`]).
+/// A generated layer's size, the margin of clear sky baked around it, its placement (the plane holding a blank
+/// image of that size with the margin, or the placement's error), and whether no planned view may see it, its
+/// misses taking the dome: such a layer is made when a view first may ([`Sky::deferred`]).
 struct LayerPlan {
     size: (usize, usize),
+    /// Texels of the dome baked around the layer on every side (`[quality] layer_margin_px` at the plane's
+    /// distance from the observer's start; 0 where misses do not take the dome).
+    margin: usize,
     geometry: Result<SkyPlane, SetupError>,
     unseen: bool,
 }
@@ -426,12 +434,24 @@ fn plan_layer(scenario: &CheckedScenario, eye: DVec3) -> Option<LayerPlan> {
         return None;
     };
     let size = layer_size(&scenario.sensor, &placement, eye, sky.max_texels, scenario.quality.sky_texel_px);
-    // zeros from the allocator: the blank image's pages are not touched unless read
-    let blank = SkyImage::from_finite(size.0, size.1, vec![0.0; size.0 * size.1]);
-    let geometry = SkyPlane::new(blank, &placement, eye).map_err(|e| setup("sky")(e.to_string()));
+    // zeros from the allocator: a blank image's pages are not touched unless read
+    let blank = |(w, h): (usize, usize)| SkyImage::from_finite(w, h, vec![0.0; w * h]);
+    // a margin only where misses take the dome and a planned view comes within it of the layer's edge
+    let margin_px = scenario.quality.layer_margin_px;
+    let near_the_edge = || {
+        SkyPlane::new(blank(size), &placement, eye).is_ok_and(|bare| views_near_the_edge(scenario, &bare, margin_px))
+    };
+    let margin = if sky.miss == MissFill::Dome && margin_px > 0.0 && near_the_edge() {
+        layer_margin(&scenario.sensor, &placement, eye, size, margin_px)
+    } else {
+        0
+    };
+    let blank = blank((size.0 + 2 * margin, size.1 + 2 * margin));
+    let geometry =
+        SkyPlane::new(blank, &with_margin(&placement, size, margin), eye).map_err(|e| setup("sky")(e.to_string()));
     let unseen = sky.miss == MissFill::Dome
         && geometry.as_ref().is_ok_and(|g| planned_views(scenario).all(|camera| !g.seen_by(&camera)));
-    Some(LayerPlan { size, geometry, unseen })
+    Some(LayerPlan { size, margin, geometry, unseen })
 }
 
 /// A layer's parameters with its seed mixed with the run's `seed`.
@@ -464,15 +484,58 @@ fn generated_layer(scenario: &CheckedScenario, plan: &LayerPlan, seed: u64) -> O
     Some(shared_layer(&layer_spec(gen_spec, seed), plan.size.0, plan.size.1))
 }
 
-/// Texels of a generated layer: one per `texel_px` sensor pixels at the plane's distance from the observer's
-/// start (its nearest point), square, and larger where a side would pass `max_texels`.
-fn layer_size(
+/// Whether a planned view of `scenario`, widened by `margin_px` pixels on every side, reaches past the edge of
+/// `plane`'s image (or sees beyond the plane): a view whose widened corners all meet the image reads none of a
+/// margin (the image and the view's footprint on it are convex).
+fn views_near_the_edge(scenario: &CheckedScenario, plane: &SkyPlane, margin_px: f64) -> bool {
+    let (iw, ih) = (plane.image().width() as f64, plane.image().height() as f64);
+    planned_views(scenario).any(|camera| {
+        let projection = plane.projection(&camera);
+        let (w, h) = (f64::from(camera.intrinsics.width), f64::from(camera.intrinsics.height));
+        let (lo_x, lo_y, hi_x, hi_y) = (-margin_px, -margin_px, w + margin_px, h + margin_px);
+        [(lo_x, lo_y), (hi_x, lo_y), (lo_x, hi_y), (hi_x, hi_y)].into_iter().any(|(x, y)| {
+            projection
+                .image_point(DVec2::new(x, y))
+                .is_none_or(|p| !(p.x >= 0.0 && p.y >= 0.0 && p.x <= iw && p.y <= ih))
+        })
+    })
+}
+
+/// `placement` of an image of `size` texels widened by `margin` texels on every side, each texel where it was.
+fn with_margin(placement: &SkyPlacement, (w, h): (usize, usize), margin: usize) -> SkyPlacement {
+    if margin == 0 {
+        return placement.clone();
+    }
+    let grow = |extent_m: f64, texels: usize| extent_m * (texels + 2 * margin) as f64 / texels as f64;
+    SkyPlacement {
+        width_m: grow(placement.width_m, w),
+        height_m: grow(placement.height_m, h),
+        anchor_px: placement.anchor_px.map(|a| a + DVec2::splat(margin as f64)),
+        ..placement.clone()
+    }
+}
+
+/// Texels of the dome baked around a generated layer of `size` texels: `margin_px` sensor pixels at the
+/// plane's distance from the observer's start `eye` (its nearest point), rounded up.
+fn layer_margin(
     sensor: &ResolvedSensor,
-    placement: &crate::imaging::sky_plane::SkyPlacement,
+    placement: &SkyPlacement,
     eye: DVec3,
-    max_texels: usize,
-    texel_px: f64,
-) -> (usize, usize) {
+    size: (usize, usize),
+    margin_px: f64,
+) -> usize {
+    if !(margin_px > 0.0) {
+        return 0;
+    }
+    let texel_m = placement.width_m / size.0 as f64;
+    let px_m = pixel_at_plane_m(sensor, placement, eye);
+    let texels = (margin_px * px_m / texel_m).ceil();
+    // texels at least half a pixel wide (`sky_texel_px`) and a margin of at most 512 px: at most 1024 texels
+    if texels.is_finite() { texels.clamp(1.0, 1024.0) as usize } else { 0 }
+}
+
+/// A sensor pixel's width at the plane's distance from `eye` (its nearest point), m.
+fn pixel_at_plane_m(sensor: &ResolvedSensor, placement: &SkyPlacement, eye: DVec3) -> f64 {
     let ifov = sensor.intrinsics.pixel_pitch_m / sensor.intrinsics.focal_length_m;
     let normal = placement.normal.map_or_else(
         || {
@@ -482,9 +545,23 @@ fn layer_size(
         |n| n.normalize_or(DVec3::Y),
     );
     let distance = (eye - placement.anchor_m).dot(normal).abs().max(1.0);
+    ifov * distance
+}
+
+/// Texels of a generated layer: one per `texel_px` sensor pixels at the plane's distance from the observer's
+/// start (its nearest point), square, and larger where a side would pass `max_texels`.
+fn layer_size(
+    sensor: &ResolvedSensor,
+    placement: &crate::imaging::sky_plane::SkyPlacement,
+    eye: DVec3,
+    max_texels: usize,
+    texel_px: f64,
+) -> (usize, usize) {
     // square texels: where a side would pass `max_texels`, both grow (a layer's spectrum is isotropic in texels)
     let max = max_texels as f64;
-    let texel_m = (ifov * distance * texel_px).max(placement.width_m / max).max(placement.height_m / max);
+    let texel_m = (pixel_at_plane_m(sensor, placement, eye) * texel_px)
+        .max(placement.width_m / max)
+        .max(placement.height_m / max);
     let side = |extent_m: f64| ((extent_m / texel_m).ceil() as usize).clamp(16, max_texels);
     (side(placement.width_m), side(placement.height_m))
 }
