@@ -446,7 +446,7 @@ fn an_unseen_sky_layer_is_made_when_first_seen_as_at_set_up() {
         s.sensor.psf = Some(psf);
         // no margin of clear sky in either: whether a layer gets one is planned from the run's views, which
         // differ between the two runs
-        s.quality.sky_margin_px = 0.0;
+        s.quality.layer_margin_px = 0.0;
         s
     };
     // 30° up, and at the layer
@@ -496,7 +496,7 @@ fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
         let mut s = scenario(&layer_ahead("[0, 30000, 3000]").replace("max_texels = 512", "max_texels = 4096"));
         s.quality.sky_texel_px = texel_px;
         // the layer alone, without the clear sky baked around it
-        s.quality.sky_margin_px = 0.0;
+        s.quality.layer_margin_px = 0.0;
         let mut app = build_app(&s, RunOptions { noise: false, vibration: false, ..RunOptions::default() }).unwrap();
         let world = app.world_mut();
         let sky = world.query::<&Sky>().single(world).unwrap().clone();
@@ -534,7 +534,7 @@ fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
     assert!(r > 0.99, "correlation {r}");
 }
 
-/// A generated layer baked with a margin of clear sky (`[quality] sky_margin_px`): the layer's texels are
+/// A generated layer baked with a margin of clear sky (`[quality] layer_margin_px`): the layer's texels are
 /// where they were, the margin holds the dome along each texel's direction from the observer, and the frame's
 /// tiles where the layer ends, which without the margin took the dome along each ray and a per-frame blur, are
 /// read from the prefiltered texture, within [`WORST_DN`] of that (noise off).
@@ -553,7 +553,7 @@ fn a_margin_of_clear_sky_serves_the_layer_edge_from_the_texture() {
         let mut psf = s.sensor.psf.expect("the lens has a PSF");
         psf.sky_blur = SkyBlur::Prefilter;
         s.sensor.psf = Some(psf);
-        s.quality.sky_margin_px = margin_px;
+        s.quality.layer_margin_px = margin_px;
         let mut app = build_app(&s, RunOptions { noise: false, ..RunOptions::default() }).unwrap();
         let mut frames = Vec::new();
         let mut stats = Vec::new();

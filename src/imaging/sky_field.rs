@@ -14,10 +14,7 @@
 //! - A user image can be taken as the radiance **at its plane** (`[atmosphere] sky_path`): each texel is then seen
 //!   through the path from the observer's start, `τ·L + L_path`, as a layer's clouds are.
 //! - **Misses** (rays that meet no image) take the dome's radiance along their own direction, so the horizon
-//!   and the ground below it appear where the view reaches them, never a black band. Where a view comes near the
-//!   image's edge, the image is placed with a margin of the dome's texels as seen from the observer's start
-//!   ([`with_dome_margin`], a layer's in [`bake_layer`]; `[quality] sky_margin_px`), so that the edge's
-//!   neighbourhood is read from the prefiltered texture.
+//!   and the ground below it appear where the view reaches them, never a black band.
 
 use glam::DVec2;
 use serde::{Deserialize, Serialize};
@@ -235,7 +232,7 @@ pub struct LayerBake<'a> {
     /// Where it sits (any image of the baked size, the layer's with the margin, placed as the scenario says
     /// with the margin around it).
     pub plane: &'a SkyPlane,
-    /// Texels of clear sky baked around the layer on every side (`[quality] sky_margin_px`).
+    /// Texels of clear sky baked around the layer on every side (`[quality] layer_margin_px`).
     pub margin: usize,
     /// The observer's starting position, m.
     pub eye_m: glam::DVec3,
@@ -291,33 +288,6 @@ pub fn bake_layer(b: &LayerBake<'_>) -> Result<SkyImage, SkyError> {
         }
     });
     SkyImage::from_f32(bw, bh, out)
-}
-
-/// `image` (radiance) with `margin` texels of the dome on every side, each the dome's radiance toward its world
-/// point on `plane` (the image's plane widened by the margin) from `eye_m`: what a ray from there past the image's
-/// edge sees.
-pub fn with_dome_margin(
-    image: &SkyImage,
-    plane: &SkyPlane,
-    margin: usize,
-    eye_m: glam::DVec3,
-    dome: &Dome,
-) -> SkyImage {
-    use rayon::prelude::*;
-    let (w, h, stride) = (image.width(), image.height(), image.stride());
-    let (bw, bh) = (w + 2 * margin, h + 2 * margin);
-    let source = image.pixels();
-    let mut out = vec![0f32; bw * bh];
-    out.par_chunks_mut(bw).enumerate().for_each(|(y, row)| {
-        let inside = y.checked_sub(margin).filter(|&iy| iy < h);
-        for (x, texel) in row.iter_mut().enumerate() {
-            *texel = match (x.checked_sub(margin).filter(|&ix| ix < w), inside) {
-                (Some(ix), Some(iy)) => source[iy * stride + ix],
-                _ => dome.radiance_toward(plane.world_point(DVec2::new(x as f64 + 0.5, y as f64 + 0.5)) - eye_m),
-            };
-        }
-    });
-    SkyImage::from_finite(bw, bh, out)
 }
 
 /// Radiance `at` a world point `p` as seen from `eye_m`: `τ·at` plus the path's own radiance (the atmosphere's,

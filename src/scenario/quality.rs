@@ -135,14 +135,14 @@ pub struct Quality {
     /// spectrum holds the same coefficients at the frequencies it has ([`crate::imaging::sky_gen`]), and it costs
     /// the square of this fewer texels to generate and bake.
     pub sky_texel_px: f64,
-    /// A generated layer, or a sky image, is placed with a margin of clear sky this many sensor pixels wide (at the
-    /// plane's distance from the observer's start) on every side, where misses take the dome and a planned view
-    /// comes within that many pixels of the edge: texels of the dome along each texel's direction from the
-    /// observer's start (for a layer, what its own clear texels already hold). The frame's tiles at the edge are
-    /// then read from the prefiltered texture like the rest, where otherwise the dome beyond the edge took a
-    /// per-frame blur there; the edge itself becomes a ramp over one texel (0: no margin; each ray past the edge
-    /// takes the dome along its own direction from where the observer is).
-    pub sky_margin_px: f64,
+    /// A generated layer is baked with a margin of clear sky this many sensor pixels wide (at the plane's
+    /// distance from the observer's start) on every side, where misses take the dome and a planned view comes
+    /// within that many pixels of the layer's edge: texels of the dome along each texel's direction from the
+    /// observer's start, which is what the layer's clear texels already hold. The frame's tiles where the layer
+    /// ends are then read from the prefiltered texture like the rest, where otherwise the dome beyond the layer's
+    /// edge took a per-frame blur there (0: no margin; each ray past the layer takes the dome along its own
+    /// direction from where the observer is).
+    pub layer_margin_px: f64,
     /// Quadrature of a target's ellipse ⊗ PSF.
     pub target_method: TargetMethod,
     /// Spacing of the quadrature's nodes in a target's ellipse (rings, or columns and the nodes along them), px
@@ -210,7 +210,7 @@ impl Quality {
             background_step_px: 1,
             view_shift_tolerance_px: 0.0,
             sky_texel_px: 1.0,
-            sky_margin_px: SKY_MARGIN_PX,
+            layer_margin_px: LAYER_MARGIN_PX,
             target_method: TargetMethod::Auto,
             target_node_spacing_px: target_psf::NODE_SPACING_PX,
             blob_sampling: BlobSampling::Auto,
@@ -251,7 +251,7 @@ impl Quality {
                 reflection_grid: [192, 384],
                 atmosphere_tolerance: 0.0,
                 atmosphere_steps: steps(PathSteps::REFERENCE),
-                sky_margin_px: 0.0,
+                layer_margin_px: 0.0,
                 ..standard
             },
             QualityPreset::Draft => Self {
@@ -270,7 +270,7 @@ impl Quality {
                 background_step_px: DRAFT_BACKGROUND_STEP_PX,
                 view_shift_tolerance_px: DRAFT_VIEW_SHIFT_TOLERANCE_PX,
                 sky_texel_px: DRAFT_SKY_TEXEL_PX,
-                sky_margin_px: 0.0,
+                layer_margin_px: 0.0,
                 target_node_spacing_px: DRAFT_TARGET_NODE_SPACING_PX,
                 blob_sampling: BlobSampling::Point,
                 blob_roi_fraction: 1e-2,
@@ -347,7 +347,7 @@ pub const SWITCHES: [&str; 32] = [
     "background_step_px",
     "view_shift_tolerance_px",
     "sky_texel_px",
-    "sky_margin_px",
+    "layer_margin_px",
     "target_method",
     "target_node_spacing_px",
     "blob_sampling",
@@ -427,15 +427,15 @@ pub const MAX_VIEW_SHIFT_TOLERANCE_PX: f64 = 2.0;
 pub const DRAFT_SKY_TEXEL_PX: f64 = 2.0;
 /// Smallest and largest `sky_texel_px`.
 pub const SKY_TEXEL_RANGE_PX: (f64, f64) = (0.5, 8.0);
-/// The standard preset's `sky_margin_px`. A tile whose blur reads past the sky's edge (the tile's 16 px and the
+/// The standard preset's `layer_margin_px`. A tile whose blur reads past the layer's edge (the tile's 16 px and the
 /// PSF's reach on both sides, 13 px for the shipped cameras) is read from the texture only where the margin holds
 /// all it reads: 48 px left 3 % of swarm's frame and 9 % of sense_and_avoid's to the per-frame blur (their planes
 /// seen obliquely, farther than their nearest point), 96 px none of either. The draft preset keeps 0: on
 /// sense_and_avoid the margin's blocks raised draft's grid estimate, and on that finer grid draft's frames are
 /// farther from standard's (26 DN rms against 17.7 on the coarser one, with or without the margin).
-pub const SKY_MARGIN_PX: f64 = 96.0;
-/// Largest `sky_margin_px`.
-pub const MAX_SKY_MARGIN_PX: f64 = 512.0;
+pub const LAYER_MARGIN_PX: f64 = 96.0;
+/// Largest `layer_margin_px`.
+pub const MAX_LAYER_MARGIN_PX: f64 = 512.0;
 /// Smallest `blob_roi_fraction`.
 pub const MIN_ROI_FRACTION: f64 = 1e-9;
 /// Largest `poisson_normal_threshold_e`: every count exact.
@@ -489,9 +489,9 @@ pub struct QualitySpec {
     /// See [`Quality::sky_texel_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sky_texel_px: Option<f64>,
-    /// See [`Quality::sky_margin_px`].
+    /// See [`Quality::layer_margin_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub sky_margin_px: Option<f64>,
+    pub layer_margin_px: Option<f64>,
     /// See [`Quality::target_method`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_method: Option<TargetMethod>,
@@ -582,7 +582,7 @@ impl QualitySpec {
             background_step_px,
             view_shift_tolerance_px,
             sky_texel_px,
-            sky_margin_px,
+            layer_margin_px,
             target_method,
             target_node_spacing_px,
             blob_sampling,
@@ -633,7 +633,7 @@ impl QualitySpec {
         }
         range("view_shift_tolerance_px", q.view_shift_tolerance_px, 0.0, MAX_VIEW_SHIFT_TOLERANCE_PX, " px")?;
         range("sky_texel_px", q.sky_texel_px, SKY_TEXEL_RANGE_PX.0, SKY_TEXEL_RANGE_PX.1, " px")?;
-        range("sky_margin_px", q.sky_margin_px, 0.0, MAX_SKY_MARGIN_PX, " px")?;
+        range("layer_margin_px", q.layer_margin_px, 0.0, MAX_LAYER_MARGIN_PX, " px")?;
         if let BlobSampling::Integrated { n } = q.blob_sampling
             && !(1..=16).contains(&n)
         {
@@ -749,9 +749,9 @@ mod tests {
             ("view_shift_tolerance_px = nan", "quality.view_shift_tolerance_px"),
             ("sky_texel_px = 0.1", "quality.sky_texel_px"),
             ("sky_texel_px = nan", "quality.sky_texel_px"),
-            ("sky_margin_px = -1", "quality.sky_margin_px"),
-            ("sky_margin_px = 1e9", "quality.sky_margin_px"),
-            ("sky_margin_px = nan", "quality.sky_margin_px"),
+            ("layer_margin_px = -1", "quality.layer_margin_px"),
+            ("layer_margin_px = 1e9", "quality.layer_margin_px"),
+            ("layer_margin_px = nan", "quality.layer_margin_px"),
             ("prefilter_spacing_px = 0", "quality.prefilter_spacing_px"),
             ("prefilter_spacing_px = 5", "quality.prefilter_spacing_px"),
             ("prefilter_spacing_px = inf", "quality.prefilter_spacing_px"),

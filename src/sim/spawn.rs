@@ -16,7 +16,7 @@ use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, p
 use crate::imaging::camera::{Camera, Jitter};
 use crate::imaging::frame::Frame;
 use crate::imaging::psf::{Psf, PsfOptics, PsfSpec};
-use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air, with_dome_margin};
+use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air};
 use crate::imaging::sky_gen::{CloudLayer, SkyGenSpec, generate};
 use crate::imaging::sky_plane::{MissFill, SkyImage, SkyPlacement, SkyPlane};
 use crate::imaging::vibration::Vibration;
@@ -329,8 +329,7 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
             } else {
                 image
             };
-            let plane = SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
-            Some(image_with_margin(scenario, plane, &placement, eye, &dome)?)
+            Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
         }
         (Some(gen_spec), None, Some(placement)) => {
             let plan = layer_plan.ok_or_else(|| setup("sky.generate")("no layer was planned".into()))?;
@@ -376,32 +375,7 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
     Ok(Sky::new(plane, scenario.quality.sky_sampling, sky.miss, dome))
 }
 
-/// `plane` (a sky image's) with a margin of the dome around its image (`[quality] sky_margin_px`), where misses
-/// take the dome and a planned view comes within the margin of the image's edge; else `plane` as it is.
-fn image_with_margin(
-    scenario: &CheckedScenario,
-    plane: SkyPlane,
-    placement: &SkyPlacement,
-    eye: DVec3,
-    dome: &Dome,
-) -> Result<SkyPlane, SetupError> {
-    let margin_px = scenario.quality.sky_margin_px;
-    if !(scenario.spec.sky.miss == MissFill::Dome
-        && margin_px > 0.0
-        && views_near_the_edge(scenario, &plane, margin_px))
-    {
-        return Ok(plane);
-    }
-    let size = (plane.image().width(), plane.image().height());
-    let margin = margin_texels(&scenario.sensor, placement, eye, size, margin_px);
-    let wider = with_margin(placement, size, margin);
-    let (w, h) = (size.0 + 2 * margin, size.1 + 2 * margin);
-    let place = |image: SkyImage| SkyPlane::new(image, &wider, eye).map_err(|e| setup("sky")(e.to_string()));
-    let geometry = place(SkyImage::from_finite(w, h, vec![0.0; w * h]))?;
-    place(with_dome_margin(plane.image(), &geometry, margin, eye, dome))
-}
-
-/// What makes a generated layer's plane:/// What makes a generated layer's plane: the layer's parameters (its seed the run's) and size, and what its bake
+/// What makes a generated layer's plane: the layer's parameters (its seed the run's) and size, and what its bake
 /// reads, owned (a deferred plane is made during the run).
 struct LayerMaker {
     spec: SkyGenSpec,
@@ -446,7 +420,7 @@ impl LayerMaker {
 /// misses taking the dome: such a layer is made when a view first may ([`Sky::deferred`]).
 struct LayerPlan {
     size: (usize, usize),
-    /// Texels of the dome baked around the layer on every side (`[quality] sky_margin_px` at the plane's
+    /// Texels of the dome baked around the layer on every side (`[quality] layer_margin_px` at the plane's
     /// distance from the observer's start; 0 where misses do not take the dome).
     margin: usize,
     geometry: Result<SkyPlane, SetupError>,
@@ -463,12 +437,12 @@ fn plan_layer(scenario: &CheckedScenario, eye: DVec3) -> Option<LayerPlan> {
     // zeros from the allocator: a blank image's pages are not touched unless read
     let blank = |(w, h): (usize, usize)| SkyImage::from_finite(w, h, vec![0.0; w * h]);
     // a margin only where misses take the dome and a planned view comes within it of the layer's edge
-    let margin_px = scenario.quality.sky_margin_px;
+    let margin_px = scenario.quality.layer_margin_px;
     let near_the_edge = || {
         SkyPlane::new(blank(size), &placement, eye).is_ok_and(|bare| views_near_the_edge(scenario, &bare, margin_px))
     };
     let margin = if sky.miss == MissFill::Dome && margin_px > 0.0 && near_the_edge() {
-        margin_texels(&scenario.sensor, &placement, eye, size, margin_px)
+        layer_margin(&scenario.sensor, &placement, eye, size, margin_px)
     } else {
         0
     };
@@ -543,7 +517,7 @@ fn with_margin(placement: &SkyPlacement, (w, h): (usize, usize), margin: usize) 
 
 /// Texels of the dome baked around a generated layer of `size` texels: `margin_px` sensor pixels at the
 /// plane's distance from the observer's start `eye` (its nearest point), rounded up.
-fn margin_texels(
+fn layer_margin(
     sensor: &ResolvedSensor,
     placement: &SkyPlacement,
     eye: DVec3,
