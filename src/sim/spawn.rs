@@ -504,14 +504,14 @@ fn views_near_the_edge(scenario: &CheckedScenario, plane: &SkyPlane, margin_px: 
 /// `placement` of an image of `size` texels widened by `margin` texels on every side, each texel where it was.
 fn with_margin(placement: &SkyPlacement, (w, h): (usize, usize), margin: usize) -> SkyPlacement {
     if margin == 0 {
-        return placement.clone();
+        return *placement;
     }
     let grow = |extent_m: f64, texels: usize| extent_m * (texels + 2 * margin) as f64 / texels as f64;
     SkyPlacement {
         width_m: grow(placement.width_m, w),
         height_m: grow(placement.height_m, h),
         anchor_px: placement.anchor_px.map(|a| a + DVec2::splat(margin as f64)),
-        ..placement.clone()
+        ..*placement
     }
 }
 
