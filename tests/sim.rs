@@ -534,15 +534,15 @@ fn a_coarser_sky_texel_makes_the_same_clouds_on_fewer_texels() {
     assert!(r > 0.99, "correlation {r}");
 }
 
+/// The largest change the margin may make to a frame of the test below: 16 DN measured, where the layer's edge
+/// cuts a cloud (130 DN over the sky): without the margin the cloud stops at the layer's edge, with it the
+/// bilinear read ramps from the cloud's last texel to the margin's first.
+const WORST_DN: f32 = 20.0;
+
 /// A generated layer baked with a margin of clear sky (`[quality] layer_margin_px`): the layer's texels are
 /// where they were, the margin holds the dome along each texel's direction from the observer, and the frame's
 /// tiles where the layer ends, which without the margin took the dome along each ray and a per-frame blur, are
 /// read from the prefiltered texture, within [`WORST_DN`] of that (noise off).
-/// The largest change the margin may make to a frame of [`a_margin_of_clear_sky_serves_the_layer_edge_from_the_texture`]:
-/// 16 DN measured, where the layer's edge cuts a cloud (130 DN over the sky): without the margin the cloud
-/// stops at the layer's edge, with it the bilinear read ramps from the cloud's last texel to the margin's first.
-const WORST_DN: f32 = 20.0;
-
 #[test]
 fn a_margin_of_clear_sky_serves_the_layer_edge_from_the_texture() {
     use irsim::imaging::background::SkyBlur;

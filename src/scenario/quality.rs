@@ -429,10 +429,10 @@ pub const DRAFT_SKY_TEXEL_PX: f64 = 2.0;
 pub const SKY_TEXEL_RANGE_PX: (f64, f64) = (0.5, 8.0);
 /// The standard preset's `layer_margin_px`. A tile whose blur reads past the layer's edge (the tile's 16 px and the
 /// PSF's reach on both sides, 13 px for the shipped cameras) is read from the texture only where the margin holds
-/// all it reads: 48 px left 3 % of swarm's frame and 9 % of sense_and_avoid's to the per-frame blur (their planes
-/// seen obliquely, farther than their nearest point), 96 px none of either. The draft preset keeps 0: on
-/// sense_and_avoid the margin's blocks raised draft's grid estimate, and on that finer grid draft's frames are
-/// farther from standard's (26 DN rms against 17.7 on the coarser one, with or without the margin).
+/// all it reads: 48 px left 3 % of swarm's frame and 9 % of sense_and_avoid's to the per-frame blur (their views
+/// reach farther below the layer's lower edge than 48 px less that reach), 96 px none of either. The draft preset
+/// keeps 0: on sense_and_avoid the margin's blocks raised draft's grid estimate, and on that finer grid draft's
+/// frames are farther from standard's (26 DN rms against 17.7 on the coarser one, with or without the margin).
 pub const LAYER_MARGIN_PX: f64 = 96.0;
 /// Largest `layer_margin_px`.
 pub const MAX_LAYER_MARGIN_PX: f64 = 512.0;

@@ -421,7 +421,8 @@ impl LayerMaker {
 struct LayerPlan {
     size: (usize, usize),
     /// Texels of the dome baked around the layer on every side (`[quality] layer_margin_px` at the plane's
-    /// distance from the observer's start; 0 where misses do not take the dome).
+    /// distance from the observer's start; 0 where the switch is 0, misses do not take the dome, or no planned
+    /// view comes within the margin of the layer's edge).
     margin: usize,
     geometry: Result<SkyPlane, SetupError>,
     unseen: bool,
