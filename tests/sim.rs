@@ -602,6 +602,28 @@ fn a_margin_of_clear_sky_serves_the_layer_edge_from_the_texture() {
     assert!(worst > 0.0 && worst <= WORST_DN, "largest change {worst} DN");
 }
 
+/// A layer whose planned views all stay farther than the margin from its edge is baked without one (the same
+/// texels as with the switch at 0), and one whose views reach its edge with one: the margin costs nothing where
+/// no view would read it.
+#[test]
+fn a_layer_no_view_comes_near_gets_no_margin() {
+    use irsim::sim::Sky;
+    let image = |target: &str, margin_px: f64| {
+        let mut s = scenario(&layer_ahead(target));
+        s.quality.layer_margin_px = margin_px;
+        let mut app = build_app(&s, RunOptions { noise: false, vibration: false, ..RunOptions::default() }).unwrap();
+        let world = app.world_mut();
+        let sky = world.query::<&Sky>().single(world).unwrap().clone();
+        sky.plane().unwrap().image().clone()
+    };
+    // the 128 × 96 px view at the layer's middle (2 km up, 30 km off: the layer 392 px tall) and at its top edge
+    let (middle, bare) = (image("[0, 30000, 3000]", 96.0), image("[0, 30000, 3000]", 0.0));
+    assert_eq!((middle.width(), middle.height()), (bare.width(), bare.height()), "no margin in the middle");
+    assert!(middle.pixels().iter().zip(bare.pixels()).all(|(a, b)| a.to_bits() == b.to_bits()), "the same texels");
+    let edge = image("[0, 30000, 5000]", 96.0);
+    assert!(edge.height() > bare.height() && edge.width() > bare.width(), "a margin at the edge");
+}
+
 /// The targets' shapes drawn beside the sky render and scaled in the targets stage give every patch, peak and
 /// fusion mode, to the bit, that the targets stage gives drawing each target whole itself (one target, and ten
 /// drawn side by side).
