@@ -528,10 +528,13 @@ fn layer_margin(
     if !(margin_px > 0.0) {
         return 0;
     }
+    // the texels along the width (square, but for a side that `layer_size` raised to its 16-texel floor, whose
+    // texels are smaller and whose margin is then narrower than asked)
     let texel_m = placement.width_m / size.0 as f64;
     let px_m = pixel_at_plane_m(sensor, placement, eye);
     let texels = (margin_px * px_m / texel_m).ceil();
-    // texels at least half a pixel wide (`sky_texel_px`) and a margin of at most 512 px: at most 1024 texels
+    // texels are at least half a pixel wide (`sky_texel_px`) unless a side is at its floor; the cap bounds the
+    // image either way
     if texels.is_finite() { texels.clamp(1.0, 1024.0) as usize } else { 0 }
 }
 
