@@ -517,7 +517,8 @@ fn with_margin(placement: &SkyPlacement, (w, h): (usize, usize), margin: usize) 
 }
 
 /// Texels of the dome baked around a generated layer of `size` texels: `margin_px` sensor pixels at the
-/// plane's distance from the observer's start `eye` (its nearest point), rounded up.
+/// plane's distance from the observer's start `eye` (its nearest point), rounded up (`margin_px` > 0: the caller
+/// makes no margin otherwise).
 fn layer_margin(
     sensor: &ResolvedSensor,
     placement: &SkyPlacement,
@@ -525,9 +526,6 @@ fn layer_margin(
     size: (usize, usize),
     margin_px: f64,
 ) -> usize {
-    if !(margin_px > 0.0) {
-        return 0;
-    }
     // the texels along the width (square, but for a side that `layer_size` raised to its 16-texel floor, whose
     // texels are smaller and whose margin is then narrower than asked)
     let texel_m = placement.width_m / size.0 as f64;
@@ -556,7 +554,7 @@ fn pixel_at_plane_m(sensor: &ResolvedSensor, placement: &SkyPlacement, eye: DVec
 /// start (its nearest point), square, and larger where a side would pass `max_texels`.
 fn layer_size(
     sensor: &ResolvedSensor,
-    placement: &crate::imaging::sky_plane::SkyPlacement,
+    placement: &SkyPlacement,
     eye: DVec3,
     max_texels: usize,
     texel_px: f64,
