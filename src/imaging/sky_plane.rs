@@ -412,6 +412,21 @@ pub struct SkyPlane {
     down: DVec3,
     /// Largest departure of an interpolated ray-cast coordinate from the exact one, px.
     span_tolerance_px: f64,
+    /// The image widened by texels of the dome, for the prefiltered texture ([`DomeMargin`]).
+    dome_margin: Option<Arc<DomeMargin>>,
+}
+
+/// A sky image's plane widened by `texels` texels of the dome on every side, each texel where it was: the source
+/// of the image's prefiltered texture where a view comes near the image's edge (`[quality] image_margin_px`),
+/// so that the tiles there are read from the texture instead of taking a per-frame blur. The widened image's
+/// bilinear read ramps over one texel from the image's edge texels to the dome's, where a ray cast of the image
+/// steps from its edge to the dome along the rays that miss it (docs/accuracy.md measures what that does).
+#[derive(Debug)]
+pub struct DomeMargin {
+    /// The widened plane.
+    pub plane: SkyPlane,
+    /// Texels of the dome on every side.
+    pub texels: usize,
 }
 
 impl SkyPlane {
@@ -446,6 +461,7 @@ impl SkyPlane {
             right,
             down,
             span_tolerance_px: SPAN_TOLERANCE_PX,
+            dome_margin: None,
         })
     }
 
@@ -453,6 +469,9 @@ impl SkyPlane {
     /// [`SPAN_TOLERANCE_PX`]; 0 casts every ray exactly). Negative or NaN values count as 0.
     pub fn set_span_tolerance(&mut self, px: f64) {
         self.span_tolerance_px = if px > 0.0 { px } else { 0.0 };
+        if let Some(margin) = self.dome_margin.as_mut().and_then(Arc::get_mut) {
+            margin.plane.set_span_tolerance(px);
+        }
     }
 
     /// The image.
@@ -477,7 +496,20 @@ impl SkyPlane {
             right: self.right,
             down: self.down,
             span_tolerance_px: self.span_tolerance_px,
+            dome_margin: None,
         }
+    }
+
+    /// This plane with `margin` (its image widened by texels of the dome, each texel where it was here) as the
+    /// source of its prefiltered texture.
+    pub fn with_dome_margin(mut self, margin: DomeMargin) -> Self {
+        self.dome_margin = Some(Arc::new(margin));
+        self
+    }
+
+    /// The image widened by texels of the dome, if set ([`SkyPlane::with_dome_margin`]).
+    pub fn dome_margin(&self) -> Option<&DomeMargin> {
+        self.dome_margin.as_deref()
     }
 
     /// The image at image coordinates `image_px` (px), interpolated bilinearly between pixel centres; beyond the

@@ -16,9 +16,9 @@ use crate::imaging::background::{BackgroundRenderer, BackgroundStats, SkyBlur, p
 use crate::imaging::camera::{Camera, Jitter};
 use crate::imaging::frame::Frame;
 use crate::imaging::psf::{Psf, PsfOptics, PsfSpec};
-use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air};
+use crate::imaging::sky_field::{LayerBake, RadianceLut, bake_layer, calibrate, through_air, with_dome_margin};
 use crate::imaging::sky_gen::{CloudLayer, SkyGenSpec, generate};
-use crate::imaging::sky_plane::{MissFill, SkyImage, SkyPlacement, SkyPlane};
+use crate::imaging::sky_plane::{DomeMargin, MissFill, Sampling, SkyImage, SkyPlacement, SkyPlane};
 use crate::imaging::vibration::Vibration;
 use crate::physics::atmosphere::AirTemperature;
 use crate::physics::lowtran::{AtmosphereError, PathSteps, Weather};
@@ -329,7 +329,8 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
             } else {
                 image
             };
-            Some(SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?)
+            let plane = SkyPlane::new(image, &placement, eye).map_err(|e| setup("sky")(e.to_string()))?;
+            Some(image_margin(scenario, plane, &placement, eye, &dome)?)
         }
         (Some(gen_spec), None, Some(placement)) => {
             let plan = layer_plan.ok_or_else(|| setup("sky.generate")("no layer was planned".into()))?;
@@ -373,6 +374,37 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
         Arc::new(p)
     });
     Ok(Sky::new(plane, scenario.quality.sky_sampling, sky.miss, dome))
+}
+
+/// `plane` (a sky image's) with the image widened by the dome as its texture's source (`[quality]
+/// image_margin_px`, [`DomeMargin`]) where misses take the dome, the sky is read by point samples, and a planned
+/// view comes within the margin of the image's edge; else `plane` as it is.
+fn image_margin(
+    scenario: &CheckedScenario,
+    plane: SkyPlane,
+    placement: &SkyPlacement,
+    eye: DVec3,
+    dome: &Dome,
+) -> Result<SkyPlane, SetupError> {
+    let margin_px = scenario.quality.image_margin_px;
+    let point_sampled = !matches!(scenario.quality.sky_sampling, Sampling::Supersample { n } if n > 1);
+    if !(scenario.spec.sky.miss == MissFill::Dome
+        && margin_px > 0.0
+        && point_sampled
+        && views_near_the_edge(scenario, &plane, margin_px))
+    {
+        return Ok(plane);
+    }
+    let size = (plane.image().width(), plane.image().height());
+    // the smaller of the texel's sides, so that the margin is at least as wide as asked along both
+    let texel_m = (placement.width_m / size.0 as f64).min(placement.height_m / size.1 as f64);
+    let texels = margin_texels(&scenario.sensor, placement, eye, texel_m, margin_px);
+    let wider = with_margin(placement, size, texels);
+    let (w, h) = (size.0 + 2 * texels, size.1 + 2 * texels);
+    let place = |image: SkyImage| SkyPlane::new(image, &wider, eye).map_err(|e| setup("sky")(e.to_string()));
+    let geometry = place(SkyImage::from_finite(w, h, vec![0.0; w * h]))?;
+    let widened = place(with_dome_margin(plane.image(), &geometry, texels, eye, dome))?;
+    Ok(plane.with_dome_margin(DomeMargin { plane: widened, texels }))
 }
 
 /// What makes a generated layer's plane: the layer's parameters (its seed the run's) and size, and what its bake
@@ -443,7 +475,9 @@ fn plan_layer(scenario: &CheckedScenario, eye: DVec3) -> Option<LayerPlan> {
         SkyPlane::new(blank(size), &placement, eye).is_ok_and(|bare| views_near_the_edge(scenario, &bare, margin_px))
     };
     let margin = if sky.miss == MissFill::Dome && margin_px > 0.0 && near_the_edge() {
-        layer_margin(&scenario.sensor, &placement, eye, size, margin_px)
+        // the texels along the width (square, but for a side that `layer_size` raised to its 16-texel floor, whose
+        // texels are smaller and whose margin is then narrower than asked)
+        margin_texels(&scenario.sensor, &placement, eye, placement.width_m / size.0 as f64, margin_px)
     } else {
         0
     };
@@ -516,19 +550,10 @@ fn with_margin(placement: &SkyPlacement, (w, h): (usize, usize), margin: usize) 
     }
 }
 
-/// Texels of the dome baked around a generated layer of `size` texels: `margin_px` sensor pixels at the
-/// plane's distance from the observer's start `eye` (its nearest point), rounded up (`margin_px` > 0: the caller
-/// makes no margin otherwise).
-fn layer_margin(
-    sensor: &ResolvedSensor,
-    placement: &SkyPlacement,
-    eye: DVec3,
-    size: (usize, usize),
-    margin_px: f64,
-) -> usize {
-    // the texels along the width (square, but for a side that `layer_size` raised to its 16-texel floor, whose
-    // texels are smaller and whose margin is then narrower than asked)
-    let texel_m = placement.width_m / size.0 as f64;
+/// Texels of `texel_m` metres in a margin of the dome around a generated layer or an image: `margin_px` sensor
+/// pixels at the plane's distance from the observer's start `eye` (its nearest point), rounded up (`margin_px` >
+/// 0: the callers make no margin otherwise).
+fn margin_texels(sensor: &ResolvedSensor, placement: &SkyPlacement, eye: DVec3, texel_m: f64, margin_px: f64) -> usize {
     let px_m = pixel_at_plane_m(sensor, placement, eye);
     let texels = (margin_px * px_m / texel_m).ceil();
     // texels are at least half a pixel wide (`sky_texel_px`) unless a side is at its floor; the cap bounds the
