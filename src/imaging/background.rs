@@ -414,23 +414,36 @@ pub fn exact_blurred_pixel(
     y: usize,
     per_px: usize,
 ) -> Option<f64> {
+    let size = DVec2::new(plane.image().width() as f64, plane.image().height() as f64);
+    brute_force_blur(plane, camera, psf, (x, y), per_px, |_, p| {
+        p.filter(|p| p.x >= 0.0 && p.y >= 0.0 && p.x <= size.x && p.y <= size.y).map(|p| plane.value_at(p))
+    })
+}
+
+/// `Σ PSF(d)·h²·value(c + d, p)` over the midpoint grid of `per_px` × `per_px` points a pixel on the PSF's support,
+/// `c` pixel `(x, y)`'s centre and `p` where the ray through `c + d` meets `plane` (image coordinates, `None` if it
+/// does not); `None` if `value` gives `None` at a point where the PSF is not 0.
+fn brute_force_blur(
+    plane: &SkyPlane,
+    camera: &Camera,
+    psf: &Psf,
+    (x, y): (usize, usize),
+    per_px: usize,
+    value: impl Fn(DVec2, Option<DVec2>) -> Option<f32>,
+) -> Option<f64> {
     let projection = plane.projection(camera);
     let reach = psf.radius_px() as f64 + 0.5;
     let n = (2.0 * reach * per_px as f64).ceil() as usize;
     let h = 2.0 * reach / n as f64;
     let centre = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-    let size = DVec2::new(plane.image().width() as f64, plane.image().height() as f64);
     let mut sum = 0.0;
     for b in 0..n {
         for a in 0..n {
             let d = DVec2::new(-reach + (a as f64 + 0.5) * h, -reach + (b as f64 + 0.5) * h);
             let w = f64::from(psf.value(d.x, d.y));
             if w != 0.0 {
-                let p = projection.image_point(centre + d)?;
-                if !(p.x >= 0.0 && p.y >= 0.0 && p.x <= size.x && p.y <= size.y) {
-                    return None;
-                }
-                sum += w * h * h * f64::from(plane.value_at(p));
+                let at = centre + d;
+                sum += w * h * h * f64::from(value(at, projection.image_point(at))?);
             }
         }
     }
@@ -595,27 +608,12 @@ mod tests {
         y: usize,
         per_px: usize,
     ) -> f64 {
-        let projection = plane.projection(camera);
-        let reach = psf.radius_px() as f64 + 0.5;
-        let n = (2.0 * reach * per_px as f64).ceil() as usize;
-        let h = 2.0 * reach / n as f64;
-        let centre = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
         let size = DVec2::new(plane.image().width() as f64, plane.image().height() as f64);
-        let mut sum = 0.0;
-        for b in 0..n {
-            for a in 0..n {
-                let d = DVec2::new(-reach + (a as f64 + 0.5) * h, -reach + (b as f64 + 0.5) * h);
-                let w = f64::from(psf.value(d.x, d.y));
-                if w != 0.0 {
-                    let value = match projection.image_point(centre + d) {
-                        Some(p) if p.x >= 0.0 && p.y >= 0.0 && p.x < size.x && p.y < size.y => plane.value_at(p),
-                        _ => dome.radiance_toward(camera.ray(centre + d)),
-                    };
-                    sum += w * h * h * f64::from(value);
-                }
-            }
-        }
-        sum
+        let inside = |p: &DVec2| p.x >= 0.0 && p.y >= 0.0 && p.x < size.x && p.y < size.y;
+        brute_force_blur(plane, camera, psf, (x, y), per_px, |at, p| {
+            Some(p.filter(inside).map_or_else(|| dome.radiance_toward(camera.ray(at)), |p| plane.value_at(p)))
+        })
+        .expect("a value at every point")
     }
 
     #[test]
