@@ -11,7 +11,11 @@
 //!   in from its edges, and whose own Jacobian is within `tolerance` of the texture's; the other tiles (near the
 //!   horizon where the plane ends, near the image's edges, at strongly varying perspective) are made the
 //!   reference way in the same frame. When the frame's centre does not see the image, or the texture kernel
-//!   would be too wide (a strongly minified image), the whole frame is.
+//!   would be too wide (a strongly minified image), the whole frame is. An image widened by a margin of the
+//!   dome ([`super::sky_plane::DomeMargin`], `[quality] image_margin_px`) is the textures' source instead: the
+//!   tiles whose blur reaches past the image's own edge into the margin are then read from a texture too, on the
+//!   finest grid of the spacing (where the preset's grid is coarser, a second texture, made for the box those
+//!   tiles read).
 //!
 //! A frame's result depends only on its own camera: the texture's Jacobian is a lattice point chosen from the
 //! camera's view, and a prefiltered crop's values do not depend on its extent.
@@ -70,26 +74,50 @@ pub fn plan_sky_blur(
     (width, height): (usize, usize),
     cameras: impl IntoIterator<Item = Camera>,
 ) -> SkyBlurPlan {
-    // an image's texture is made from the image widened by the dome where it has that margin
-    let plane = plane.dome_margin().map_or(plane, |m| &m.plane);
-    let mut cache = PrefilterCache::new();
+    // as the renderer does: the tiles at an image's edge from a texture of their own where it has a margin
+    let (source, inner) = texture_source(plane, false, &settings);
+    let fine = PrefilterSettings { grid_error: 0.0, ..settings };
+    let (mut cache, mut edge_cache) = (PrefilterCache::new(), PrefilterCache::new());
     let (mut clean, mut edge) = (Vec::new(), Vec::new());
     let (mut views, mut views_prefiltered) = (0, 0);
     for camera in cameras {
         views += 1;
-        if let Some((key, need, _)) =
-            classify(plane, &camera, psf.radius_px(), settings.tolerance, (width, height), None, &mut clean, &mut edge)
-            && cache.plan(plane, psf, key, settings, need)
+        let (r_px, size) = (psf.radius_px(), (width, height));
+        if let Some((key, need, need_edge)) =
+            classify(source, &camera, r_px, settings.tolerance, size, inner, &mut clean, &mut edge)
         {
-            views_prefiltered += 1;
+            let interior = clean.iter().zip(&edge).any(|(&c, &e)| c && !e);
+            let edges = edge.iter().any(|&e| e);
+            if (!interior || cache.plan(source, psf, key, settings, need))
+                && (!edges || edge_cache.plan(source, psf, key, fine, need_edge))
+            {
+                views_prefiltered += 1;
+            }
         }
     }
     let kernel = psf.point_kernel();
     let taps = (2 * (2 * kernel.radius() + 1) * kernel.rank()) as f64;
     let frame_work = views_prefiltered as f64 * (width * height) as f64 * taps;
-    let texture_work = cache.work();
+    let texture_work = cache.work() + edge_cache.work();
     let choice = if views_prefiltered > 0 && texture_work < frame_work { SkyBlur::Prefilter } else { SkyBlur::Frame };
-    SkyBlurPlan { choice, views, views_prefiltered, texture_builds: cache.builds(), texture_work, frame_work }
+    let texture_builds = cache.builds() + edge_cache.builds();
+    SkyBlurPlan { choice, views, views_prefiltered, texture_builds, texture_work, frame_work }
+}
+
+/// The plane a sky's prefiltered textures are made from: the image widened by the dome where it has that margin
+/// ([`SkyPlane::dome_margin`]) and is read by point samples; and, where the edge tiles take a texture of their own
+/// (the preset's grid is coarser than the finest, `settings.grid_error > 0`), the image's own extent in it.
+fn texture_source<'a>(
+    plane: &'a SkyPlane,
+    area_sampled: bool,
+    settings: &PrefilterSettings,
+) -> (&'a SkyPlane, Option<[f64; 4]>) {
+    let Some(margin) = plane.dome_margin().filter(|_| !area_sampled) else {
+        return (plane, None);
+    };
+    let (k, image) = (margin.texels as f64, plane.image());
+    let inner = (settings.grid_error > 0.0).then(|| [k, k, k + image.width() as f64, k + image.height() as f64]);
+    (&margin.plane, inner)
 }
 
 /// The sky as the renderer sees it.
@@ -176,7 +204,7 @@ impl BackgroundRenderer {
         frame: &mut Frame,
     ) -> BackgroundStats {
         let stats = self.render_frame(sky, camera, blur, frame);
-        BackgroundStats { texture_builds: self.cache.builds(), ..stats }
+        BackgroundStats { texture_builds: self.cache.builds() + self.edge_cache.builds(), ..stats }
     }
 
     fn render_frame(
@@ -215,15 +243,9 @@ impl BackgroundRenderer {
         // the blurred texture is read nearest where the sky is, bilinearly otherwise
         let texture_sampling = if sky.sampling == Sampling::Nearest { Sampling::Nearest } else { Sampling::Bilinear };
         // the texture's source: the image widened by the dome's texels where it has them (not for an area-sampled
-        // sky, whose reference tiles are the whole frame's ray cast)
-        let margin = plane.dome_margin().filter(|_| !area_sampled);
-        let source = margin.map_or(plane, |m| &m.plane);
-        // the image's own extent in the source's texels: tiles whose blur reaches past it, served by the texture,
-        // are read from a texture on the finest grid of the spacing (the blurred edge is sharp there)
-        let inner = margin.map(|m| {
-            let (k, image) = (m.texels as f64, plane.image());
-            [k, k, k + image.width() as f64, k + image.height() as f64]
-        });
+        // sky, whose reference tiles are the whole frame's ray cast); tiles whose blur reaches past the image's own
+        // extent in it are read from a texture on the finest grid of the spacing (the blurred edge is sharp there)
+        let (source, inner) = texture_source(plane, area_sampled, &b.prefilter);
         let prefiltered = if b.sky_blur != SkyBlur::Frame {
             let size = (frame.width(), frame.height());
             let (r_px, tolerance) = (b.psf.radius_px(), b.prefilter.tolerance);
@@ -313,7 +335,8 @@ impl BackgroundRenderer {
 /// Rows of tiles a task of [`classify`] takes at least (40 tiles a row at 640 × 512, ~4 µs a row).
 const CLASSIFY_ROWS_PER_TASK: usize = 4;
 
-/// Marks in `clean` (row-major tiles) the tiles a prefiltered texture can serve, and in `edge` those of them
+/// Marks in `clean` (row-major tiles) the tiles a prefiltered texture of `plane` (an image, or an image widened
+/// by a margin of the dome) can serve, and in `edge` those of them
 /// whose footprint does not lie within the box `inner` (image coordinates; an image's own extent inside its
 /// margin of the dome) inset as the image's edges are; returns the texture's key and the image-coordinate boxes
 /// the tiles not in `edge` and those in `edge` read, or `None` if the frame's centre does not see the image well
@@ -536,6 +559,19 @@ mod tests {
         how: SkyBlur,
         spacing_px: f64,
     ) -> Frame {
+        render_graded(r, plane, dome, cam, how, spacing_px, 0.0)
+    }
+
+    /// [`render_spaced`] with the texture's grid chosen within `grid_error` (0: the finest of the spacing).
+    fn render_graded(
+        r: &mut BackgroundRenderer,
+        plane: &SkyPlane,
+        dome: &Dome,
+        cam: &Camera,
+        how: SkyBlur,
+        spacing_px: f64,
+        grid_error: f64,
+    ) -> Frame {
         let sky = SkyView { plane: Some(plane), dome, sampling: Sampling::Bilinear, miss: MissFill::Dome };
         let p = psf();
         let blur = BackgroundBlur {
@@ -544,7 +580,7 @@ mod tests {
             skip_below: 0.0,
             dome: true,
             sky_blur: how,
-            prefilter: PrefilterSettings { tolerance: 0.05, spacing_px, grid_error: 0.0 },
+            prefilter: PrefilterSettings { tolerance: 0.05, spacing_px, grid_error },
         };
         let mut f = Frame::new(128, 96);
         r.render(&sky, cam, Some(&blur), &mut f);
@@ -631,10 +667,14 @@ mod tests {
             let cam = camera(&plane, DVec2::new(n as f64 / 2.0, on_centres_px / texel_px), roll);
             let frame_blur = render(&mut BackgroundRenderer::new(), &plane, &dome, &cam, SkyBlur::Frame);
             let edge_tiles = render(&mut BackgroundRenderer::new(), &plane, &dome, &cam, SkyBlur::Prefilter);
+            // a grid chosen within 0.05 (a third of a percent of the step): the tiles along the edge from a
+            // texture of their own on the finest grid
             let mut renderer = BackgroundRenderer::new();
-            let texture = render(&mut renderer, &widened, &dome, &cam, SkyBlur::Prefilter);
+            let how = SkyBlur::Prefilter;
+            let texture = render_graded(&mut renderer, &widened, &dome, &cam, how, TEXTURE_SPACING_PX, 0.05);
             assert!(renderer.clean.iter().all(|&c| c), "every tile from the textures");
             assert!(renderer.edge_tiles.iter().any(|&e| e), "tiles along the edge, from the finest grid");
+            assert!(renderer.interior.iter().any(|&i| i), "tiles inside, from the chosen grid");
             let (mut e_frame, mut e_tiles, mut e_texture) = (Vec::new(), Vec::new(), Vec::new());
             for y in r_px..96 - r_px {
                 for x in (r_px..128 - r_px).step_by(7) {
@@ -689,6 +729,33 @@ mod tests {
         }
         eprintln!("largest error against the exact blur: 0.75 px {:.4}, 0.25 px {:.4}", errors[0], errors[1]);
         assert!(errors[1] < 0.7 * errors[0], "{errors:?}");
+    }
+
+    #[test]
+    fn the_edge_tiles_and_their_box_do_not_depend_on_the_threads() {
+        let plane = plane();
+        let r_px = psf().radius_px();
+        // the image's own extent taken as rows 60 on: the tiles whose blur reaches row 61.5 are edge tiles
+        let inner = Some([0.0, 60.0, 512.0, 512.0]);
+        let intrinsics = Intrinsics::try_new(310, 250, 0.1, 17e-6).unwrap();
+        let look = plane.world_point(DVec2::new(256.0, 60.0));
+        let cam = Camera::look_at(intrinsics, DVec3::new(0.0, 0.0, 8000.0), look, 7.0).unwrap();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let (mut clean, mut edge) = (Vec::new(), Vec::new());
+            let got = pool.install(|| classify(&plane, &cam, r_px, 0.05, (310, 250), inner, &mut clean, &mut edge));
+            let bits = |b: [f64; 4]| b.map(f64::to_bits);
+            (got.map(|(key, need, need_edge)| (key, bits(need), bits(need_edge))), clean, edge)
+        };
+        let one = run(1);
+        let (clean, edge) = (&one.1, &one.2);
+        let interior = clean.iter().zip(edge).filter(|&(&c, &e)| c && !e).count();
+        let edges = edge.iter().filter(|&&e| e).count();
+        assert!(interior > 0 && edges > 0, "both kinds ({interior} and {edges} tiles)");
+        assert!(edge.iter().zip(clean).all(|(&e, &c)| c || !e), "an edge tile is a served tile");
+        for threads in [2, 3] {
+            assert_eq!(run(threads), one, "{threads} threads");
+        }
     }
 
     #[test]

@@ -23,7 +23,10 @@
 //!   `J` is more than `tolerance` (relative, Frobenius) from it are blurred the reference way (see
 //!   [`super::background`]).
 //! - Near the image's edges the texture blur would replicate edge texels where the frame sees the dome: tiles
-//!   whose blur reaches within 1.5 texels of the edge are blurred the reference way too.
+//!   whose blur reaches within 1.5 texels of the edge are blurred the reference way too, unless the image is
+//!   widened by a margin of the dome ([`super::sky_plane::DomeMargin`]), whose texels hold what the frame sees
+//!   there. The grid's estimate ([`BlockSpectra`]) then reads the margin's blocks too (the step at the image's
+//!   edge among them): it takes the worst block, so the margin can only make the grid finer.
 //! - The reference blur of a frame replicates the frame's edge pixels; the prefiltered texture holds the sky
 //!   beyond the frame's edge, as the optics see it. The outermost `R` pixels (the PSF radius) differ by that.
 //!

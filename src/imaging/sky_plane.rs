@@ -421,7 +421,7 @@ pub struct SkyPlane {
 /// so that the tiles there are read from the texture instead of taking a per-frame blur. The widened image's
 /// bilinear read ramps over one texel from the image's edge texels to the dome's, where a ray cast of the image
 /// steps from its edge to the dome along the rays that miss it (docs/accuracy.md measures what that does).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct DomeMargin {
     /// The widened plane.
     pub plane: SkyPlane,
@@ -469,8 +469,8 @@ impl SkyPlane {
     /// [`SPAN_TOLERANCE_PX`]; 0 casts every ray exactly). Negative or NaN values count as 0.
     pub fn set_span_tolerance(&mut self, px: f64) {
         self.span_tolerance_px = if px > 0.0 { px } else { 0.0 };
-        if let Some(margin) = self.dome_margin.as_mut().and_then(Arc::get_mut) {
-            margin.plane.set_span_tolerance(px);
+        if let Some(margin) = self.dome_margin.as_mut() {
+            Arc::make_mut(margin).plane.set_span_tolerance(px);
         }
     }
 
@@ -501,8 +501,9 @@ impl SkyPlane {
     }
 
     /// This plane with `margin` (its image widened by texels of the dome, each texel where it was here) as the
-    /// source of its prefiltered texture.
-    pub fn with_dome_margin(mut self, margin: DomeMargin) -> Self {
+    /// source of its prefiltered texture, cast at this plane's span tolerance.
+    pub fn with_dome_margin(mut self, mut margin: DomeMargin) -> Self {
+        margin.plane.set_span_tolerance(self.span_tolerance_px);
         self.dome_margin = Some(Arc::new(margin));
         self
     }

@@ -150,7 +150,8 @@ pub struct Quality {
     /// whose blur reaches past the image's edge are then read from a texture too (on the finest grid of the
     /// spacing), where otherwise the image was ray cast there and blurred every frame. The edge's step becomes a
     /// ramp over one texel, blurred as a continuous image; the per-frame blur read the step at pixel centres, up
-    /// to half a pixel off (0: no margin).
+    /// to half a pixel off (0: no margin). The margin is at most 1024 texels wide (narrower than asked for an image
+    /// of texels under about 0.1 px), and an image whose widened copy would pass 2²⁶ texels gets none.
     pub image_margin_px: f64,
     /// Quadrature of a target's ellipse ⊗ PSF.
     pub target_method: TargetMethod,
@@ -451,7 +452,7 @@ pub const MAX_LAYER_MARGIN_PX: f64 = 512.0;
 /// The standard and reference presets' `image_margin_px`: as [`LAYER_MARGIN_PX`], the tile's 16 px and the PSF's
 /// reach on both sides with room for the view's motion. Against the brute-force blur at an image's edge (`cargo
 /// test --lib an_image_widened`, a step of 14.5 radiance units) the margin's texture errs 0.02–0.12 rms where
-/// the per-frame blur of the image's point samples erred 0.06–0.39 (up to 3.9 where the edge lies on a row of
+/// the per-frame blur of the image's point samples erred 0.06–0.39 (up to 3.95 where the edge lies on a row of
 /// pixel centres); the reference keeps it for that reason. The draft preset keeps 0 (its nearest reads gained no
 /// speed from it).
 pub const IMAGE_MARGIN_PX: f64 = 96.0;

@@ -376,6 +376,9 @@ fn build_sky(scenario: &CheckedScenario, scene: &SceneParams, eye: DVec3, parts:
     Ok(Sky::new(plane, scenario.quality.sky_sampling, sky.miss, dome))
 }
 
+/// Most texels of an image widened by a margin of the dome (256 MiB of radiance); a larger image gets no margin.
+const MAX_WIDENED_TEXELS: usize = 1 << 26;
+
 /// `plane` (a sky image's) with the image widened by the dome as its texture's source (`[quality]
 /// image_margin_px`, [`DomeMargin`]) where misses take the dome, the sky is read by point samples, and a planned
 /// view comes within the margin of the image's edge; else `plane` as it is.
@@ -399,8 +402,12 @@ fn image_margin(
     // the smaller of the texel's sides, so that the margin is at least as wide as asked along both
     let texel_m = (placement.width_m / size.0 as f64).min(placement.height_m / size.1 as f64);
     let texels = margin_texels(&scenario.sensor, placement, eye, texel_m, margin_px);
-    let wider = with_margin(placement, size, texels);
     let (w, h) = (size.0 + 2 * texels, size.1 + 2 * texels);
+    if w.saturating_mul(h) > MAX_WIDENED_TEXELS {
+        // the widened copy would be too large to hold beside the image: its edge is blurred per frame instead
+        return Ok(plane);
+    }
+    let wider = with_margin(placement, size, texels);
     let place = |image: SkyImage| SkyPlane::new(image, &wider, eye).map_err(|e| setup("sky")(e.to_string()));
     let geometry = place(SkyImage::from_finite(w, h, vec![0.0; w * h]))?;
     let widened = place(with_dome_margin(plane.image(), &geometry, texels, eye, dome))?;
@@ -556,8 +563,8 @@ fn with_margin(placement: &SkyPlacement, (w, h): (usize, usize), margin: usize) 
 fn margin_texels(sensor: &ResolvedSensor, placement: &SkyPlacement, eye: DVec3, texel_m: f64, margin_px: f64) -> usize {
     let px_m = pixel_at_plane_m(sensor, placement, eye);
     let texels = (margin_px * px_m / texel_m).ceil();
-    // texels are at least half a pixel wide (`sky_texel_px`) unless a side is at its floor; the cap bounds the
-    // image either way
+    // a generated layer's texels are at least half a pixel wide (`sky_texel_px`) unless a side is at its floor; an
+    // image's may be smaller, and then the cap makes its margin narrower than asked. The cap bounds the image
     if texels.is_finite() { texels.clamp(1.0, 1024.0) as usize } else { 0 }
 }
 
@@ -794,6 +801,24 @@ fn dome_needs_blur(psf: &Psf, cfg: &PsfSettings, sky: &Sky, ifov: f64, dn_per_ra
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_margin_keeps_every_texel_where_it_was_with_or_without_an_anchor() {
+        let eye = DVec3::new(0.0, 0.0, 8000.0);
+        let blank = |w: usize, h: usize| SkyImage::from_finite(w, h, vec![0.0; w * h]);
+        let (w, h, m) = (300, 120, 17);
+        for anchor_px in [None, Some(DVec2::new(40.0, 110.0))] {
+            // texels 4000/300 m wide and 1500/120 m high: not square
+            let placement = SkyPlacement { anchor_px, height_m: 1500.0, ..SkyPlacement::paper_fig8() };
+            let plane = SkyPlane::new(blank(w, h), &placement, eye).unwrap();
+            let wider = SkyPlane::new(blank(w + 2 * m, h + 2 * m), &with_margin(&placement, (w, h), m), eye).unwrap();
+            for (x, y) in [(0.5, 0.5), (0.0, 0.0), (299.5, 119.5), (300.0, 120.0), (150.25, 60.75)] {
+                let p = DVec2::new(x, y);
+                let moved = wider.world_point(p + DVec2::splat(m as f64)) - plane.world_point(p);
+                assert!(moved.length() < 1e-6, "{anchor_px:?} ({x}, {y}): {moved}");
+            }
+        }
+    }
 
     #[test]
     fn kept_results_are_returned_until_the_oldest_is_let_go() {
