@@ -548,21 +548,11 @@ mod tests {
     }
 
     fn render(r: &mut BackgroundRenderer, plane: &SkyPlane, dome: &Dome, cam: &Camera, how: SkyBlur) -> Frame {
-        render_spaced(r, plane, dome, cam, how, TEXTURE_SPACING_PX)
+        render_graded(r, plane, dome, cam, how, TEXTURE_SPACING_PX, 0.0)
     }
 
-    fn render_spaced(
-        r: &mut BackgroundRenderer,
-        plane: &SkyPlane,
-        dome: &Dome,
-        cam: &Camera,
-        how: SkyBlur,
-        spacing_px: f64,
-    ) -> Frame {
-        render_graded(r, plane, dome, cam, how, spacing_px, 0.0)
-    }
-
-    /// [`render_spaced`] with the texture's grid chosen within `grid_error` (0: the finest of the spacing).
+    /// A 128 × 96 frame of `cam`'s view, bilinear, blurred `how`, the texture's grid at most `spacing_px` and
+    /// chosen within `grid_error` (0: the finest of the spacing).
     fn render_graded(
         r: &mut BackgroundRenderer,
         plane: &SkyPlane,
@@ -714,9 +704,10 @@ mod tests {
         let mut renderer = BackgroundRenderer::new();
         let mut errors = Vec::new();
         for spacing in [0.75, 0.25, 0.75] {
-            let frame = render_spaced(&mut renderer, &plane, &dome, &cam, SkyBlur::Prefilter, spacing);
+            let frame = render_graded(&mut renderer, &plane, &dome, &cam, SkyBlur::Prefilter, spacing, 0.0);
             // a renderer that made textures at another spacing gives what a fresh one gives
-            let fresh = render_spaced(&mut BackgroundRenderer::new(), &plane, &dome, &cam, SkyBlur::Prefilter, spacing);
+            let fresh =
+                render_graded(&mut BackgroundRenderer::new(), &plane, &dome, &cam, SkyBlur::Prefilter, spacing, 0.0);
             assert_eq!(frame.pixels(), fresh.pixels(), "spacing {spacing}");
             let mut worst = 0.0f64;
             for y in (r_px..96 - r_px).step_by(3) {
