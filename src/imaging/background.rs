@@ -336,11 +336,10 @@ impl BackgroundRenderer {
 const CLASSIFY_ROWS_PER_TASK: usize = 4;
 
 /// Marks in `clean` (row-major tiles) the tiles a prefiltered texture of `plane` (an image, or an image widened
-/// by a margin of the dome) can serve, and in `edge` those of them
-/// whose footprint does not lie within the box `inner` (image coordinates; an image's own extent inside its
-/// margin of the dome) inset as the image's edges are; returns the texture's key and the image-coordinate boxes
-/// the tiles not in `edge` and those in `edge` read, or `None` if the frame's centre does not see the image well
-/// inside its edges.
+/// by a margin of the dome) can serve, and in `edge` those of them whose footprint does not lie within the box
+/// `inner` (image coordinates; an image's own extent inside its margin of the dome) inset as the image's edges
+/// are; returns the texture's key and the image-coordinate boxes the tiles not in `edge` and those in `edge`
+/// read, or `None` if the frame's centre does not see the image well inside its edges.
 #[allow(clippy::too_many_arguments)]
 fn classify(
     plane: &SkyPlane,
