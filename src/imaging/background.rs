@@ -187,6 +187,8 @@ pub struct BackgroundRenderer {
     interior: Vec<bool>,
     /// The prefiltered textures of the edge tiles.
     edge_cache: PrefilterCache,
+    /// The tiles of one texture among others (the ring's interior or edge tiles).
+    pair: Vec<bool>,
 }
 
 impl BackgroundRenderer {
@@ -270,15 +272,20 @@ impl BackgroundRenderer {
             stats.blur = self.convolver.apply_where_needed(kernel, frame, b.method, b.skip_below);
             return stats;
         }
-        // the served tiles among `flags`, each from its texture
-        let draw = |flags: &[bool], frame: &mut Frame| {
-            let t = BLUR_TILE_PX;
+        // the served tiles (or those of them among `among`, the pair's flags made in `pair`), each from its texture
+        let draw = |among: Option<&[bool]>, pair: &mut Vec<bool>, frame: &mut Frame| {
             for (texture, of) in [(coarse, &self.interior), (fine, &self.edge_tiles)] {
-                if let Some(texture) = texture {
-                    let tiles: Vec<bool> = flags.iter().zip(of.iter()).map(|(&f, &o)| f && o).collect();
-                    if tiles.iter().any(|&f| f) {
-                        texture.render_tiles(camera, texture_sampling, sky.miss, t, &tiles, frame);
+                let Some(texture) = texture else { continue };
+                let tiles = match among {
+                    None => of,
+                    Some(among) => {
+                        pair.clear();
+                        pair.extend(among.iter().zip(of).map(|(&a, &o)| a && o));
+                        &*pair
                     }
+                };
+                if any(tiles) {
+                    texture.render_tiles(camera, texture_sampling, sky.miss, BLUR_TILE_PX, tiles, frame);
                 }
             }
         };
@@ -287,7 +294,7 @@ impl BackgroundRenderer {
             // every ray meets the image (or its margin): no misses, nothing made the reference way
             match (coarse, fine) {
                 (Some(texture), None) => texture.render(camera, texture_sampling, sky.miss, frame),
-                _ => draw(&self.clean, frame),
+                _ => draw(None, &mut self.pair, frame),
             }
             stats.blur.tiles = self.clean.len();
             return stats;
@@ -316,7 +323,7 @@ impl BackgroundRenderer {
             for ((r, &c), &n) in self.ring.iter_mut().zip(&self.clean).zip(&self.near) {
                 *r = (*r || whole) && c && !n;
             }
-            draw(&self.ring, frame);
+            draw(Some(&self.ring), &mut self.pair, frame);
             plane.render_tiles(camera, sky.sampling, sky.miss, t, &self.near, frame);
             for (r, &n) in self.ring.iter_mut().zip(&self.near) {
                 *r |= n;
@@ -327,7 +334,7 @@ impl BackgroundRenderer {
             render_dome(camera, sky.dome, frame, true, dome_tiles.then_some((t, &self.ring[..])));
         }
         stats.blur = self.convolver.apply_where_needed_in(kernel, frame, b.method, b.skip_below, Some(&self.rest));
-        draw(&self.clean, frame);
+        draw(None, &mut self.pair, frame);
         stats
     }
 }
@@ -615,9 +622,7 @@ mod tests {
         let base = SkyPlacement::paper_fig8();
         let wider = SkyPlacement { width_m: grow(base.width_m), height_m: grow(base.height_m), ..base };
         let eye = DVec3::new(0.0, 0.0, 8000.0);
-        let k = n + 2 * m;
-        let geometry = SkyPlane::new(SkyImage::from_f32(k, k, vec![0.0; k * k]).unwrap(), &wider, eye).unwrap();
-        let image = crate::imaging::sky_field::with_dome_margin(plane.image(), &geometry, m, eye, dome);
+        let image = crate::imaging::sky_field::with_dome_margin(&plane, m, eye, dome);
         let widened = SkyPlane::new(image, &wider, eye).unwrap();
         plane.with_dome_margin(DomeMargin { plane: widened, texels: m })
     }

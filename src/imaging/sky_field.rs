@@ -290,27 +290,26 @@ pub fn bake_layer(b: &LayerBake<'_>) -> Result<SkyImage, SkyError> {
     SkyImage::from_f32(bw, bh, out)
 }
 
-/// `image` with `margin` texels of the dome on every side: `plane` holds the widened image (any image of that
-/// size) where `image`'s texels keep their world points, and each margin texel is the dome's radiance toward its
-/// world point from `eye_m`, what a ray from there past the image's edge sees.
-pub fn with_dome_margin(
-    image: &SkyImage,
-    plane: &SkyPlane,
-    margin: usize,
-    eye_m: glam::DVec3,
-    dome: &Dome,
-) -> SkyImage {
+/// `plane`'s image with `margin` texels of the dome on every side, each of the image's texels where it was (texel
+/// `i` of the image is texel `i + margin` of the result): each margin texel is the dome's radiance toward its world
+/// point from `eye_m`, what a ray from there past the image's edge sees.
+pub fn with_dome_margin(plane: &SkyPlane, margin: usize, eye_m: glam::DVec3, dome: &Dome) -> SkyImage {
     use rayon::prelude::*;
+    let image = plane.image();
     let (w, h, stride) = (image.width(), image.height(), image.stride());
     let (bw, bh) = (w + 2 * margin, h + 2 * margin);
     let source = image.pixels();
+    let m = margin as f64;
     let mut out = vec![0f32; bw * bh];
     out.par_chunks_mut(bw).enumerate().for_each(|(y, row)| {
         let iy = y.checked_sub(margin).filter(|&iy| iy < h);
         for (x, texel) in row.iter_mut().enumerate() {
             *texel = match (x.checked_sub(margin).filter(|&ix| ix < w), iy) {
                 (Some(ix), Some(iy)) => source[iy * stride + ix],
-                _ => dome.radiance_toward(plane.world_point(DVec2::new(x as f64 + 0.5, y as f64 + 0.5)) - eye_m),
+                _ => {
+                    let p = plane.world_point(DVec2::new(x as f64 + 0.5 - m, y as f64 + 0.5 - m));
+                    dome.radiance_toward(p - eye_m)
+                }
             };
         }
     });

@@ -408,9 +408,8 @@ fn image_margin(
         return Ok(plane);
     }
     let wider = with_margin(placement, size, texels);
-    let place = |image: SkyImage| SkyPlane::new(image, &wider, eye).map_err(|e| setup("sky")(e.to_string()));
-    let geometry = place(SkyImage::from_finite(w, h, vec![0.0; w * h]))?;
-    let widened = place(with_dome_margin(plane.image(), &geometry, texels, eye, dome))?;
+    let widened = SkyPlane::new(with_dome_margin(&plane, texels, eye, dome), &wider, eye)
+        .map_err(|e| setup("sky")(e.to_string()))?;
     Ok(plane.with_dome_margin(DomeMargin { plane: widened, texels }))
 }
 
