@@ -1200,7 +1200,7 @@ const GUARDS: &[Guard] = &[
          the quadratic through each span within the tolerance of the exact coordinates",
     ),
     (
-        "normal deviates (Box–Muller sixteen pairs a register; ziggurat; table)",
+        "normal deviates (Box–Muller sixteen pairs an AVX-512 register, eight an AVX2 one; ziggurat; table)",
         "physics::random",
         &[
             ("src/physics/random.rs", "the_box_muller_fill_is_the_scalar_transform_bit_for_bit"),
@@ -1208,9 +1208,10 @@ const GUARDS: &[Guard] = &[
             ("src/physics/random.rs", "normal_deviates_follow_the_normal_law"),
             ("src/physics/random.rs", "every_16_bit_field_gives_the_scalar_deviate_in_a_run"),
         ],
-        "the vector fill the scalar transform bit for bit; its logarithm, sine and cosine against f64's; the table \
-         fill the scalar deviate for all 2¹⁶ fields in every lane; mean, variance, Kolmogorov–Smirnov distance and \
-         the tails beyond 2, 3, 3.5 and 4 σ on 2²¹ deviates of each sampler",
+        "the vector fills (AVX-512 and AVX2, where the CPU has them) the scalar transform bit for bit; its \
+         logarithm, sine and cosine against f64's; the table fill the scalar deviate for all 2¹⁶ fields in every \
+         lane; mean, variance, Kolmogorov–Smirnov distance and the tails beyond 2, 3, 3.5 and 4 σ on 2²¹ deviates \
+         of each sampler",
     ),
     (
         "detector readout (electrons, noise, gain, ADC, rounding, clamp)",
