@@ -12,7 +12,7 @@
 //!   stage.
 //! - `normal`: one standard normal deviate per pixel (Box–Muller on a counter-based hash, 24-bit uniforms, a
 //!   table-free logarithm and sine/cosine polynomials: the `box_muller` sampler's transform, sixteen pairs to
-//!   an AVX-512 register where the CPU has it) and the store.
+//!   an AVX-512 register, or eight to an AVX2 one, where the CPU has them) and the store.
 //! - `readout`: the detector on a frame in place: signal, a normal deviate, shot and read noise, the ADC,
 //!   rounding and clamping: the bound of the `noise` stage.
 //! - `fused`: bilinear sample → signal → noise → ADC → round, in one pass: the bound of a whole frame.
