@@ -1287,11 +1287,7 @@ mod x86 {
             let step: [i64; 8] = std::array::from_fn(|j| walk[j + 8].wrapping_sub(walk[j]));
             ([load(&walk[..4]), load(&walk[4..8])], [load(&step[..4]), load(&step[4..])], dd.wrapping_mul(64))
         };
-        // the low 32 bits of eight 64-bit lanes held in two vectors, in lane order
-        let low = |a: __m256i, b: __m256i| {
-            let pairs = _mm256_shuffle_ps::<0b10_00_10_00>(_mm256_castsi256_ps(a), _mm256_castsi256_ps(b));
-            _mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_castps_si256(pairs))
-        };
+        let low = crate::physics::simd::low_halves_256;
         let top_bits = _mm256_set1_epi32(0xff_ffff);
         let fraction = _mm256_set1_ps(1.0 / 16_777_216.0);
         let width = _mm256_set1_epi32(w as i32);

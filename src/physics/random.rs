@@ -759,11 +759,7 @@ mod x86 {
         let (mut lo, mut hi) =
             (_mm256_setr_epi64x(at(1), at(2), at(3), at(4)), _mm256_setr_epi64x(at(5), at(6), at(7), at(8)));
         let step = _mm256_set1_epi64x(SplitMix64::GAMMA.wrapping_mul(8) as i64);
-        // eight 64-bit lanes' low 32 bits (four in `a`, four in `b`) as eight i32 lanes, in order
-        let join = |a: __m256i, b: __m256i| {
-            let pairs = _mm256_shuffle_ps::<0b10_00_10_00>(_mm256_castsi256_ps(a), _mm256_castsi256_ps(b));
-            _mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_castps_si256(pairs))
-        };
+        let join = crate::physics::simd::low_halves_256;
         let ps = _mm256_set1_ps;
         let epi = _mm256_set1_epi32;
         let (u24, one, half) = (ps(U24), ps(1.0), ps(0.5));

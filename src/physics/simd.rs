@@ -404,6 +404,20 @@ unsafe fn window_fetch8(p: *const f32, at: std::arch::x86_64::__m256i) -> std::a
     _mm256_blendv_ps(_mm256_permutevar8x32_ps(low, at), _mm256_permutevar8x32_ps(high, at), upper)
 }
 
+/// The low 32 bits of eight 64-bit lanes held in two vectors (four in `a`, then four in `b`), as eight 32-bit
+/// lanes in that order.
+///
+/// # Safety
+/// Called from code not compiled with AVX2, the CPU must have it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub fn low_halves_256(a: std::arch::x86_64::__m256i, b: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let pairs = _mm256_shuffle_ps::<0b10_00_10_00>(_mm256_castsi256_ps(a), _mm256_castsi256_ps(b));
+    _mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_castps_si256(pairs))
+}
+
 /// Each of eight lanes' float at `index` and its right neighbour, in every row `rows[r]` floats on, with AVX2:
 /// where all of them lie within one window of 16 floats a row (`window8`), as along a row of a view at up to
 /// about two texels a pixel, two loads, two permutes and a blend per row and neighbour; else one 64-bit load of
