@@ -1,6 +1,6 @@
 //! A fast encoder for 16-bit grayscale PNG frames: one Huffman-only deflate block, its rows quantized,
-//! filtered, summed and coded a band of about [`PAUSE_BYTES`] at a time (the band is read again from the
-//! cache, and the encoder's buffers do not grow with the frame beyond its output). Where the whole frame was
+//! filtered, summed and coded a band of about [`PAUSE_BYTES`] at a time (each band coded while it is still in
+//! the cache, the filtered rows kept in a band's buffer, not the frame's). Where the whole frame was
 //! filtered first and then read twice more (Adler-32, coder), a noisy 640 × 512 frame encoded alone on one thread
 //! took as long, but beside the simulation on two cores the band saved memory traffic the simulation shares:
 //! sense_and_avoid (640 × 512) recorded at 312–392 frames/s, median 341, against 288–366, median 326 (12
@@ -33,20 +33,22 @@ const END_OF_BLOCK: usize = 256;
 const SAMPLE_BYTES: usize = 8 * 1024;
 /// PNG's `Sub` filter type, the first byte of every row.
 const FILTER_SUB: u8 = 1;
-/// [`Png16Encoder::encode_pausing`] pauses after about this many bytes of filtered data made, and again after
-/// they are coded (coding them took about 11 µs on an AMD EPYC with AVX2 and no AVX-512).
+/// [`Png16Encoder::encode_pausing`] pauses after about this many bytes of filtered data made and coded (coding
+/// them took about 11 µs on an AMD EPYC with AVX2 and no AVX-512); the first pause comes after the rows counted
+/// for the Huffman table too.
 pub const PAUSE_BYTES: usize = 16 * 1024;
 /// A stored deflate block holds at most this many bytes.
 const STORED_BLOCK_MAX: usize = 65_535;
 
-/// The encoder's buffers, kept from frame to frame: once the largest frame has been seen, encoding allocates
-/// nothing beyond what `out` needs.
+/// The encoder's buffers, kept from frame to frame: once the largest frame has been coded (and, where any frame
+/// is stored, the largest stored one), encoding allocates nothing beyond what `out` needs.
 #[derive(Debug, Default, Clone)]
 pub struct Png16Encoder {
     /// One row's quantized samples, big-endian (read as bytes, in the order PNG stores them).
     row: Vec<u16>,
-    /// Rows of the zlib stream's uncompressed data (each row's filter byte and filtered samples): a band of the
-    /// frame's while it is coded, the whole frame's where it is stored.
+    /// Rows of the zlib stream's uncompressed data (each row's filter byte and filtered samples): the rows
+    /// counted for the Huffman table, then a band of the frame's at a time as it is coded; the whole frame's
+    /// where it is stored.
     filtered: Vec<u8>,
     /// The deflate bit stream, written 8 bytes at a time (its length is only ever grown, never cleared).
     bits: Vec<u8>,
@@ -166,7 +168,6 @@ impl Png16Encoder {
         }
         let mut w = BitWriter { out: &mut self.bits[..bound], pos: 0, buf: 0, nbits: 0 };
         write_header(&mut w, &lengths);
-        // a multiple of 4: only the last piece has bytes left over from the quads
         #[cfg(target_arch = "x86_64")]
         let tables = x86::Tables::new(&code, &len, vbmi(), words());
         let mut adler = simd_adler32::Adler32::new();
@@ -174,21 +175,22 @@ impl Png16Encoder {
             let piece = &mut self.filtered[..src.len() / width * stride];
             filter_rows(src, piece, &mut self.row, max);
             adler.write(piece);
-            pause();
-            let piece = &*piece;
-            #[cfg(target_arch = "x86_64")]
-            if let Some(tables) = &tables {
-                // SAFETY: the CPU has what the tables were made for, checked by `vbmi` and `words`
-                unsafe { tables.code(piece, &code, &len, &mut w) };
-            } else if bmi2() {
-                // SAFETY: the CPU has BMI2, checked by `bmi2`
-                unsafe { code_bytes_bmi2(piece, &code, &len, &mut w) };
-            } else {
+            // coded at once, while the band is in the cache (in pieces of PAUSE_BYTES where a row is longer)
+            for piece in piece.chunks(PAUSE_BYTES) {
+                #[cfg(target_arch = "x86_64")]
+                if let Some(tables) = &tables {
+                    // SAFETY: the CPU has what the tables were made for, checked by `vbmi` and `words`
+                    unsafe { tables.code(piece, &code, &len, &mut w) };
+                } else if bmi2() {
+                    // SAFETY: the CPU has BMI2, checked by `bmi2`
+                    unsafe { code_bytes_bmi2(piece, &code, &len, &mut w) };
+                } else {
+                    code_bytes(piece, &code, &len, &mut w);
+                }
+                #[cfg(not(target_arch = "x86_64"))]
                 code_bytes(piece, &code, &len, &mut w);
+                pause();
             }
-            #[cfg(not(target_arch = "x86_64"))]
-            code_bytes(piece, &code, &len, &mut w);
-            pause();
         }
         w.put(code[END_OF_BLOCK], len[END_OF_BLOCK]);
         (w.finish(), adler.finish())
@@ -849,8 +851,10 @@ mod tests {
     fn frames_read_back_exactly_through_other_decoders() {
         let mut enc = Png16Encoder::new();
         let mut out = Vec::new();
-        for &(w, h, sigma) in &[(256, 256, 8.0), (640, 512, 3.0), (1, 1, 0.0), (1, 7, 5.0), (7, 1, 5.0), (3, 5, 900.0)]
-        {
+        // (8200 × 3: a row longer than a band's bytes, coded in pieces)
+        let sizes =
+            [(256, 256, 8.0), (640, 512, 3.0), (8200, 3, 5.0), (1, 1, 0.0), (1, 7, 5.0), (7, 1, 5.0), (3, 5, 900.0)];
+        for &(w, h, sigma) in &sizes {
             let px = sky(w, h, sigma, (w * h) as u32);
             enc.encode(&px, w, h, 16383, &mut out);
             assert_eq!(decode(&out), (w as u32, h as u32, reference(&px, 16383)), "{w}x{h}");
