@@ -34,7 +34,7 @@ use super::{FieldError, fe};
 use crate::imaging::background::SkyBlur;
 use crate::imaging::fusion::{Guidance, Solver};
 use crate::imaging::prefilter::TEXTURE_SPACING_PX;
-use crate::imaging::psf::{ConvolutionMethod, REGION_ENERGY_CUTOFF};
+use crate::imaging::psf::{ConvolutionMethod, MAX_RADIUS_PX, REGION_ENERGY_CUTOFF};
 use crate::imaging::sky_plane::{SPAN_TOLERANCE_PX, Sampling};
 use crate::imaging::target_blob::BlobSampling;
 use crate::imaging::target_psf::{self, TargetMethod};
@@ -158,6 +158,10 @@ pub struct Quality {
     /// Spacing of the quadrature's nodes in a target's ellipse (rings, or columns and the nodes along them), px
     /// (every method; `auto` and `rings` take seven points instead for ellipses smaller than the PSF).
     pub target_node_spacing_px: f64,
+    /// Radius of the PSF's core drawn at each of a target's nodes, px: beyond it the PSF's tail is drawn once from
+    /// the nodes binned to pixels, between its whole-pixel samples taken as bilinear (at 4 px within 6.5e-4 of a
+    /// point's peak on an F/4 MWIR PSF; 0, or a core as large as the kernel: the whole PSF at each node).
+    pub target_psf_core_px: usize,
     /// Pixel sampling of the paper's blob model.
     pub blob_sampling: BlobSampling,
     /// The paper's blob is cut where it falls below this fraction of its peak.
@@ -224,6 +228,7 @@ impl Quality {
             image_margin_px: IMAGE_MARGIN_PX,
             target_method: TargetMethod::Auto,
             target_node_spacing_px: target_psf::NODE_SPACING_PX,
+            target_psf_core_px: 0,
             blob_sampling: BlobSampling::Auto,
             blob_roi_fraction: 1e-3,
             poisson_normal_threshold_e: 100.0,
@@ -284,6 +289,7 @@ impl Quality {
                 layer_margin_px: 0.0,
                 image_margin_px: 0.0,
                 target_node_spacing_px: DRAFT_TARGET_NODE_SPACING_PX,
+                target_psf_core_px: 0,
                 blob_sampling: BlobSampling::Point,
                 blob_roi_fraction: 1e-2,
                 poisson_normal_threshold_e: 10.0,
@@ -343,7 +349,7 @@ impl Default for Quality {
 }
 
 /// The switches' names, in the order of the table.
-pub const SWITCHES: [&str; 33] = [
+pub const SWITCHES: [&str; 34] = [
     "preset",
     "sky_sampling",
     "span_tolerance_px",
@@ -363,6 +369,7 @@ pub const SWITCHES: [&str; 33] = [
     "image_margin_px",
     "target_method",
     "target_node_spacing_px",
+    "target_psf_core_px",
     "blob_sampling",
     "blob_roi_fraction",
     "poisson_normal_threshold_e",
@@ -427,6 +434,8 @@ pub const MAX_ATMOSPHERE_TOLERANCE: f64 = 0.2;
 /// The draft preset's `target_node_spacing_px`: on crossing_pair a quarter of the nodes of 0.3 px (targets
 /// stage 117 -> 34 µs a frame), pixels moved by at most 4.6 DN (noise off, 30 frames).
 pub const DRAFT_TARGET_NODE_SPACING_PX: f64 = 0.6;
+/// The draft preset's `target_psf_core_px`: within 2.4e-3 of a point's peak on an F/4 MWIR PSF (`split_psf_error`).
+pub const DRAFT_TARGET_PSF_CORE_PX: usize = 3;
 /// The draft preset's `background_step_px`.
 pub const DRAFT_BACKGROUND_STEP_PX: usize = 2;
 /// Largest `background_step_px`.
@@ -523,6 +532,9 @@ pub struct QualitySpec {
     /// See [`Quality::target_node_spacing_px`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_node_spacing_px: Option<f64>,
+    /// See [`Quality::target_psf_core_px`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_psf_core_px: Option<usize>,
     /// See [`Quality::blob_sampling`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub blob_sampling: Option<BlobSampling>,
@@ -611,6 +623,7 @@ impl QualitySpec {
             image_margin_px,
             target_method,
             target_node_spacing_px,
+            target_psf_core_px,
             blob_sampling,
             blob_roi_fraction,
             poisson_normal_threshold_e,
@@ -644,6 +657,12 @@ impl QualitySpec {
         }
         range("psf_energy_cutoff", q.psf_energy_cutoff, MIN_ENERGY_CUTOFF, 0.2, "")?;
         range("target_node_spacing_px", q.target_node_spacing_px, 0.01, 2.0, " px")?;
+        if q.target_psf_core_px > MAX_RADIUS_PX {
+            return Err(fe(
+                "quality.target_psf_core_px",
+                format!("{} must be in 0 … {MAX_RADIUS_PX} px", q.target_psf_core_px),
+            ));
+        }
         range("region_energy_cutoff", q.region_energy_cutoff, REGION_ENERGY_CUTOFF, 0.2, "")?;
         range("psf_skip_below_dn", q.psf_skip_below_dn, 0.0, 1e6, " DN")?;
         range("fusion_skip_below_sigma", q.fusion_skip_below_sigma, 0.0, 100.0, " σ")?;
@@ -771,6 +790,7 @@ mod tests {
             ("reflection_skip_below_dn = -1", "quality.reflection_skip_below_dn"),
             ("background_step_px = 0", "quality.background_step_px"),
             ("background_step_px = 9", "quality.background_step_px"),
+            ("target_psf_core_px = 13", "quality.target_psf_core_px"),
             ("view_shift_tolerance_px = -0.1", "quality.view_shift_tolerance_px"),
             ("view_shift_tolerance_px = 3", "quality.view_shift_tolerance_px"),
             ("view_shift_tolerance_px = nan", "quality.view_shift_tolerance_px"),
@@ -799,6 +819,9 @@ mod tests {
         }
         assert!(toml::from_str::<QualitySpec>("preset = \"best\"").is_err());
         assert!(toml::from_str::<QualitySpec>("psf_cutoff = 0.1").is_err());
+        for text in ["target_psf_core_px = -1", "target_psf_core_px = 2.5", "target_psf_core_px = \"4\""] {
+            assert!(toml::from_str::<QualitySpec>(text).is_err(), "{text}");
+        }
         // a grid of three numbers is not read as its first two
         assert!(toml::from_str::<QualitySpec>("reflection_grid = [24, 48, 3]").is_err());
     }

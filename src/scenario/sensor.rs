@@ -290,6 +290,8 @@ pub struct BlobSettings {
     pub method: TargetMethod,
     /// Spacing of its ring nodes, px.
     pub node_spacing_px: f64,
+    /// Radius of the PSF's core drawn at each node, px (0: the whole PSF).
+    pub core_px: usize,
     /// Paper model: minimum blur, px.
     pub min_blur_px: f64,
     /// Paper model: shape exponent β (2 = Gaussian).
@@ -303,7 +305,12 @@ pub struct BlobSettings {
 impl BlobSettings {
     /// The PSF-model quadrature settings.
     pub fn target_psf(&self) -> TargetPsfSpec {
-        TargetPsfSpec { method: self.method, node_spacing_px: self.node_spacing_px, ..TargetPsfSpec::default() }
+        TargetPsfSpec {
+            method: self.method,
+            node_spacing_px: self.node_spacing_px,
+            core_px: self.core_px,
+            ..TargetPsfSpec::default()
+        }
     }
 }
 
@@ -586,6 +593,7 @@ impl SensorSpec {
                 model: b.model,
                 method: quality.target_method,
                 node_spacing_px: quality.target_node_spacing_px,
+                core_px: quality.target_psf_core_px,
                 min_blur_px: b.min_blur_px,
                 beta: b.beta,
                 roi_fraction: quality.blob_roi_fraction,
