@@ -136,7 +136,7 @@ fn many_targets_labels_are_the_same_on_any_number_of_threads() {
 /// the hashes with the values printed in the failure message, and say why in the commit. If the change was not
 /// meant to change frames, the failure is a regression.
 const GOLDEN_PAPER_CLEAR_SKY: [u64; 3] =
-    [2_710_086_713_881_133_975, 11_499_278_531_379_972_605, 14_067_572_896_111_988_700];
+    [17_401_206_757_401_501_791, 3_635_925_070_505_861_980, 2_463_220_188_573_473_697];
 
 #[test]
 fn golden_frame_hashes() {
