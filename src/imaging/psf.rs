@@ -15,7 +15,8 @@
 //!
 //! Three products are kept:
 //! - a fine table of the PSF (1/32 px spacing, bilinear lookups) for targets, which are rendered analytically
-//!   at their sub-pixel position ([`Psf::value`]);
+//!   at their sub-pixel position ([`Psf::value`]), and on demand the same split into a core and a tail
+//!   ([`SplitPsf`]), for targets of many quadrature nodes;
 //! - a pixel kernel for a frame of point samples (the bilinear or nearest sky): the PSF convolved with the
 //!   linear interpolant's tent, sampled at integer offsets — exact for the piecewise-linear interpolant of the
 //!   samples ([`Psf::point_kernel`]);
@@ -157,7 +158,7 @@ pub struct Psf {
     /// stored by sub-pixel phase ([`PhaseTable`]).
     fine: PhaseTable,
     /// The PSF split into a core and a tail ([`SplitPsf`]), made when first asked for, by the core's radius.
-    splits: [std::sync::OnceLock<Option<SplitPsf>>; MAX_RADIUS_PX + 1],
+    splits: [std::sync::OnceLock<SplitPsf>; MAX_RADIUS_PX + 1],
     point: Kernel,
     area: Kernel,
     fwhm_px: f64,
@@ -280,14 +281,7 @@ impl Psf {
                 } else {
                     (dx as f64).hypot(dy as f64) / FINE_PER_PX as f64
                 };
-                let taper = if r <= inner {
-                    1.0
-                } else if r >= outer {
-                    0.0
-                } else {
-                    0.5 * (1.0 + (std::f64::consts::PI * (r - inner) / (outer - inner)).cos())
-                };
-                fine.push((f64::from(grid[y * n + x]) * taper) as f32);
+                fine.push((f64::from(grid[y * n + x]) * raised_cosine(r, inner, outer)) as f32);
             }
         }
         let h2 = 1.0 / (FINE_PER_PX * FINE_PER_PX) as f64;
@@ -409,7 +403,7 @@ impl Psf {
         if core_radius_px == 0 || core_radius_px >= self.radius {
             return None;
         }
-        self.splits[core_radius_px].get_or_init(|| Some(SplitPsf::new(self, core_radius_px))).as_ref()
+        Some(self.splits[core_radius_px].get_or_init(|| SplitPsf::new(self, core_radius_px)))
     }
 
     /// Kernel for a frame of point samples (nearest or bilinear sky).
@@ -427,6 +421,17 @@ impl Psf {
         let h2 = 1.0 / (FINE_PER_PX * FINE_PER_PX) as f64;
         let side = self.fine.side;
         (0..side).flat_map(|y| (0..side).map(move |x| (x, y))).map(|(x, y)| f64::from(self.fine.at(x, y)) * h2).sum()
+    }
+}
+
+/// A raised cosine at `r`: 1 up to `inner`, 0 from `outer` on, `½(1 + cos(π(r − inner)/(outer − inner)))` between.
+fn raised_cosine(r: f64, inner: f64, outer: f64) -> f64 {
+    if r <= inner {
+        1.0
+    } else if r >= outer {
+        0.0
+    } else {
+        0.5 * (1.0 + (std::f64::consts::PI * (r - inner) / (outer - inner)).cos())
     }
 }
 
@@ -588,8 +593,7 @@ impl PhaseTable {
 pub const SPLIT_TAPER_PX: f64 = 2.0;
 
 /// The PSF split in two for drawing many point sources at once (a target's quadrature nodes): the core, the PSF
-/// within `r` px of the source (times a raised cosine falling from 1 to 0 over its last [`SPLIT_TAPER_PX`], out to
-/// `r + ½`), added at each source's exact sub-pixel position like the whole table ([`PhaseTable`]); and the tail,
+/// within `r + ½` px of the source (times a raised cosine falling from 1 to 0 over its last [`SPLIT_TAPER_PX`]), added at each source's exact sub-pixel position like the whole table ([`PhaseTable`]); and the tail,
 /// the rest (the PSF times one minus that taper), sampled at whole-pixel offsets, added from the sources' weights
 /// binned to the pixel grid (each shared bilinearly among the four pixel centres around it) — the tail between
 /// its whole-pixel samples taken as bilinear. The two add up to the PSF; the tail is smooth on the pixel scale
@@ -612,15 +616,7 @@ impl SplitPsf {
         let centre = (psf.fine.side / 2) as isize;
         let outer = core_radius as f64 + 0.5;
         let inner = (outer - SPLIT_TAPER_PX).max(0.0);
-        let taper = |r: f64| {
-            if r <= inner {
-                1.0
-            } else if r >= outer {
-                0.0
-            } else {
-                0.5 * (1.0 + (std::f64::consts::PI * (r - inner) / (outer - inner)).cos())
-            }
-        };
+        let taper = |r: f64| raised_cosine(r, inner, outer);
         let at = |dx: isize, dy: isize| f64::from(psf.fine.at((centre + dx) as usize, (centre + dy) as usize));
         let half = (core_radius * FINE_PER_PX + FINE_PER_PX / 2) as isize;
         let side = (2 * half + 1) as usize;

@@ -6,7 +6,9 @@
 //! fitted width and shape of the blob change with range and attitude as they do in real imagery.
 //!
 //! The integral is a quadrature: each node a point source of its share of the area, looked up in the PSF's
-//! fine table at its exact sub-pixel position and added to the pixels within the PSF's reach.
+//! fine table at its exact sub-pixel position and added to the pixels within the PSF's reach; or, with
+//! [`TargetPsfSpec::core_px`] (the standard preset's 4 px), only the PSF's core added so, and its tail once from
+//! the nodes binned to pixels ([`SplitPsf`]).
 //! - An ellipse smaller than the PSF (semi-major axis up to [`TargetPsfSpec::seven_point_max_px`]) takes
 //!   Radon's seven-point rule for the disk mapped onto it (the centre with weight ¼, six points at radius
 //!   √(2/3) with ⅛ each; exact for polynomials to degree 5), or its centre alone when it is under a hundredth
@@ -95,9 +97,17 @@ const COLUMNS_MIN_ELONGATION: f64 = 1.25;
 /// Most quadrature nodes of one target; beyond it the spacing grows (a very near target).
 const MAX_NODES: usize = 40_000;
 
-/// How far a node's point source reaches, px: the PSF's radius and a pixel.
+/// How far a node's point source reaches, px: the PSF's radius and a pixel. The nodes left out as deep are
+/// those deeper than twice this: with a split PSF ([`SplitPsf`]) the tail, read bilinearly between its samples,
+/// reaches up to a pixel further along a diagonal than the whole PSF, where it is under 0.75 of the PSF at its
+/// kernel's radius (tapered there), so what it could leave out of a pixel that is not deep is negligible.
 fn reach_px(psf: &Psf) -> f64 {
-    psf.radius_px() as f64 + 1.0
+    table_reach_px(psf.points())
+}
+
+/// How far a point source of a table reaches, px: its radius and a pixel.
+fn table_reach_px(table: &PhaseTable) -> f64 {
+    table.radius_px() as f64 + 1.0
 }
 
 /// The pixels the target's image covers: the ellipse's box grown by the PSF's region radius
@@ -449,7 +459,7 @@ fn scatter_nodes(
     out[..rows * w].par_chunks_mut(band_rows * w).enumerate().for_each(|(b, band)| {
         let (y0, y1) = (rect.y0 + b * band_rows, (rect.y0 + (b + 1) * band_rows).min(rect.y1));
         // a node reaches the rows within the table's reach of it (as scatter clips them)
-        let reach = table.radius_px() as f64 + 1.0;
+        let reach = table_reach_px(table);
         for &(x, y, weight) in nodes {
             if y + reach > y0 as f64 - 1.0 && y - reach < y1 as f64 + 1.0 {
                 scatter(table, x, y, weight, rect, y0..y1, band);
@@ -474,7 +484,7 @@ fn scatter(
     rows: std::ops::Range<usize>,
     out: &mut [f32],
 ) {
-    let reach = table.radius_px() as f64 + 1.0;
+    let reach = table_reach_px(table);
     let lo = |v: f64, min: usize| ((v - reach).floor().max(min as f64)) as usize;
     let hi = |v: f64, max: usize| ((v + reach).ceil().max(0.0) as usize).min(max);
     let (px0, px1) = (lo(x, rect.x0), hi(x, rect.x1));
@@ -507,30 +517,32 @@ impl Bins {
     /// Bins `nodes` on the pixels whose tail, `radius` px wide, may reach `rect` (the others are left out: they
     /// add nothing to it).
     fn bin(&mut self, nodes: &[(f64, f64, f32)], rect: PixelRect, radius: usize) {
-        // the pixel whose centre is at or before a coordinate, and the fraction of a pixel past it
-        let cell = |v: f64| {
+        let r = radius as f64;
+        let (lo_x, hi_x) = (rect.x0 as f64 - r, rect.x1 as f64 + r);
+        let (lo_y, hi_y) = (rect.y0 as f64 - r, rect.y1 as f64 + r);
+        // the pixel whose centre is at or before a coordinate, and the fraction of a pixel past it; a node whose
+        // four pixels all lie outside the bins' reach (or a coordinate that is not finite) is left out, before the
+        // coordinate is made an integer
+        let cell = |v: f64, lo: f64, hi: f64| {
             let f = (v - 0.5).floor();
-            (f as isize, (v - 0.5 - f) as f32)
+            (f >= lo - 1.0 && f <= hi).then_some((f as isize, (v - 0.5 - f) as f32))
         };
-        let r = radius as isize;
-        let (lo_x, hi_x) = (rect.x0 as isize - r, rect.x1 as isize + r);
-        let (lo_y, hi_y) = (rect.y0 as isize - r, rect.y1 as isize + r);
+        let at = |&(x, y, _): &(f64, f64, f32)| cell(x, lo_x, hi_x).zip(cell(y, lo_y, hi_y));
         let (mut x0, mut y0, mut x1, mut y1) = (isize::MAX, isize::MAX, isize::MIN, isize::MIN);
-        for &(x, y, _) in nodes {
-            let ((i, _), (j, _)) = (cell(x), cell(y));
+        for ((i, _), (j, _)) in nodes.iter().filter_map(at) {
             (x0, y0, x1, y1) = (x0.min(i), y0.min(j), x1.max(i + 1), y1.max(j + 1));
         }
-        (x0, y0, x1, y1) = (x0.max(lo_x), y0.max(lo_y), x1.min(hi_x), y1.min(hi_y));
+        (x0, y0) = (x0.max(lo_x as isize), y0.max(lo_y as isize));
+        (x1, y1) = (x1.min(hi_x as isize), y1.min(hi_y as isize));
+        self.values.clear();
         if x0 > x1 || y0 > y1 {
             (self.w, self.h) = (0, 0);
-            self.values.clear();
             return;
         }
         (self.x0, self.y0, self.w, self.h) = (x0, y0, (x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize);
-        self.values.clear();
         self.values.resize(self.w * self.h, 0.0);
-        for &(x, y, weight) in nodes {
-            let ((i, tx), (j, ty)) = (cell(x), cell(y));
+        for (node, ((i, tx), (j, ty))) in nodes.iter().filter_map(|n| at(n).map(|c| (n, c))) {
+            let weight = node.2;
             for (di, dj, share) in
                 [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
             {
@@ -591,16 +603,25 @@ mod tests {
     use crate::physics::planck::{Band, Measure};
     use glam::DVec2;
 
-    fn psf() -> Psf {
-        let optics = PsfOptics {
+    /// A fast LWIR lens: F/1, 12 µm pixels, 7.5–13.5 µm.
+    fn lwir() -> PsfOptics {
+        PsfOptics {
             f_number: 1.0,
             pixel_pitch_m: 12e-6,
             fill_factor: 1.0,
             band: Band::try_new(7.5, 13.5).unwrap(),
             measure: Measure::Energy,
             reference_temp_k: 300.0,
-        };
-        Psf::new(&PsfSpec::default(), &optics).unwrap()
+        }
+    }
+
+    /// A slow MWIR lens: F/4, 15 µm pixels, 3–5 µm.
+    fn mwir() -> PsfOptics {
+        PsfOptics { f_number: 4.0, pixel_pitch_m: 15e-6, band: Band::MWIR_3_5, ..lwir() }
+    }
+
+    fn psf() -> Psf {
+        Psf::new(&PsfSpec::default(), &lwir()).unwrap()
     }
 
     fn render(e: &ImageEllipse, psf: &Psf, method: TargetMethod) -> (PixelRect, Vec<f32>) {
@@ -609,9 +630,8 @@ mod tests {
         // the reference at the reference preset's spacing
         let node_spacing_px =
             if method == TargetMethod::Reference { REFERENCE_NODE_SPACING_PX } else { NODE_SPACING_PX };
-        // the reference draws the whole PSF at every node
-        let core_px = if method == TargetMethod::Reference { 0 } else { CORE_PX };
-        let spec = TargetPsfSpec { method, node_spacing_px, core_px, ..TargetPsfSpec::default() };
+        // the whole PSF at every node: the quadrature's own error (the split's is measured apart)
+        let spec = TargetPsfSpec { method, node_spacing_px, core_px: 0, ..TargetPsfSpec::default() };
         render_target(e, 1.0, psf, &spec, rect, &mut out, false);
         (rect, out)
     }
@@ -677,7 +697,7 @@ mod tests {
             let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a, b, angle_rad: 0.5 };
             let rect = psf_region(&e, &psf, 200, 200);
             let mut got = vec![0.0; rect.width() * rect.height()];
-            let spec = TargetPsfSpec { node_spacing_px: 0.6, ..TargetPsfSpec::default() };
+            let spec = TargetPsfSpec { node_spacing_px: 0.6, core_px: 0, ..TargetPsfSpec::default() };
             render_target(&e, 1.0, &psf, &spec, rect, &mut got, false);
             let (_, want) = render(&e, &psf, TargetMethod::Reference);
             let peak = want.iter().fold(0.0f32, |m, v| m.max(*v));
@@ -758,7 +778,8 @@ mod tests {
             for threads in [2, 3] {
                 let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
                 let mut got = vec![0.0; rect.width() * rect.height()];
-                let spec = TargetPsfSpec::default();
+                // the whole PSF at each node, as `render` draws it (the split's own test follows)
+                let spec = TargetPsfSpec { core_px: 0, ..TargetPsfSpec::default() };
                 pool.install(|| render_target(&e, 1.0, &psf, &spec, rect, &mut got, true));
                 assert!(got.iter().zip(&alone).all(|(g, w)| g.to_bits() == w.to_bits()), "{a} × {b}, {threads}");
             }
@@ -768,23 +789,14 @@ mod tests {
     #[test]
     fn columns_are_as_close_to_the_reference_as_rings() {
         // elongated ellipses, on a fast LWIR PSF (F/1, 12 µm) and a slow MWIR one (F/4, 15 µm)
-        let mwir = PsfOptics {
-            f_number: 4.0,
-            pixel_pitch_m: 15e-6,
-            fill_factor: 1.0,
-            band: Band::MWIR_3_5,
-            measure: Measure::Energy,
-            reference_temp_k: 300.0,
-        };
         let mut worst = [0.0f32; 2];
-        for psf in [psf(), Psf::new(&PsfSpec::default(), &mwir).unwrap()] {
+        for psf in [psf(), Psf::new(&PsfSpec::default(), &mwir()).unwrap()] {
             for (a, b) in [(1.2, 0.6), (3.0, 0.4), (5.8, 1.25), (6.0, 3.0), (15.0, 9.0), (20.0, 2.0)] {
                 let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a, b, angle_rad: 0.5 };
                 let rect = psf_region(&e, &psf, 200, 200);
                 let draw = |method: TargetMethod, node_spacing_px: f64| {
                     let mut out = vec![0.0; rect.width() * rect.height()];
-                    let core_px = if node_spacing_px == REFERENCE_NODE_SPACING_PX { 0 } else { CORE_PX };
-                    let spec = TargetPsfSpec { method, node_spacing_px, core_px, ..TargetPsfSpec::default() };
+                    let spec = TargetPsfSpec { method, node_spacing_px, core_px: 0, ..TargetPsfSpec::default() };
                     render_target(&e, 1.0, &psf, &spec, rect, &mut out, false);
                     out
                 };
@@ -863,23 +875,15 @@ mod tests {
     /// at 1 % of the energy (the standard preset's: 11 and 12 px).
     fn standard_cut_psfs() -> Vec<(&'static str, Psf)> {
         let spec = PsfSpec { energy_cutoff: 0.01, ..PsfSpec::default() };
-        let lwir = PsfOptics {
-            f_number: 1.0,
-            pixel_pitch_m: 12e-6,
-            fill_factor: 1.0,
-            band: Band::try_new(7.5, 13.5).unwrap(),
-            measure: Measure::Energy,
-            reference_temp_k: 300.0,
-        };
-        let mwir = PsfOptics { f_number: 4.0, pixel_pitch_m: 15e-6, band: Band::MWIR_3_5, ..lwir };
-        vec![("LWIR F/1", Psf::new(&spec, &lwir).unwrap()), ("MWIR F/4", Psf::new(&spec, &mwir).unwrap())]
+        vec![("LWIR F/1", Psf::new(&spec, &lwir()).unwrap()), ("MWIR F/4", Psf::new(&spec, &mwir()).unwrap())]
     }
 
     #[test]
     fn split_psf_error() {
         // a point source at sub-pixel positions across a pixel, drawn with the whole PSF and split at a core of
         // 3 and 4 px; the largest difference against the point's peak, and of the flux. Measured: at 4 px 4.5e-4
-        // (LWIR) and 6.5e-4 (MWIR) of the peak, the flux within 3.5e-4; at 3 px 1.5e-3 and 2.4e-3, 1.4e-3
+        // (LWIR) and 6.5e-4 (MWIR) of the peak, the flux within 3.5e-4; at 3 px 1.5e-3 and 2.4e-3 of the peak,
+        // the flux within 1.4e-3
         for (name, psf) in standard_cut_psfs() {
             for (core, bound) in [(3, 2.5e-3), (4, 7e-4)] {
                 let split = psf.split(core).expect("a core smaller than the kernel");
@@ -901,18 +905,33 @@ mod tests {
                     "{name} (R = {} px), core {core} px: {worst:.2e} of the peak, flux {flux_worst:.2e}",
                     psf.radius_px()
                 );
-                assert!(worst < bound && flux_worst < 1.5e-3, "{name}, core {core}: {worst} of the peak");
+                assert!(
+                    worst < bound && flux_worst < 2e-3,
+                    "{name}, core {core}: {worst} of the peak, flux {flux_worst}"
+                );
             }
         }
     }
 
     #[test]
     fn split_targets_are_close_to_the_whole_psf() {
-        // ellipses of every quadrature drawn with the whole PSF at each node and split at the standard core
+        // ellipses of every quadrature drawn with the whole PSF at each node and split at the standard core, one
+        // deep enough for nodes to be left out (60 × 40), and one cut by the frame's edge (its centre 2 px
+        // inside)
         for (name, psf) in standard_cut_psfs() {
             let mut worst = 0.0f32;
-            for (a, b) in [(0.3, 0.2), (1.2, 0.6), (2.0, 1.9), (5.8, 1.25), (15.0, 9.0), (20.0, 2.0)] {
-                let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a, b, angle_rad: 0.5 };
+            let centre = DVec2::new(100.37, 100.81);
+            for (a, b, center) in [
+                (0.3, 0.2, centre),
+                (1.2, 0.6, centre),
+                (2.0, 1.9, centre),
+                (5.8, 1.25, centre),
+                (15.0, 9.0, centre),
+                (20.0, 2.0, centre),
+                (60.0, 40.0, centre),
+                (5.8, 1.25, DVec2::new(2.3, 197.6)),
+            ] {
+                let e = ImageEllipse { center, a, b, angle_rad: 0.5 };
                 let rect = psf_region(&e, &psf, 200, 200);
                 let draw = |core_px: usize| {
                     let mut out = vec![0.0; rect.width() * rect.height()];
@@ -943,8 +962,9 @@ mod tests {
             pool.install(|| render_target(&e, 1.0, psf, &spec, rect, &mut out, spread));
             out
         };
-        let one = draw(1, false);
-        assert_eq!(draw(2, true), one);
-        assert_eq!(draw(3, true), one);
+        let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
+        let one = bits(draw(1, false));
+        assert_eq!(bits(draw(2, true)), one);
+        assert_eq!(bits(draw(3, true)), one);
     }
 }

@@ -435,7 +435,9 @@ pub const MAX_ATMOSPHERE_TOLERANCE: f64 = 0.2;
 /// The draft preset's `target_node_spacing_px`: on crossing_pair a quarter of the nodes of 0.3 px (targets
 /// stage 117 -> 34 µs a frame), pixels moved by at most 4.6 DN (noise off, 30 frames).
 pub const DRAFT_TARGET_NODE_SPACING_PX: f64 = 0.6;
-/// The draft preset's `target_psf_core_px`: within 2.4e-3 of a point's peak on an F/4 MWIR PSF (`split_psf_error`).
+/// The draft preset's `target_psf_core_px`: within 2.4e-3 of a point's peak on an F/4 MWIR PSF cut at 12 px
+/// (`split_psf_error`). Draft's own `psf_energy_cutoff` gives kernels no larger than the core on the shipped lenses,
+/// so it splits only where the cut-off is set finer.
 pub const DRAFT_TARGET_PSF_CORE_PX: usize = 3;
 /// The draft preset's `background_step_px`.
 pub const DRAFT_BACKGROUND_STEP_PX: usize = 2;
