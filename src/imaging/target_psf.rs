@@ -405,14 +405,18 @@ thread_local! {
 const BAND_ROWS: usize = 32;
 /// Fewest nodes worth splitting a patch for.
 const BAND_MIN_NODES: usize = 2_000;
-/// Fewest nodes worth splitting a patch drawn alone across the pool's threads (each band goes through every
-/// node that reaches it, so a band of few rows repeats most nodes' set-up): measured with rings, supersonic_climb's
-/// 1233-node target went from 331–332 to 251–257 µs a frame on two threads, while two targets of 800–1200 nodes
-/// drawn side by side (crossing_pair) lost 278–304 → 336–347 µs when split as well. Columns give the first 368
-/// nodes, and the split still pays: targets stage 121–123 µs split against 138–144 not split (`irsim bench
-/// --frames 1000`, three interleaved rounds, one of them too noisy to count; paper_clear_sky's target the same
-/// either way).
-const SPREAD_MIN_NODES: usize = 300;
+/// Least work worth splitting a patch drawn alone across the pool's threads, in pixels written: the nodes times
+/// the `(2r + 2)²` pixels each writes from a table of radius `r` ([`worth_spreading`]). Each band goes through every
+/// node that reaches it, so a band of few rows repeats most nodes' set-up. Measured with the whole PSF at each node
+/// (a 12 px kernel, 676 pixels a node): with rings, supersonic_climb's 1233-node target went from 331–332 to
+/// 251–257 µs a frame on two threads, while two targets of 800–1200 nodes drawn side by side (crossing_pair) lost
+/// 278–304 → 336–347 µs when split as well; its 368 nodes from columns still paid, targets stage 121–123 µs split
+/// against 138–144 not split (`irsim bench --frames 1000`, three interleaved rounds, one of them too noisy to count;
+/// paper_clear_sky's target the same either way). With the PSF split at a core of 4 px (100 pixels a node) the same
+/// 368 nodes no longer paid: 120–130 µs split against 85–91 not split, and 971–1003 against 992–1046 frames/s
+/// (`irsim bench S --frames 1500`, four alternating rounds). So the bound is in work, 300 nodes of the whole 12 px
+/// kernel.
+const SPREAD_MIN_WORK: usize = 300 * 26 * 26;
 /// Fewest rows of a band of a patch split across the threads.
 const SPREAD_MIN_ROWS: usize = 8;
 
@@ -420,7 +424,7 @@ const SPREAD_MIN_ROWS: usize = 8;
 /// `split` its core at each node and its tail once from the nodes binned to pixels ([`add_tail`]). A patch of many
 /// nodes and rows is split into bands of [`BAND_ROWS`] rows, filled in parallel, each from the nodes that reach it
 /// in their order, where one large target had filled its patch on one thread; with `spread`, a patch of fewer (at
-/// least [`SPREAD_MIN_NODES`] nodes and twice [`SPREAD_MIN_ROWS`] rows) into bands of one thread's share of the
+/// least [`SPREAD_MIN_WORK`] and twice [`SPREAD_MIN_ROWS`] rows) into bands of one thread's share of the
 /// rows, [`SPREAD_MIN_ROWS`] at least. Every pixel gets the same sums, to the bit, as from one pass, however the
 /// rows are split.
 fn scatter_nodes(
@@ -444,7 +448,7 @@ fn scatter_nodes(
     let threads = rayon::current_num_threads();
     let band_rows = if nodes.len() >= BAND_MIN_NODES && rows >= 2 * BAND_ROWS {
         BAND_ROWS
-    } else if spread && threads > 1 && nodes.len() >= SPREAD_MIN_NODES && rows >= 2 * SPREAD_MIN_ROWS {
+    } else if spread && threads > 1 && worth_spreading(table, nodes.len(), rows) {
         rows.div_ceil(threads).max(SPREAD_MIN_ROWS)
     } else {
         for &(x, y, weight) in nodes {
@@ -470,6 +474,13 @@ fn scatter_nodes(
         }
     });
     BINS.set(bins);
+}
+
+/// Whether a patch of `nodes` nodes of `table` and `rows` rows, drawn alone, is worth splitting across the pool's
+/// threads ([`SPREAD_MIN_WORK`], [`SPREAD_MIN_ROWS`]).
+fn worth_spreading(table: &PhaseTable, nodes: usize, rows: usize) -> bool {
+    let per_node = (2 * table.radius_px() + 2).pow(2);
+    nodes * per_node >= SPREAD_MIN_WORK && rows >= 2 * SPREAD_MIN_ROWS
 }
 
 /// Adds a point source of `weight` px² at `(x, y)` to the pixels of `rect` within the table's reach, on the rows
@@ -766,21 +777,22 @@ mod tests {
 
     #[test]
     fn a_patch_spread_across_threads_is_the_patch_drawn_on_one() {
-        // supersonic_climb's target (some 370 nodes, 30 rows) and a smaller one, split into bands on pools of
-        // two and three threads: every pixel the same, to the bit, as drawn in one pass
-        let psf = psf();
+        // supersonic_climb's target (some 370 nodes, 30 rows) and a smaller one on its F/4 MWIR PSF (a 12 px
+        // kernel, drawn whole at each node), split into bands on pools of two and three threads: every pixel the
+        // same, to the bit, as drawn in one pass
+        let psf = &standard_cut_psfs()[1].1;
         for (a, b) in [(5.83, 1.25), (4.0, 2.5)] {
             let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a, b, angle_rad: 0.3 };
-            let (rect, alone) = render(&e, &psf, TargetMethod::Auto);
+            let (rect, alone) = render(&e, psf, TargetMethod::Auto);
             let mut nodes = 0;
-            column_nodes(&e, &psf, NODE_SPACING_PX, 0.6, |_, _, _| nodes += 1);
-            assert!(nodes >= SPREAD_MIN_NODES && rect.height() >= 2 * SPREAD_MIN_ROWS, "{nodes} nodes");
+            column_nodes(&e, psf, NODE_SPACING_PX, 0.6, |_, _, _| nodes += 1);
+            assert!(worth_spreading(psf.points(), nodes, rect.height()), "{nodes} nodes");
             for threads in [2, 3] {
                 let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
                 let mut got = vec![0.0; rect.width() * rect.height()];
                 // the whole PSF at each node, as `render` draws it (the split's own test follows)
                 let spec = TargetPsfSpec { core_px: 0, ..TargetPsfSpec::default() };
-                pool.install(|| render_target(&e, 1.0, &psf, &spec, rect, &mut got, true));
+                pool.install(|| render_target(&e, 1.0, psf, &spec, rect, &mut got, true));
                 assert!(got.iter().zip(&alone).all(|(g, w)| g.to_bits() == w.to_bits()), "{a} × {b}, {threads}");
             }
         }
@@ -952,10 +964,16 @@ mod tests {
 
     #[test]
     fn a_split_patch_spread_across_threads_is_the_patch_drawn_on_one() {
+        // a target of enough nodes to be split across the threads with the split PSF's core (100 pixels a node)
         let psf = &standard_cut_psfs()[1].1;
-        let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a: 5.8, b: 1.25, angle_rad: 0.5 };
+        let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a: 30.0, b: 10.0, angle_rad: 0.5 };
         let rect = psf_region(&e, psf, 200, 200);
         let spec = TargetPsfSpec::default();
+        let mut nodes = 0;
+        column_nodes(&e, psf, NODE_SPACING_PX, 0.6, |_, _, _| nodes += 1);
+        let core = psf.split(spec.core_px).expect("split").core();
+        assert!(nodes < BAND_MIN_NODES || rect.height() < 2 * BAND_ROWS, "{nodes} nodes: banded anyway");
+        assert!(worth_spreading(core, nodes, rect.height()), "{nodes} nodes");
         let draw = |threads: usize, spread: bool| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             let mut out = vec![0.0; rect.width() * rect.height()];
