@@ -371,25 +371,7 @@ impl Psf {
     /// nodes).
     #[allow(clippy::too_many_arguments)]
     pub fn add_point(&self, x: f64, y: f64, weight: f32, [x0, y0, x1, y1]: [usize; 4], out: &mut [f32], width: usize) {
-        self.add_point_rows(x, y, weight, [x0, y0, x1, y1], y0..y1, out, width);
-    }
-
-    /// [`Psf::add_point`] on the pixel rows `rows` of the box alone (`rows.start ≥ y0`), into `out` whose first
-    /// element is pixel `(x0, rows.start)`: each of those pixels gets the same value, to the bit, as from
-    /// [`Psf::add_point`] on the whole box (the interpolation weights are the box's), so a box may be split into
-    /// bands of rows filled side by side.
-    #[allow(clippy::too_many_arguments)]
-    pub fn add_point_rows(
-        &self,
-        x: f64,
-        y: f64,
-        weight: f32,
-        bounds: [usize; 4],
-        rows: std::ops::Range<usize>,
-        out: &mut [f32],
-        width: usize,
-    ) {
-        self.fine.add_point_rows(x, y, weight, bounds, rows, out, width);
+        self.fine.add_point_rows(x, y, weight, [x0, y0, x1, y1], y0..y1, out, width);
     }
 
     /// The fine table as a [`PhaseTable`]: the whole PSF added at each point source.
@@ -496,9 +478,10 @@ impl PhaseTable {
         &self.values[start..start + self.steps]
     }
 
-    /// Adds `weight ×` the table's PSF of a point source at `(x, y)` (px) to the pixels of the box `[x0, y0, x1,
-    /// y1]` on its rows `rows` (`rows.start ≥ y0`), into `out`, a row-major buffer `width` wide whose first element
-    /// is pixel `(x0, rows.start)`: [`Psf::add_point_rows`] for this table.
+    /// [`Psf::add_point`] for this table on the pixel rows `rows` of the box alone (`rows.start ≥ y0`), into `out`
+    /// whose first element is pixel `(x0, rows.start)`: each of those pixels gets the same value, to the bit, as
+    /// from the whole box (the interpolation weights are the box's), so a box may be split into bands of rows
+    /// filled side by side.
     #[allow(clippy::too_many_arguments)]
     pub fn add_point_rows(
         &self,
@@ -593,8 +576,8 @@ impl PhaseTable {
 pub const SPLIT_TAPER_PX: f64 = 2.0;
 
 /// The PSF split in two for drawing many point sources at once (a target's quadrature nodes): the core, the PSF
-/// within `r + ½` px of the source (times a raised cosine falling from 1 to 0 over its last [`SPLIT_TAPER_PX`]), added at each source's exact sub-pixel position like the whole table ([`PhaseTable`]); and the tail,
-/// the rest (the PSF times one minus that taper), sampled at whole-pixel offsets, added from the sources' weights
+/// within `r + ½` px of the source (times a raised cosine falling from 1 to 0 over its last [`SPLIT_TAPER_PX`]),
+/// added at each source's exact sub-pixel position like the whole table ([`PhaseTable`]); and the tail, the rest (the PSF times one minus that taper), sampled at whole-pixel offsets, added from the sources' weights
 /// binned to the pixel grid (each shared bilinearly among the four pixel centres around it) — the tail between
 /// its whole-pixel samples taken as bilinear. The two add up to the PSF; the tail is smooth on the pixel scale
 /// (the Airy rings there are mostly averaged away by the pixel's aperture), so its interpolation errs little

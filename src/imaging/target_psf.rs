@@ -635,16 +635,21 @@ mod tests {
         Psf::new(&PsfSpec::default(), &lwir()).unwrap()
     }
 
+    /// The target `e` drawn at unit amplitude with `spec` into `rect`, on one pass.
+    fn draw(e: &ImageEllipse, psf: &Psf, spec: &TargetPsfSpec, rect: PixelRect) -> Vec<f32> {
+        let mut out = vec![0.0; rect.width() * rect.height()];
+        render_target(e, 1.0, psf, spec, rect, &mut out, false);
+        out
+    }
+
     fn render(e: &ImageEllipse, psf: &Psf, method: TargetMethod) -> (PixelRect, Vec<f32>) {
         let rect = psf_region(e, psf, 200, 200);
-        let mut out = vec![0.0; rect.width() * rect.height()];
         // the reference at the reference preset's spacing
         let node_spacing_px =
             if method == TargetMethod::Reference { REFERENCE_NODE_SPACING_PX } else { NODE_SPACING_PX };
         // the whole PSF at every node: the quadrature's own error (the split's is measured apart)
         let spec = TargetPsfSpec { method, node_spacing_px, core_px: 0, ..TargetPsfSpec::default() };
-        render_target(e, 1.0, psf, &spec, rect, &mut out, false);
-        (rect, out)
+        (rect, draw(e, psf, &spec, rect))
     }
 
     fn centroid(rect: PixelRect, v: &[f32]) -> (DVec2, f64) {
@@ -807,10 +812,8 @@ mod tests {
                 let e = ImageEllipse { center: DVec2::new(60.37, 61.81), a, b, angle_rad: 0.5 };
                 let rect = psf_region(&e, &psf, 200, 200);
                 let draw = |method: TargetMethod, node_spacing_px: f64| {
-                    let mut out = vec![0.0; rect.width() * rect.height()];
                     let spec = TargetPsfSpec { method, node_spacing_px, core_px: 0, ..TargetPsfSpec::default() };
-                    render_target(&e, 1.0, &psf, &spec, rect, &mut out, false);
-                    out
+                    draw(&e, &psf, &spec, rect)
                 };
                 let want = draw(TargetMethod::Reference, REFERENCE_NODE_SPACING_PX);
                 let peak = want.iter().fold(0.0f32, |m, v| m.max(*v));
@@ -844,12 +847,7 @@ mod tests {
         // is 1, the sum of its table a little less), and the same flux
         let e = ImageEllipse { center: DVec2::new(100.37, 100.81), a: 60.0, b: 40.0, angle_rad: 0.5 };
         let rect = psf_region(&e, &psf, 200, 200);
-        let draw = |method: TargetMethod| {
-            let mut out = vec![0.0; rect.width() * rect.height()];
-            let spec = TargetPsfSpec { method, ..TargetPsfSpec::default() };
-            render_target(&e, 1.0, &psf, &spec, rect, &mut out, false);
-            out
-        };
+        let draw = |method: TargetMethod| draw(&e, &psf, &TargetPsfSpec { method, ..TargetPsfSpec::default() }, rect);
         let (by_columns, by_rings) = (draw(TargetMethod::Auto), draw(TargetMethod::Rings));
         let error = by_columns.iter().zip(&by_rings).map(|(c, r)| (c - r).abs()).fold(0.0, f32::max);
         let flux: f64 = by_columns.iter().map(|&v| f64::from(v)).sum();
@@ -945,12 +943,8 @@ mod tests {
             ] {
                 let e = ImageEllipse { center, a, b, angle_rad: 0.5 };
                 let rect = psf_region(&e, &psf, 200, 200);
-                let draw = |core_px: usize| {
-                    let mut out = vec![0.0; rect.width() * rect.height()];
-                    let spec = TargetPsfSpec { core_px, ..TargetPsfSpec::default() };
-                    render_target(&e, 1.0, &psf, &spec, rect, &mut out, false);
-                    out
-                };
+                let draw =
+                    |core_px: usize| draw(&e, &psf, &TargetPsfSpec { core_px, ..TargetPsfSpec::default() }, rect);
                 let (whole, split) = (draw(0), draw(CORE_PX));
                 let peak = whole.iter().fold(0.0f32, |m, v| m.max(*v));
                 let error = whole.iter().zip(&split).map(|(w, s)| (w - s).abs()).fold(0.0, f32::max) / peak;
