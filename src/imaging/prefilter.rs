@@ -45,6 +45,7 @@
 //! 5.87 ms for 16 when each phase sampled the PSF anew, 0.53 and 0.82 ms with the samples shared and the phases
 //! made side by side.
 
+use std::ops::Range;
 use std::sync::Arc;
 
 use glam::{DMat2, DVec2};
@@ -601,6 +602,28 @@ impl Canvas {
         }
     }
 
+    /// Writes the blocks whose first texels are `blocks` (distinct, inside the window) in place, each by `fill`
+    /// given its first texel and its rows in the grid, the blocks in parallel, and marks them; whether every
+    /// `fill` returned true.
+    fn fill(&mut self, blocks: &[[usize; 2]], fill: impl Fn([usize; 2], &mut BlockRows<'_>) -> bool + Sync) -> bool {
+        let stride = self.stride();
+        let bs = FFT_BLOCK_TEXELS * self.per_texel;
+        let firsts: Vec<usize> = blocks.iter().map(|&at| self.offset(at)).collect();
+        // distinct blocks of the window own disjoint rectangles of the grid: no row of one is a row of another's
+        debug_assert!(blocks.iter().enumerate().all(|(i, a)| blocks[..i].iter().all(|b| b != a)));
+        let grid = self.values_mut();
+        let (len, base) = (grid.len(), SharedGrid(grid.as_mut_ptr()));
+        let finite = blocks.par_iter().zip(&firsts).map(|(&at, &first)| {
+            let mut rows = BlockRows { base: &base, len, first, stride, bs, _grid: std::marker::PhantomData };
+            fill(at, &mut rows)
+        });
+        let finite = finite.reduce(|| true, |a, b| a && b);
+        for &at in blocks {
+            self.mark(at);
+        }
+        finite
+    }
+
     /// The block whose first texel is `at`, copied out of the grid.
     fn read(&self, at: [usize; 2]) -> Option<Vec<f32>> {
         let values = self.values.as_ref()?;
@@ -890,15 +913,21 @@ impl PrefilterCache {
         let s = FFT_BLOCK_TEXELS;
         let bs = s * m;
         let image = source.image();
-        let fresh: Vec<Vec<f32>> = if filter_method(filter) == ConvolutionMethod::Fft {
+        // the crop last handed out shares the grid: dropped, so that it is written in place
+        self.view = None;
+        if filter_method(filter) == ConvolutionMethod::Fft {
             let spectra = match self.spectra.take() {
                 Some(sp) if sp.key == key && sp.radius == r && sp.per_texel == m => sp,
                 _ => PhaseSpectra::new(key, filter),
             };
-            let fresh = missing.par_iter().map(|&at| spectra.block(image, at)).collect();
+            // each block's phases written straight into the grid, the blocks side by side
+            let finite = self.canvases[c].fill(missing, |at, rows| spectra.block_into(image, at, rows));
             self.spectra = Some(spectra);
-            fresh
-        } else {
+            // a blur of finite values is finite; checked once per block, not again for every crop read from it
+            assert!(finite, "a blur of finite values is finite");
+            return;
+        }
+        let fresh: Vec<Vec<f32>> = {
             let mut fresh: Vec<Vec<f32>> = missing.iter().map(|_| vec![0.0f32; bs * bs]).collect();
             // phase by phase, so that the convolver prepares each kernel once
             for (phase, kernel) in filter.phases.iter().enumerate() {
@@ -922,8 +951,6 @@ impl PrefilterCache {
         };
         // a blur of finite values is finite; checked once per block, not again for every crop read from it
         assert!(fresh.iter().all(|values| values.iter().all(|v| v.is_finite())), "a blur of finite values is finite");
-        // the crop last handed out shares the grid: dropped, so that it is written in place
-        self.view = None;
         self.canvases[c].write(missing, &fresh);
     }
 }
@@ -1037,7 +1064,7 @@ impl PhaseSpectra {
                         }
                     }
                 }
-                this.transform(&mut grid, true, &mut Vec::new());
+                this.transform(&mut grid, true, &mut Vec::new(), 0..side);
                 grid
             })
             .collect();
@@ -1045,21 +1072,37 @@ impl PhaseSpectra {
     }
 
     /// In place, `side²` values: forward (rows, transpose, rows: the result transposed) or inverse (the
-    /// same steps undoing a forward one); `scratch` is grown as the transforms need.
-    fn transform(&self, grid: &mut [Complex<f32>], forward: bool, scratch: &mut Vec<Complex<f32>>) {
+    /// same steps undoing a forward one); `scratch` is grown as the transforms need. The last pass transforms
+    /// the rows `last` alone (the others are left half done): each row is transformed on its own, so those rows
+    /// hold, bit for bit, what the whole transform gives them.
+    fn transform(&self, grid: &mut [Complex<f32>], forward: bool, scratch: &mut Vec<Complex<f32>>, last: Range<usize>) {
         let fft = if forward { &self.forward } else { &self.inverse };
         let need = fft.get_inplace_scratch_len();
         if scratch.len() < need {
             scratch.resize(need, Complex::new(0.0, 0.0));
         }
+        let n = self.side;
         fft.process_with_scratch(grid, &mut scratch[..need]);
-        transpose_square(grid, self.side);
-        fft.process_with_scratch(grid, &mut scratch[..need]);
+        transpose_square(grid, n);
+        fft.process_with_scratch(&mut grid[last.start * n..last.end * n], &mut scratch[..need]);
     }
 
     /// The block of `image` whose first texel is `at`, prefiltered: every phase on the fine grid, row-major (as a
     /// [`Canvas`] holds it).
-    fn block(&self, image: &SkyImage, [bx, by]: [usize; 2]) -> Vec<f32> {
+    #[cfg(test)]
+    fn block(&self, image: &SkyImage, at: [usize; 2]) -> Vec<f32> {
+        let bs = FFT_BLOCK_TEXELS * self.per_texel;
+        let mut values = vec![0.0f32; bs * bs];
+        let (len, base) = (values.len(), SharedGrid(values.as_mut_ptr()));
+        let mut rows = BlockRows { base: &base, len, first: 0, stride: bs, bs, _grid: std::marker::PhantomData };
+        self.block_into(image, at, &mut rows);
+        values
+    }
+
+    /// The block of `image` whose first texel is `at`, prefiltered (every phase on the fine grid, as a [`Canvas`]
+    /// holds it), written into `rows`; whether every value written is finite. Of each inverse transform's last
+    /// pass only the rows the block keeps are made.
+    fn block_into(&self, image: &SkyImage, [bx, by]: [usize; 2], rows: &mut BlockRows<'_>) -> bool {
         let (n, r, m, s) = (self.side, self.radius, self.per_texel, FFT_BLOCK_TEXELS);
         let read = s + 2 * r;
         let region = image.region_clamped(bx as isize - r as isize, by as isize - r as isize, read, read);
@@ -1070,16 +1113,15 @@ impl PhaseSpectra {
             }
         }
         let mut scratch = Vec::new();
-        self.transform(&mut spectrum, true, &mut scratch);
+        self.transform(&mut spectrum, true, &mut scratch, 0..n);
         let scale = 1.0 / (n * n) as f32;
-        let bs = s * m;
-        let mut values = vec![0.0f32; bs * bs];
         let mut product = vec![Complex::new(0.0f32, 0.0); n * n];
+        let mut finite = true;
         for (p, kernel) in self.pairs.iter().enumerate() {
             for ((o, &a), &k) in product.iter_mut().zip(&spectrum).zip(kernel) {
                 *o = a * k;
             }
-            self.transform(&mut product, false, &mut scratch);
+            self.transform(&mut product, false, &mut scratch, r..r + s);
             for (part, phase) in [2 * p, 2 * p + 1].into_iter().enumerate() {
                 if phase >= m * m {
                     break;
@@ -1087,14 +1129,44 @@ impl PhaseSpectra {
                 let (a, b) = (phase % m, phase / m);
                 for y in 0..s {
                     let from = &product[(y + r) * n + r..(y + r) * n + r + s];
-                    let row = &mut values[(y * m + b) * bs..(y * m + b + 1) * bs];
+                    let row = rows.row(y * m + b);
                     for (x, c) in from.iter().enumerate() {
-                        row[x * m + a] = scale * if part == 0 { c.re } else { c.im };
+                        let v = scale * if part == 0 { c.re } else { c.im };
+                        finite &= v.is_finite();
+                        row[x * m + a] = v;
                     }
                 }
             }
         }
-        values
+        finite
+    }
+}
+
+/// A canvas's grid, shared by the tasks that write its blocks (each its own rectangle of it).
+struct SharedGrid(*mut f32);
+
+// SAFETY: the tasks holding it write disjoint parts of the grid (distinct blocks, see `Canvas::fill`)
+unsafe impl Sync for SharedGrid {}
+
+/// One block's rows in a canvas's grid: `bs` values a row, rows `stride` apart from `first`.
+struct BlockRows<'g> {
+    base: &'g SharedGrid,
+    len: usize,
+    first: usize,
+    stride: usize,
+    bs: usize,
+    _grid: std::marker::PhantomData<&'g mut [f32]>,
+}
+
+impl BlockRows<'_> {
+    /// The block's row `yy` (`yy < bs`).
+    fn row(&mut self, yy: usize) -> &mut [f32] {
+        assert!(yy < self.bs, "a row of the block");
+        let start = self.first + yy * self.stride;
+        assert!(start + self.bs <= self.len, "the block inside the grid");
+        // SAFETY: inside the grid (checked above); no other block's rows overlap these (`Canvas::fill`), and the
+        // slice borrows `self` mutably, so this block's own rows are not handed out twice at once
+        unsafe { std::slice::from_raw_parts_mut(self.base.0.add(start), self.bs) }
     }
 }
 
@@ -1343,6 +1415,46 @@ mod tests {
         // a strip of an image 3 blocks tall grows along the other axis
         let strip = window_around([20 * s, 0, 22 * s, 3 * s], 1, (40 * s, 3 * s), 30 * block);
         assert_eq!(strip, [16 * s, 0, 26 * s, 3 * s]);
+    }
+
+    #[test]
+    fn blocks_written_in_place_are_each_block_s_own_transform_bit_for_bit() {
+        // the transform route writes each block's phases straight into the key's grid, the blocks side by side:
+        // every block built, copied back out of the grid, is what the block's transforms give it alone
+        let (p, tol) = (psf(), 0.01);
+        let (w, h) = (6 * FFT_BLOCK_TEXELS, 3 * FFT_BLOCK_TEXELS);
+        let values = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let hash = (i as u32).wrapping_mul(2_654_435_761) >> 24;
+                20.0 + (0.07 * x).sin() * (0.05 * y).cos() + hash as f32 / 256.0
+            })
+            .collect();
+        let image = SkyImage::from_f32(w, h, values).unwrap();
+        let placement = crate::imaging::sky_plane::SkyPlacement::paper_fig8();
+        let plane = SkyPlane::new(image, &placement, glam::DVec3::new(0.0, 0.0, 8000.0)).unwrap();
+        // texels larger than pixels: kernels wide enough for the transform route
+        let key = JacobianKey::new(DMat2::IDENTITY * 1.2, tol).unwrap();
+        let spacing_px = 1.0 / (3.0 * smallest_stretch(key.jacobian(tol)));
+        let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error: 0.0 };
+        let mut cache = PrefilterCache::new();
+        // two crops: blocks built together, then more beside them in a grid that already holds some
+        for need in [[150.0, 100.0, 400.0, 250.0], [300.0, 40.0, 600.0, 300.0]] {
+            crop(&mut cache, &plane, &p, key, settings, need);
+        }
+        let canvas = &cache.canvases[0];
+        let spectra = cache.spectra.as_ref().expect("the transform route");
+        let filter = TextureFilter::with_spacing(&p, key.jacobian(tol), spacing_px).unwrap();
+        assert_eq!((filter.per_texel, filter_method(&filter)), (3, ConvolutionMethod::Fft));
+        let s = FFT_BLOCK_TEXELS;
+        let blocks: Vec<[usize; 2]> = (0..h / s).flat_map(|by| (0..w / s).map(move |bx| [bx * s, by * s])).collect();
+        let built: Vec<&[usize; 2]> = blocks.iter().filter(|&&at| canvas.present[canvas.block(at).unwrap()]).collect();
+        assert!(built.len() >= 8, "{} blocks built", built.len());
+        for &at in built {
+            let want = spectra.block(plane.image(), at);
+            let have = canvas.read(at).unwrap();
+            assert!(want.iter().zip(&have).all(|(a, b)| a.to_bits() == b.to_bits()), "block {at:?}");
+        }
     }
 
     #[test]
