@@ -45,6 +45,7 @@
 //! 5.87 ms for 16 when each phase sampled the PSF anew, 0.53 and 0.82 ms with the samples shared and the phases
 //! made side by side.
 
+use std::marker::PhantomData;
 use std::ops::Range;
 use std::sync::Arc;
 
@@ -602,26 +603,36 @@ impl Canvas {
         }
     }
 
-    /// Writes the blocks whose first texels are `blocks` (distinct, inside the window) in place, each by `fill`
-    /// given its first texel and its rows in the grid, the blocks in parallel, and marks them; whether every
-    /// `fill` returned true.
+    /// Writes the blocks whose first texels are `blocks` in place, each by `fill` given its first texel and its
+    /// rows in the grid, the blocks in parallel, and marks them if every `fill` returned true (else returns
+    /// false, none marked).
+    ///
+    /// # Panics
+    /// If a block is outside the window, off its grid of blocks, or given twice.
     fn fill(&mut self, blocks: &[[usize; 2]], fill: impl Fn([usize; 2], &mut BlockRows<'_>) -> bool + Sync) -> bool {
-        let stride = self.stride();
-        let bs = FFT_BLOCK_TEXELS * self.per_texel;
+        let (s, w) = (FFT_BLOCK_TEXELS, self.window);
+        let mut seen = vec![false; self.present.len()];
+        for &at in blocks {
+            let i = self.block(at).expect("a block inside the window");
+            assert!((at[0] - w[0]) % s == 0 && (at[1] - w[1]) % s == 0, "a block on the window's grid of blocks");
+            assert!(!std::mem::replace(&mut seen[i], true), "each block once");
+        }
+        let (stride, bs) = (self.stride(), s * self.per_texel);
         let firsts: Vec<usize> = blocks.iter().map(|&at| self.offset(at)).collect();
-        // distinct blocks of the window own disjoint rectangles of the grid: no row of one is a row of another's
-        debug_assert!(blocks.iter().enumerate().all(|(i, a)| blocks[..i].iter().all(|b| b != a)));
-        let grid = self.values_mut();
-        let (len, base) = (grid.len(), SharedGrid(grid.as_mut_ptr()));
+        let grid = SharedGrid::new(self.values_mut());
         let finite = blocks.par_iter().zip(&firsts).map(|(&at, &first)| {
-            let mut rows = BlockRows { base: &base, len, first, stride, bs, _grid: std::marker::PhantomData };
+            // SAFETY: distinct blocks of the window's grid of blocks (checked above) own disjoint rectangles of
+            // the grid: side by side they share rows, never a value
+            let mut rows = unsafe { grid.block(first, stride, bs) };
             fill(at, &mut rows)
         });
-        let finite = finite.reduce(|| true, |a, b| a && b);
+        if !finite.reduce(|| true, |a, b| a && b) {
+            return false;
+        }
         for &at in blocks {
             self.mark(at);
         }
-        finite
+        true
     }
 
     /// The block whose first texel is `at`, copied out of the grid.
@@ -927,28 +938,25 @@ impl PrefilterCache {
             assert!(finite, "a blur of finite values is finite");
             return;
         }
-        let fresh: Vec<Vec<f32>> = {
-            let mut fresh: Vec<Vec<f32>> = missing.iter().map(|_| vec![0.0f32; bs * bs]).collect();
-            // phase by phase, so that the convolver prepares each kernel once
-            for (phase, kernel) in filter.phases.iter().enumerate() {
-                let (a, b) = (phase % m, phase / m);
-                for (&[bx, by], values) in missing.iter().zip(&mut fresh) {
-                    let region =
-                        image.region_clamped(bx as isize - r as isize, by as isize - r as isize, s + 2 * r, s + 2 * r);
-                    let mut frame = Frame::from_pixels(s + 2 * r, s + 2 * r, region);
-                    self.convolver.apply(kernel, &mut frame, ConvolutionMethod::Direct);
-                    let pw = frame.width();
-                    for y in 0..s {
-                        let from = &frame.pixels()[(y + r) * pw + r..(y + r) * pw + r + s];
-                        let row = &mut values[(y * m + b) * bs..(y * m + b + 1) * bs];
-                        for (x, &v) in from.iter().enumerate() {
-                            row[x * m + a] = v;
-                        }
+        let mut fresh: Vec<Vec<f32>> = missing.iter().map(|_| vec![0.0f32; bs * bs]).collect();
+        // phase by phase, so that the convolver prepares each kernel once
+        for (phase, kernel) in filter.phases.iter().enumerate() {
+            let (a, b) = (phase % m, phase / m);
+            for (&[bx, by], values) in missing.iter().zip(&mut fresh) {
+                let region =
+                    image.region_clamped(bx as isize - r as isize, by as isize - r as isize, s + 2 * r, s + 2 * r);
+                let mut frame = Frame::from_pixels(s + 2 * r, s + 2 * r, region);
+                self.convolver.apply(kernel, &mut frame, ConvolutionMethod::Direct);
+                let pw = frame.width();
+                for y in 0..s {
+                    let from = &frame.pixels()[(y + r) * pw + r..(y + r) * pw + r + s];
+                    let row = &mut values[(y * m + b) * bs..(y * m + b + 1) * bs];
+                    for (x, &v) in from.iter().enumerate() {
+                        row[x * m + a] = v;
                     }
                 }
             }
-            fresh
-        };
+        }
         // a blur of finite values is finite; checked once per block, not again for every crop read from it
         assert!(fresh.iter().all(|values| values.iter().all(|v| v.is_finite())), "a blur of finite values is finite");
         self.canvases[c].write(missing, &fresh);
@@ -1093,9 +1101,9 @@ impl PhaseSpectra {
     fn block(&self, image: &SkyImage, at: [usize; 2]) -> Vec<f32> {
         let bs = FFT_BLOCK_TEXELS * self.per_texel;
         let mut values = vec![0.0f32; bs * bs];
-        let (len, base) = (values.len(), SharedGrid(values.as_mut_ptr()));
-        let mut rows = BlockRows { base: &base, len, first: 0, stride: bs, bs, _grid: std::marker::PhantomData };
-        self.block_into(image, at, &mut rows);
+        let grid = SharedGrid::new(&mut values);
+        // SAFETY: the only rows of the grid handed out
+        self.block_into(image, at, &mut unsafe { grid.block(0, bs, bs) });
         values
     }
 
@@ -1142,20 +1150,37 @@ impl PhaseSpectra {
     }
 }
 
-/// A canvas's grid, shared by the tasks that write its blocks (each its own rectangle of it).
-struct SharedGrid(*mut f32);
-
-// SAFETY: the tasks holding it write disjoint parts of the grid (distinct blocks, see `Canvas::fill`)
-unsafe impl Sync for SharedGrid {}
-
-/// One block's rows in a canvas's grid: `bs` values a row, rows `stride` apart from `first`.
-struct BlockRows<'g> {
-    base: &'g SharedGrid,
+/// A grid, borrowed for `'g`, whose blocks several tasks write at once, each its own ([`Canvas::fill`]).
+struct SharedGrid<'g> {
+    base: *mut f32,
     len: usize,
+    _grid: PhantomData<&'g mut [f32]>,
+}
+
+// SAFETY: the grid is borrowed mutably for as long as this lives, and its blocks' rows, the only way to it, are
+// handed out by `SharedGrid::block`, whose callers promise that no two alive at once share a value
+unsafe impl Sync for SharedGrid<'_> {}
+
+impl<'g> SharedGrid<'g> {
+    fn new(grid: &'g mut [f32]) -> Self {
+        Self { base: grid.as_mut_ptr(), len: grid.len(), _grid: PhantomData }
+    }
+
+    /// The rows of one block: `bs` values a row, rows `stride` apart from `first`.
+    ///
+    /// # Safety
+    /// No value of these rows may be one of another block's rows handed out and alive at the same time.
+    unsafe fn block(&self, first: usize, stride: usize, bs: usize) -> BlockRows<'_> {
+        BlockRows { grid: self, first, stride, bs }
+    }
+}
+
+/// One block's rows in a [`SharedGrid`].
+struct BlockRows<'a> {
+    grid: &'a SharedGrid<'a>,
     first: usize,
     stride: usize,
     bs: usize,
-    _grid: std::marker::PhantomData<&'g mut [f32]>,
 }
 
 impl BlockRows<'_> {
@@ -1163,10 +1188,11 @@ impl BlockRows<'_> {
     fn row(&mut self, yy: usize) -> &mut [f32] {
         assert!(yy < self.bs, "a row of the block");
         let start = self.first + yy * self.stride;
-        assert!(start + self.bs <= self.len, "the block inside the grid");
-        // SAFETY: inside the grid (checked above); no other block's rows overlap these (`Canvas::fill`), and the
-        // slice borrows `self` mutably, so this block's own rows are not handed out twice at once
-        unsafe { std::slice::from_raw_parts_mut(self.base.0.add(start), self.bs) }
+        assert!(start + self.bs <= self.grid.len, "the block inside the grid");
+        // SAFETY: inside the grid (checked above), which is borrowed mutably for as long as `self.grid` lives; no
+        // other block's rows handed out share a value with these (`SharedGrid::block`), and the slice borrows
+        // `self` mutably, so this block's rows are not handed out twice at once
+        unsafe { std::slice::from_raw_parts_mut(self.grid.base.add(start), self.bs) }
     }
 }
 
@@ -1439,22 +1465,40 @@ mod tests {
         let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error: 0.0 };
         let mut cache = PrefilterCache::new();
         // two crops: blocks built together, then more beside them in a grid that already holds some
+        let mut built = Vec::new();
         for need in [[150.0, 100.0, 400.0, 250.0], [300.0, 40.0, 600.0, 300.0]] {
             crop(&mut cache, &plane, &p, key, settings, need);
+            built.push(cache.canvases[0].present.iter().filter(|&&b| b).count());
         }
+        assert!(built[0] >= 8 && built[1] > built[0], "blocks built: {built:?}");
         let canvas = &cache.canvases[0];
+        assert_eq!(canvas.per_texel, 3);
         let spectra = cache.spectra.as_ref().expect("the transform route");
-        let filter = TextureFilter::with_spacing(&p, key.jacobian(tol), spacing_px).unwrap();
-        assert_eq!((filter.per_texel, filter_method(&filter)), (3, ConvolutionMethod::Fft));
         let s = FFT_BLOCK_TEXELS;
-        let blocks: Vec<[usize; 2]> = (0..h / s).flat_map(|by| (0..w / s).map(move |bx| [bx * s, by * s])).collect();
-        let built: Vec<&[usize; 2]> = blocks.iter().filter(|&&at| canvas.present[canvas.block(at).unwrap()]).collect();
-        assert!(built.len() >= 8, "{} blocks built", built.len());
-        for &at in built {
+        let blocks = (0..h / s).flat_map(|by| (0..w / s).map(move |bx| [bx * s, by * s]));
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for at in blocks.filter(|&at| canvas.present[canvas.block(at).unwrap()]) {
             let want = spectra.block(plane.image(), at);
-            let have = canvas.read(at).unwrap();
-            assert!(want.iter().zip(&have).all(|(a, b)| a.to_bits() == b.to_bits()), "block {at:?}");
+            assert_eq!(bits(&canvas.read(at).unwrap()), bits(&want), "block {at:?}");
         }
+    }
+
+    #[test]
+    fn an_inverse_transform_s_kept_rows_are_the_whole_transform_s_bit_for_bit() {
+        // a block keeps rows r..r + s of each inverse transform, and only those rows of its last pass are made
+        let p = psf();
+        let j = DMat2::from_cols_array(&[1.2, 0.1, -0.05, 0.5]);
+        let filter = TextureFilter::with_spacing(&p, j, 0.75).unwrap();
+        let spectra = PhaseSpectra::new(JacobianKey::new(j, 0.05).unwrap(), &filter);
+        let (n, r, s) = (spectra.side, spectra.radius, FFT_BLOCK_TEXELS);
+        assert!(n > s + r, "rows left out: side {n}, radius {r}");
+        let grid: Vec<Complex<f32>> =
+            (0..n * n).map(|i| Complex::new((i as f32 * 0.37).sin(), (i as f32 * 0.11).cos())).collect();
+        let (mut whole, mut kept) = (grid.clone(), grid);
+        spectra.transform(&mut whole, false, &mut Vec::new(), 0..n);
+        spectra.transform(&mut kept, false, &mut Vec::new(), r..r + s);
+        let bits = |v: &[Complex<f32>]| v.iter().map(|c| (c.re.to_bits(), c.im.to_bits())).collect::<Vec<_>>();
+        assert_eq!(bits(&kept[r * n..(r + s) * n]), bits(&whole[r * n..(r + s) * n]));
     }
 
     #[test]
