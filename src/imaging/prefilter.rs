@@ -1443,22 +1443,28 @@ mod tests {
         assert_eq!(strip, [16 * s, 0, 26 * s, 3 * s]);
     }
 
+    /// A `w × h` sky image on the paper's plane: a ripple of frequencies `f` (radians a texel along x and y) and a
+    /// hash.
+    fn ripple_plane(w: usize, h: usize, f: [f32; 2]) -> SkyPlane {
+        let values = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let hash = (i as u32).wrapping_mul(2_654_435_761) >> 24;
+                20.0 + (f[0] * x).sin() * (f[1] * y).cos() + hash as f32 / 256.0
+            })
+            .collect();
+        let image = SkyImage::from_f32(w, h, values).unwrap();
+        let placement = crate::imaging::sky_plane::SkyPlacement::paper_fig8();
+        SkyPlane::new(image, &placement, glam::DVec3::new(0.0, 0.0, 8000.0)).unwrap()
+    }
+
     #[test]
     fn blocks_written_in_place_are_each_block_s_own_transform_bit_for_bit() {
         // the transform route writes each block's phases straight into the key's grid, the blocks side by side:
         // every block built, copied back out of the grid, is what the block's transforms give it alone
         let (p, tol) = (psf(), 0.01);
         let (w, h) = (6 * FFT_BLOCK_TEXELS, 3 * FFT_BLOCK_TEXELS);
-        let values = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f32, (i / w) as f32);
-                let hash = (i as u32).wrapping_mul(2_654_435_761) >> 24;
-                20.0 + (0.07 * x).sin() * (0.05 * y).cos() + hash as f32 / 256.0
-            })
-            .collect();
-        let image = SkyImage::from_f32(w, h, values).unwrap();
-        let placement = crate::imaging::sky_plane::SkyPlacement::paper_fig8();
-        let plane = SkyPlane::new(image, &placement, glam::DVec3::new(0.0, 0.0, 8000.0)).unwrap();
+        let plane = ripple_plane(w, h, [0.07, 0.05]);
         // texels larger than pixels: kernels wide enough for the transform route
         let key = JacobianKey::new(DMat2::IDENTITY * 1.2, tol).unwrap();
         let spacing_px = 1.0 / (3.0 * smallest_stretch(key.jacobian(tol)));
@@ -1509,16 +1515,7 @@ mod tests {
         let (p, tol) = (psf(), 0.01);
         // 8 × 2 blocks of texels: a ripple and a hash
         let (w, h) = (8 * FFT_BLOCK_TEXELS, 2 * FFT_BLOCK_TEXELS);
-        let values = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f32, (i / w) as f32);
-                let hash = (i as u32).wrapping_mul(2_654_435_761) >> 24;
-                20.0 + (0.05 * x).sin() * (0.08 * y).cos() + hash as f32 / 256.0
-            })
-            .collect();
-        let image = SkyImage::from_f32(w, h, values).unwrap();
-        let placement = crate::imaging::sky_plane::SkyPlacement::paper_fig8();
-        let plane = SkyPlane::new(image, &placement, glam::DVec3::new(0.0, 0.0, 8000.0)).unwrap();
+        let plane = ripple_plane(w, h, [0.05, 0.08]);
         let key = JacobianKey::new(DMat2::IDENTITY * 0.5, tol).unwrap();
         let spacing_px = 1.0 / (3.0 * smallest_stretch(key.jacobian(tol)));
         let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error: 0.0 };
