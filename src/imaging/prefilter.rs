@@ -612,13 +612,17 @@ impl Canvas {
     fn fill(&mut self, blocks: &[[usize; 2]], fill: impl Fn([usize; 2], &mut BlockRows<'_>) -> bool + Sync) -> bool {
         let (s, w) = (FFT_BLOCK_TEXELS, self.window);
         let mut seen = vec![false; self.present.len()];
-        for &at in blocks {
-            let i = self.block(at).expect("a block inside the window");
-            assert!((at[0] - w[0]) % s == 0 && (at[1] - w[1]) % s == 0, "a block on the window's grid of blocks");
-            assert!(!std::mem::replace(&mut seen[i], true), "each block once");
-        }
+        // each block's first node in the grid
+        let firsts: Vec<usize> = blocks
+            .iter()
+            .map(|&at| {
+                let i = self.block(at).expect("a block inside the window");
+                assert!((at[0] - w[0]) % s == 0 && (at[1] - w[1]) % s == 0, "a block on the window's grid of blocks");
+                assert!(!std::mem::replace(&mut seen[i], true), "each block once");
+                self.offset(at)
+            })
+            .collect();
         let (stride, bs) = (self.stride(), s * self.per_texel);
-        let firsts: Vec<usize> = blocks.iter().map(|&at| self.offset(at)).collect();
         let grid = SharedGrid::new(self.values_mut());
         let finite = blocks.par_iter().zip(&firsts).map(|(&at, &first)| {
             // SAFETY: distinct blocks of the window's grid of blocks (checked above) own disjoint rectangles of
@@ -1277,10 +1281,15 @@ mod tests {
         (entry.rect, crop)
     }
 
+    /// Settings whose spacing allows a grid of `m` nodes a texel for `key` (at its smallest stretch).
+    fn settings_for(key: JacobianKey, tol: f64, m: usize, grid_error: f64) -> PrefilterSettings {
+        let spacing_px = 1.0 / (m as f64 * smallest_stretch(key.jacobian(tol)));
+        PrefilterSettings { tolerance: tol, spacing_px, grid_error }
+    }
+
     /// The texture of `plane` prefiltered for `key` on a grid `m` nodes a texel, read at image coordinates `u`.
     fn texture_reads(plane: &SkyPlane, p: &Psf, key: JacobianKey, tol: f64, m: usize, us: &[DVec2]) -> Vec<f64> {
-        let smallest = smallest_stretch(key.jacobian(tol));
-        let settings = PrefilterSettings { tolerance: tol, spacing_px: 1.0 / (smallest * m as f64), grid_error: 0.0 };
+        let settings = settings_for(key, tol, m, 0.0);
         let mut cache = PrefilterCache::new();
         let (rect, crop) = crop(&mut cache, plane, p, key, settings, [40.0, 40.0, 216.0, 216.0]);
         let origin = DVec2::new(rect[0] as f64, rect[1] as f64);
@@ -1333,12 +1342,11 @@ mod tests {
         // kept from before
         let (plane, p, tol) = (noise_plane(), psf(), 0.01);
         let key = JacobianKey::new(DMat2::IDENTITY * 0.5, tol).unwrap();
-        let spacing_px = 1.0 / (4.0 * smallest_stretch(key.jacobian(tol)));
         let estimate = BlockSpectra::new(plane.image()).grid_errors(&p, key.jacobian(tol), 4);
         let mut cache = PrefilterCache::new();
         let need = [60.0, 60.0, 190.0, 190.0];
         let per_texel = |cache: &mut PrefilterCache, grid_error: f64| {
-            let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error };
+            let settings = settings_for(key, tol, 4, grid_error);
             let (rect, crop) = crop(cache, &plane, &p, key, settings, need);
             crop.image().width() / (rect[2] - rect[0])
         };
@@ -1467,8 +1475,7 @@ mod tests {
         let plane = ripple_plane(w, h, [0.07, 0.05]);
         // texels larger than pixels: kernels wide enough for the transform route
         let key = JacobianKey::new(DMat2::IDENTITY * 1.2, tol).unwrap();
-        let spacing_px = 1.0 / (3.0 * smallest_stretch(key.jacobian(tol)));
-        let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error: 0.0 };
+        let settings = settings_for(key, tol, 3, 0.0);
         let mut cache = PrefilterCache::new();
         // two crops: blocks built together, then more beside them in a grid that already holds some
         let mut built = Vec::new();
@@ -1517,8 +1524,7 @@ mod tests {
         let (w, h) = (8 * FFT_BLOCK_TEXELS, 2 * FFT_BLOCK_TEXELS);
         let plane = ripple_plane(w, h, [0.05, 0.08]);
         let key = JacobianKey::new(DMat2::IDENTITY * 0.5, tol).unwrap();
-        let spacing_px = 1.0 / (3.0 * smallest_stretch(key.jacobian(tol)));
-        let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error: 0.0 };
+        let settings = settings_for(key, tol, 3, 0.0);
         let mut whole = PrefilterCache::new();
         let block_bytes = (3 * FFT_BLOCK_TEXELS).pow(2) * size_of::<f32>();
         let mut windowed = PrefilterCache { canvas_bytes: Some(2 * block_bytes), ..Default::default() };
@@ -1545,7 +1551,6 @@ mod tests {
         let (p, tol) = (psf(), 0.01);
         // texels 2 px wide, a spacing that allows up to 4 nodes a texel
         let key = JacobianKey::new(DMat2::IDENTITY * 0.5, tol).unwrap();
-        let spacing_px = 1.0 / (4.0 * smallest_stretch(key.jacobian(tol)));
         let detailed = noise_plane();
         let n = 256;
         let smooth: Vec<f32> =
@@ -1554,7 +1559,7 @@ mod tests {
         let per_texel = |image: &SkyImage, grid_error: f64| {
             let mut cache = PrefilterCache::new();
             cache.clock += 1;
-            let settings = PrefilterSettings { tolerance: tol, spacing_px, grid_error };
+            let settings = settings_for(key, tol, 4, grid_error);
             cache.filter(image, &p, key, settings).expect("a filter").per_texel()
         };
         // no budget: the finest grid the spacing allows, whatever the image
