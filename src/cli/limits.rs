@@ -42,7 +42,7 @@ const CASES: [(usize, usize, usize); 3] = [(256, 256, 1), (640, 512, 1), (640, 5
 /// How far the bounds' view is turned against the texture, rad. Along a row of a view turned by a few
 /// hundredths of a radian or less, most sixteen pixels' texels lie within a window or two of 32 floats and are
 /// fetched by loads and permutes ([`crate::physics::simd::texel_windows`]), and most eight pixels' within one
-/// window of 16 floats (AVX2, [`crate::physics::simd::sample8_avx2`]); a view turned by 0.3 rad (as this
+/// window of 16 or 24 floats (AVX2, [`crate::physics::simd::sample8_avx2`]); a view turned by 0.3 rad (as this
 /// bound's was) crosses a texel row every five pixels, and its texels are gathered (AVX2: loaded a lane's pair at
 /// a time).
 const TURN_RAD: f32 = 0.01;

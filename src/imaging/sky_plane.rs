@@ -1390,8 +1390,6 @@ mod tests {
             && is_x86_feature_detected!("avx512bw")
             && is_x86_feature_detected!("avx512vl");
         let avx2 = is_x86_feature_detected!("avx2");
-        let w = 300usize;
-        let px: Vec<f32> = (0..w * 200).map(|i| (i as f32 * 0.37).sin() * 50.0 + 100.0).collect();
         let fixed = |v: f64| (v * 1_099_511_627_776.0) as i64;
         // forwards and backwards, bending either way, over spans of 1 to 100 pixels (whole blocks and tails);
         // and along rows, where the texels are fetched by windows (`physics::simd::texel_windows`): sixteen lanes
@@ -1399,8 +1397,10 @@ mod tests {
         // where the windows of the later blocks would end past the image and those blocks are gathered (the
         // last path nearest only: its bilinear samples would read the row below the image); and along rows that
         // cross to the next image row inside a block of sixteen, at its fourth lane or its ninth (two windows);
-        // and, for AVX2's eight lanes and one window of 16 floats, rows at 2 texels a pixel (the last lane's right
-        // neighbour is the window's last float) and at 2.05 (one float more: gathered, nearest still windowed)
+        // and, for AVX2's eight lanes and one window of 16 or 24 floats, rows at 2 texels a pixel (the last lane's
+        // right neighbour is the 16 floats' last), at 2.05 (one float more: 24 floats, nearest still 16), at 3 (24),
+        // and at 3.2, either way along the row (some blocks in 24 floats, others gathered), these three on an image
+        // wider than the others' 300 texels, so that their 100 pixels stay inside it
         let both = [(true, false), (true, true), (false, false), (false, true)];
         let nearest = [(false, false), (false, true)];
         let paths: [(_, _, _, &[(bool, bool)]); 12] = [
@@ -1417,38 +1417,46 @@ mod tests {
             ([7.9, 70.5], [2.0, 0.0], [0.0, 0.0], &both),
             ([7.9, 80.5], [2.05, 0.0], [0.0, 0.0], &both),
         ];
-        for (start, step, bend, modes) in paths {
-            for len in 1..=100 {
-                for &(bilinear, accumulate) in modes {
-                    let (q, d, dd) = (start.map(fixed), step.map(fixed), bend.map(fixed));
-                    let before: Vec<f32> = (0..len).map(|k| k as f32 * 0.25).collect();
-                    let mut scalar = before.clone();
-                    let (mut x, mut y, mut dx, mut dy) = (q[0], q[1], d[0], d[1]);
-                    for o in &mut scalar {
-                        let (xi, yi) = ((x >> 40) as usize, (y >> 40) as usize);
-                        let i = yi * w + xi;
-                        let value = if bilinear {
-                            let fx = (((x >> 16) as u32) & 0xff_ffff) as f32 / 16_777_216.0;
-                            let fy = (((y >> 16) as u32) & 0xff_ffff) as f32 / 16_777_216.0;
-                            bilinear_mix(px[i], px[i + 1], px[i + w], px[i + w + 1], fx, fy)
-                        } else {
-                            px[i]
-                        };
-                        *o = if accumulate { *o + value } else { value };
-                        (x, y, dx, dy) = (x + dx, y + dy, dx + dd[0], dy + dd[1]);
-                    }
-                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                    if avx512 {
-                        let mut vector = before.clone();
-                        // SAFETY: AVX-512 checked above; the paths stay inside the image
-                        unsafe { x86::span(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
-                        assert_eq!(bits(&vector), bits(&scalar), "avx512, len {len}, {bilinear} {accumulate}");
-                    }
-                    if avx2 {
-                        let mut vector = before.clone();
-                        // SAFETY: AVX2 checked above; the paths stay inside the image
-                        unsafe { x86::span_avx2(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
-                        assert_eq!(bits(&vector), bits(&scalar), "avx2, len {len}, {bilinear} {accumulate}");
+        let wide: [(_, _, _, &[(bool, bool)]); 3] = [
+            ([4.6, 90.5], [3.0, 0.0], [0.0, 0.0], &both),
+            ([2.3, 100.5], [3.2, 0.0001], [0.0, 0.0], &both),
+            ([396.4, 110.5], [-3.2, 0.0], [0.0, 0.0], &both),
+        ];
+        for (w, paths) in [(300usize, &paths[..]), (400, &wide[..])] {
+            let px: Vec<f32> = (0..w * 200).map(|i| (i as f32 * 0.37).sin() * 50.0 + 100.0).collect();
+            for &(start, step, bend, modes) in paths {
+                for len in 1..=100 {
+                    for &(bilinear, accumulate) in modes {
+                        let (q, d, dd) = (start.map(fixed), step.map(fixed), bend.map(fixed));
+                        let before: Vec<f32> = (0..len).map(|k| k as f32 * 0.25).collect();
+                        let mut scalar = before.clone();
+                        let (mut x, mut y, mut dx, mut dy) = (q[0], q[1], d[0], d[1]);
+                        for o in &mut scalar {
+                            let (xi, yi) = ((x >> 40) as usize, (y >> 40) as usize);
+                            let i = yi * w + xi;
+                            let value = if bilinear {
+                                let fx = (((x >> 16) as u32) & 0xff_ffff) as f32 / 16_777_216.0;
+                                let fy = (((y >> 16) as u32) & 0xff_ffff) as f32 / 16_777_216.0;
+                                bilinear_mix(px[i], px[i + 1], px[i + w], px[i + w + 1], fx, fy)
+                            } else {
+                                px[i]
+                            };
+                            *o = if accumulate { *o + value } else { value };
+                            (x, y, dx, dy) = (x + dx, y + dy, dx + dd[0], dy + dd[1]);
+                        }
+                        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                        if avx512 {
+                            let mut vector = before.clone();
+                            // SAFETY: AVX-512 checked above; the paths stay inside the image
+                            unsafe { x86::span(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
+                            assert_eq!(bits(&vector), bits(&scalar), "avx512, len {len}, {bilinear} {accumulate}");
+                        }
+                        if avx2 {
+                            let mut vector = before.clone();
+                            // SAFETY: AVX2 checked above; the paths stay inside the image
+                            unsafe { x86::span_avx2(&px, w, q, d, dd, bilinear, &mut vector, accumulate) };
+                            assert_eq!(bits(&vector), bits(&scalar), "avx2, len {len}, {bilinear} {accumulate}");
+                        }
                     }
                 }
             }

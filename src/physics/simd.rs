@@ -363,9 +363,12 @@ pub unsafe fn sample16_avx512(
     }
 }
 
-/// The first float of a window of 16 that holds eight lanes' floats at `index` (and, `right`, each one's right
-/// neighbour), and each lane's index relative to it: where the window, and the same floats `below` floats on,
-/// lie inside the `len` floats of a buffer; `None` where the lanes spread wider or the window would end past it.
+/// The first float of a window of 16 or 24 consecutive floats that holds eight lanes' floats at `index` (and,
+/// `right`, each one's right neighbour), each lane's index relative to it, and whether it takes 24: where the
+/// window, and the same floats `below` floats on, lie inside the `len` floats of a buffer; `None` where the lanes
+/// spread wider or the window would end past it. Along a row of a view, 16 floats hold eight pixels' texels at up
+/// to about two texels a pixel, 24 at up to about three (a prefiltered texture's grid at 2.6–3.1 nodes a pixel on
+/// six of the eight shipped scenarios).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -374,7 +377,7 @@ fn window8(
     right: bool,
     below: usize,
     len: usize,
-) -> Option<(usize, std::arch::x86_64::__m256i)> {
+) -> Option<(usize, std::arch::x86_64::__m256i, bool)> {
     use std::arch::x86_64::*;
     // the lowest index: the window's first float
     let m = _mm256_min_epi32(index, _mm256_permute2x128_si256::<1>(index, index));
@@ -382,11 +385,38 @@ fn window8(
     let m = _mm256_min_epi32(m, _mm256_shuffle_epi32::<0b10_11_00_01>(m));
     let first = _mm256_cvtsi256_si32(m);
     let rel = _mm256_sub_epi32(index, _mm256_set1_epi32(first));
-    // every index is at least `first`, so `rel` ≥ 0
-    let last = _mm256_set1_epi32(if right { 14 } else { 15 });
-    let fits =
-        _mm256_movemask_epi8(_mm256_cmpgt_epi32(rel, last)) == 0 && first >= 0 && first as usize + below + 16 <= len;
-    fits.then_some((first as usize, rel))
+    // every index is at least `first`, so `rel` ≥ 0; the window's last float is its right neighbour's
+    let within = |floats: i32| {
+        let last = _mm256_set1_epi32(floats - 1 - i32::from(right));
+        _mm256_movemask_epi8(_mm256_cmpgt_epi32(rel, last)) == 0
+            && first >= 0
+            && first as usize + below + floats as usize <= len
+    };
+    if within(16) {
+        Some((first as usize, rel, false))
+    } else if within(24) {
+        Some((first as usize, rel, true))
+    } else {
+        None
+    }
+}
+
+/// The floats at `p + at[k]` (0 ≤ `at[k]` ≤ 23): each third's permute of three loads, bits 3 and 4 of `at` pick
+/// the third.
+///
+/// # Safety
+/// The CPU must have AVX2; the 24 floats from `p` must lie inside one buffer.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn window_fetch24(p: *const f32, at: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees the 24 floats from `p` are inside the buffer
+    let (a, b, c) = unsafe { (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8)), _mm256_loadu_ps(p.add(16))) };
+    let (upper, last) =
+        (_mm256_castsi256_ps(_mm256_slli_epi32::<28>(at)), _mm256_castsi256_ps(_mm256_slli_epi32::<27>(at)));
+    let first16 = _mm256_blendv_ps(_mm256_permutevar8x32_ps(a, at), _mm256_permutevar8x32_ps(b, at), upper);
+    _mm256_blendv_ps(first16, _mm256_permutevar8x32_ps(c, at), last)
 }
 
 /// The floats at `p + at[k]` (0 ≤ `at[k]` ≤ 15): each half's permute, and bit 3 of `at` picks the half.
@@ -419,10 +449,11 @@ pub fn low_halves_256(a: std::arch::x86_64::__m256i, b: std::arch::x86_64::__m25
 }
 
 /// Each of eight lanes' float at `index` and its right neighbour, in every row `rows[r]` floats on, with AVX2:
-/// where all of them lie within one window of 16 floats a row (`window8`), as along a row of a view at up to
-/// about two texels a pixel, two loads, two permutes and a blend per row and neighbour; else one 64-bit load of
-/// each lane's pair per row, two lanes to a 128-bit half (hardware gathers, of pairs or of single floats, were
-/// slower than a scalar loop on an AMD EPYC with AVX2).
+/// where all of them lie within one window of 16 floats a row ([`window8`]), as along a row of a view at up to
+/// about two texels a pixel, two loads, two permutes and a blend per row and neighbour; within one of 24, at up
+/// to about three, three loads and permutes and two blends; else one 64-bit load of each lane's pair per row, two
+/// lanes to a 128-bit half (hardware gathers, of pairs or of single floats, were slower than a scalar loop on an
+/// AMD EPYC with AVX2).
 ///
 /// # Safety
 /// The CPU must have AVX2; for every lane and row, `index + rows[r]` and the float after it must lie inside
@@ -438,15 +469,28 @@ pub unsafe fn pairs8_avx2<const ROWS: usize>(
     use std::arch::x86_64::*;
     let base = px.as_ptr();
     let below = rows.iter().copied().max().unwrap_or(0);
-    if let Some((first, rel)) = window8(index, true, below, px.len()) {
+    if let Some((first, rel, wide)) = window8(index, true, below, px.len()) {
         let right = _mm256_add_epi32(rel, _mm256_set1_epi32(1));
-        return rows.map(|r| {
-            // SAFETY: `window8` checked that the 16 floats from `first + r` lie inside `px`
+        if !wide {
+            return rows.map(|r| {
+                // SAFETY: `window8` checked that the 16 floats from `first + r` lie inside `px`
+                unsafe {
+                    let p = base.add(first + r);
+                    (window_fetch8(p, rel), window_fetch8(p, right))
+                }
+            });
+        }
+        // a loop, not a closure mapped over the rows: that closure was not inlined, and its fetches went through
+        // memory
+        let mut pairs = [(_mm256_setzero_ps(), _mm256_setzero_ps()); ROWS];
+        for (pair, &r) in pairs.iter_mut().zip(&rows) {
+            // SAFETY: `window8` checked that the 24 floats from `first + r` lie inside `px`
             unsafe {
                 let p = base.add(first + r);
-                (window_fetch8(p, rel), window_fetch8(p, right))
+                *pair = (window_fetch24(p, rel), window_fetch24(p, right));
             }
-        });
+        }
+        return pairs;
     }
     let mut at = [0i32; 8];
     // SAFETY: eight i32 into an array of eight
@@ -468,7 +512,7 @@ pub unsafe fn pairs8_avx2<const ROWS: usize>(
 /// Eight samples of a row-major f32 image whose rows are `width` floats apart, with AVX2, bilinear (the texel at each lane's `index` and
 /// its right, lower and lower-right neighbours by [`pairs8_avx2`], mixed by [`bilinear_mix8`] as
 /// [`bilinear_mix16`] mixes them, so the values are the scalar samplers') or nearest (the texel at `index`, by a
-/// window of 16 floats where the lanes' texels fit one, else gathered).
+/// window of 16 or 24 floats where the lanes' texels fit one, else gathered).
 ///
 /// # Safety
 /// The CPU must have AVX2; for every lane, `index` (and, bilinear, `index + 1`, `index + width` and
@@ -488,8 +532,9 @@ pub unsafe fn sample8_avx2(
     let base = px.as_ptr();
     if !bilinear {
         return match window8(index, false, 0, px.len()) {
-            // SAFETY: `window8` checked that the window lies inside `px`
-            Some((first, rel)) => unsafe { window_fetch8(base.add(first), rel) },
+            // SAFETY (both): `window8` checked that the window lies inside `px`
+            Some((first, rel, false)) => unsafe { window_fetch8(base.add(first), rel) },
+            Some((first, rel, true)) => unsafe { window_fetch24(base.add(first), rel) },
             // SAFETY: the caller guarantees every lane's texel is inside `px`
             None => unsafe { _mm256_i32gather_ps::<4>(base, index) },
         };
@@ -550,6 +595,56 @@ mod tests {
         let vector = widest(|| xs.iter().map(|&x| exp(x)).collect::<Vec<f64>>());
         let scalar: Vec<f64> = xs.iter().map(|&x| std::hint::black_box(exp(std::hint::black_box(x)))).collect();
         assert!(vector.iter().zip(&scalar).all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn avx2_windows_are_used_only_where_they_fit() {
+        use std::arch::x86_64::*;
+        if !is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let (w, len) = (300usize, 60_000usize);
+        // the route for eight lanes at `lanes(k)`: the window's first float and whether it takes 24 floats
+        let route = |lanes: &dyn Fn(i32) -> i32, right: bool, below: usize, len: usize| {
+            let v: [i32; 8] = std::array::from_fn(|k| lanes(k as i32));
+            // SAFETY: AVX2 checked above; 32 bytes read from, and written to, eight-lane arrays
+            unsafe {
+                let found = window8(_mm256_loadu_si256(v.as_ptr().cast()), right, below, len);
+                found.map(|(first, rel, wide)| {
+                    let mut out = [0i32; 8];
+                    _mm256_storeu_si256(out.as_mut_ptr().cast(), rel);
+                    // each lane's index is the first float plus its relative index, inside the window
+                    let floats = if wide { 24 } else { 16 };
+                    for k in 0..8 {
+                        assert_eq!(first as i32 + out[k], v[k], "lane {k}");
+                        assert!((0..floats - i32::from(right)).contains(&out[k]), "lane {k}");
+                    }
+                    (first, wide)
+                })
+            }
+        };
+        // 2 texels a pixel: 16 floats (the last lane's right neighbour is the 16th); one float more: 24
+        assert_eq!(route(&|k| 100 + 2 * k, true, w, len), Some((100, false)));
+        let past = |k: i32| 100 + 2 * k + i32::from(k == 7);
+        assert_eq!(route(&past, true, w, len), Some((100, true)));
+        assert_eq!(route(&past, false, 0, len), Some((100, false)));
+        // 3 texels a pixel: 24 (the last lane's right neighbour is the 23rd float), and one float more (the 24th);
+        // two more: gathered, bilinear (nearest samples still fit)
+        assert_eq!(route(&|k| 100 + 3 * k, true, w, len), Some((100, true)));
+        assert_eq!(route(&|k| 100 + 3 * k + i32::from(k == 7), true, w, len), Some((100, true)));
+        let wider = |k: i32| 100 + 3 * k + 2 * i32::from(k == 7);
+        assert_eq!(route(&wider, true, w, len), None);
+        assert_eq!(route(&wider, false, 0, len), Some((100, true)));
+        // backwards along a row: the window starts at the last lane's texel
+        assert_eq!(route(&|k| 200 - 3 * k, true, w, len), Some((179, true)));
+        // across a row of the image: gathered
+        assert_eq!(route(&|k| if k < 4 { 100 + k } else { 400 + k }, false, 0, len), None);
+        // the window (one row down, bilinear) must end inside the buffer
+        assert_eq!(route(&|k| 100 + 3 * k, true, w, 100 + w + 24), Some((100, true)));
+        assert_eq!(route(&|k| 100 + 3 * k, true, w, 100 + w + 23), None);
+        assert_eq!(route(&|k| 100 + 2 * k, true, w, 100 + w + 16), Some((100, false)));
+        assert_eq!(route(&|k| 100 + 2 * k, true, w, 100 + w + 15), None);
     }
 
     #[test]
