@@ -1398,7 +1398,8 @@ mod tests {
         // last path nearest only: its bilinear samples would read the row below the image); and along rows that
         // cross to the next image row inside a block of sixteen, at its fourth lane or its ninth (two windows);
         // and, for AVX2's eight lanes and one window of 16 or 24 floats, rows at 2 texels a pixel (the last lane's
-        // right neighbour is the 16 floats' last), at 2.05 (one float more: 24 floats, nearest still 16), at 3 (24),
+        // right neighbour is the 16 floats' last), at 2.05 (one float more in some blocks: those take 24 floats;
+        // nearest samples stay in 16), at 3 (24),
         // and at 3.2, either way along the row (some blocks in 24 floats, others gathered), these three on an image
         // wider than the others' 300 texels, so that their 100 pixels stay inside it
         let both = [(true, false), (true, true), (false, false), (false, true)];

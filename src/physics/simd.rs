@@ -449,7 +449,7 @@ pub fn low_halves_256(a: std::arch::x86_64::__m256i, b: std::arch::x86_64::__m25
 }
 
 /// Each of eight lanes' float at `index` and its right neighbour, in every row `rows[r]` floats on, with AVX2:
-/// where all of them lie within one window of 16 floats a row ([`window8`]), as along a row of a view at up to
+/// where all of them lie within one window of 16 floats a row (`window8`), as along a row of a view at up to
 /// about two texels a pixel, two loads, two permutes and a blend per row and neighbour; within one of 24, at up
 /// to about three, three loads and permutes and two blends; else one 64-bit load of each lane's pair per row, two
 /// lanes to a 128-bit half (hardware gathers, of pairs or of single floats, were slower than a scalar loop on an
