@@ -624,6 +624,18 @@ mod tests {
                 })
             }
         };
+        // every lane reads its float from a window of 24, at every place in it
+        let floats: Vec<f32> = (0..24).map(|i| i as f32 * 1.5 - 7.0).collect();
+        for shift in 0..24 {
+            let at: [i32; 8] = std::array::from_fn(|k| (shift + 5 * k as i32) % 24);
+            let mut got = [0f32; 8];
+            // SAFETY: AVX2 checked above; 24 floats from the start of `floats`; eight lanes read and written
+            unsafe {
+                let v = window_fetch24(floats.as_ptr(), _mm256_loadu_si256(at.as_ptr().cast()));
+                _mm256_storeu_ps(got.as_mut_ptr(), v);
+            }
+            assert_eq!(got, at.map(|i| floats[i as usize]), "lanes at {at:?}");
+        }
         // 2 texels a pixel: 16 floats (the last lane's right neighbour is the 16th); one float more: 24
         assert_eq!(route(&|k| 100 + 2 * k, true, w, len), Some((100, false)));
         let past = |k: i32| 100 + 2 * k + i32::from(k == 7);
