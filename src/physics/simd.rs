@@ -471,23 +471,18 @@ pub unsafe fn pairs8_avx2<const ROWS: usize>(
     let below = rows.iter().copied().max().unwrap_or(0);
     if let Some((first, rel, wide)) = window8(index, true, below, px.len()) {
         let right = _mm256_add_epi32(rel, _mm256_set1_epi32(1));
-        if !wide {
-            return rows.map(|r| {
-                // SAFETY: `window8` checked that the 16 floats from `first + r` lie inside `px`
-                unsafe {
-                    let p = base.add(first + r);
-                    (window_fetch8(p, rel), window_fetch8(p, right))
-                }
-            });
-        }
-        // a loop, not a closure mapped over the rows: that closure was not inlined, and its fetches went through
-        // memory
+        // a loop, not a closure mapped over the rows: with the 24-float fetch that closure was not inlined, and its
+        // fetches went through memory
         let mut pairs = [(_mm256_setzero_ps(), _mm256_setzero_ps()); ROWS];
         for (pair, &r) in pairs.iter_mut().zip(&rows) {
-            // SAFETY: `window8` checked that the 24 floats from `first + r` lie inside `px`
+            // SAFETY: `window8` checked that the window's 16 or 24 floats from `first + r` lie inside `px`
             unsafe {
                 let p = base.add(first + r);
-                *pair = (window_fetch24(p, rel), window_fetch24(p, right));
+                *pair = if wide {
+                    (window_fetch24(p, rel), window_fetch24(p, right))
+                } else {
+                    (window_fetch8(p, rel), window_fetch8(p, right))
+                };
             }
         }
         return pairs;
