@@ -16,21 +16,23 @@
 //! SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest whose
 //! `status` and `frames_written` say where the run stopped.
 //!
-//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a file without a
-//! name and links it under its name on Linux (elsewhere, or where the file system cannot, to a temporary file renamed
-//! into place), so that a file under a frame's name is always whole, even after `kill -9`, without waiting for the
-//! disk; a thread of its own (`Writeback`, on Linux) starts the disk on the files written every tenth of a second,
-//! so that the last checkpoint's sync finds little left to write; each checkpoint first makes everything written since
-//! the last one durable (one `syncfs` of the output's file system on Linux, through the directory opened when the
-//! recording began, so that a write-back error on any file since then is reported; a sync of each file elsewhere), then
-//! puts the labels in place (on Linux the labels, MOT file and manifest are written under temporary names before
-//! that `syncfs`, which makes them durable with the frames, and renamed into place after it; the last checkpoint
-//! syncs once more, for the names). A checkpoint during the run is written by a thread of its own from a copy of the
-//! texts, so the simulation does not wait for the disk (a checkpoint still being written when the next is due delays
-//! that one); the last one, at the end, is waited for. A crash of the machine loses at most the frames since the
-//! last checkpoint, and never leaves labels that list a frame the disk does not hold. A checkpoint writes the
-//! labels, then the MOT file, then the manifest, so a process killed in the middle of one (`kill -9`) may leave the
-//! manifest's `frames_written` one checkpoint behind the labels, never ahead of them.
+//! Durability is paid once per checkpoint, not per file: the thread encoding a frame writes it to a file without a name
+//! and links it under its name on Linux (elsewhere, or where the file system cannot, to a temporary file renamed into
+//! place), so that a file under a frame's name is always whole, even after `kill -9`, without waiting for the disk; a
+//! thread of its own (`Writeback`, on Linux) starts the disk on the files written every tenth of a second, so that the
+//! last checkpoint's sync finds little left to write; each checkpoint first makes everything written since the last one
+//! durable, then puts the labels in place. On Linux that sync is one `syncfs` of the output's file system (through the
+//! directory opened when the recording began, so that a write-back error on any file since then is reported) while the
+//! machine holds little else waiting to be written, and a sync of each file and of its directory otherwise, so that a
+//! recording waits for at most a few milliseconds of other programs' writes (a build's output); elsewhere always the
+//! latter (`SyncWay`). On Linux the labels, MOT file and manifest are written under temporary names before that sync,
+//! which makes them durable with the frames, and renamed into place after it; the last checkpoint syncs once more, for
+//! the names. A checkpoint during the run is written by a thread of its own from a copy of the texts, so the simulation
+//! does not wait for the disk (a checkpoint still being written when the next is due delays that one); the last one, at
+//! the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint, and never leaves
+//! labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the
+//! manifest, so a process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one
+//! checkpoint behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
@@ -290,18 +292,20 @@ fn unnamed_files_fit(_: &Path) -> bool {
 const WRITEBACK_PERIOD: std::time::Duration = std::time::Duration::from_millis(100);
 
 /// A thread of its own that starts the disk on the recording's files as they come: every [`WRITEBACK_PERIOD`],
-/// if files were written since its last pass, one `syncfs` of the output's file system (Linux), so that a
-/// checkpoint's sync, the last one's above all, finds little left to write. A `syncfs` writes and waits for every
-/// dirty file of the file system, this recording's and others', and commits its journal: ten times a second at
-/// most, and only while files are being written. One pass over all the files of a tenth of a second costs the
-/// machine less than asking for each file's write-back as it is written (one device request and one notification
-/// of the device each): 256 × 256 png16 into fresh ext4 directories on one thread of an AMD EPYC, 1616–1817
-/// frames/s that way against 2046–2155 this way (interleaved rounds).
+/// if files were written since its last pass, the files written since then are handed to the disk (Linux), so that
+/// a checkpoint's sync, the last one's above all, finds little left to write. The pass is made the way
+/// [`SyncWay::now`] picks: while the file system holds little to write besides this recording's files, one `syncfs`
+/// of it (ten times a second at most, and only while files are being written), which costs the machine less than
+/// asking for each file's write-back (one device request and one notification of the device each): 256 × 256 png16
+/// into fresh ext4 directories on one thread of an AMD EPYC, 1616–1817 frames/s asking for each file as it was
+/// written against 2046–2155 with the `syncfs` (interleaved rounds). Where other writers' data wait too (a build
+/// just finished, another program writing), a `syncfs` would wait for all of it: the pass then asks for each of the
+/// recording's files' write-back instead (`sync_file_range` with `SYNC_FILE_RANGE_WRITE`, not waited for).
 ///
 /// The pass syncs through a descriptor of its own, so that a write-back error stays unreported on the recording's,
 /// whose checkpoint reports it (see [`sync_written`]; Linux 5.8 and later). The pass also keeps the first error its
-/// `syncfs` returned, which the next checkpoint reports too: before 5.8 a `syncfs` returned only the file system's
-/// and the device's errors, once, to whichever call came first, which may be the pass's.
+/// `syncfs` or `sync_file_range` returned, which the next checkpoint reports too: before 5.8 a `syncfs` returned
+/// only the file system's and the device's errors, once, to whichever call came first, which may be the pass's.
 struct Writeback {
     /// What the thread shares with the encoding tasks and the checkpoints.
     counts: Arc<WritebackCounts>,
@@ -311,16 +315,111 @@ struct Writeback {
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
-/// The counts a [`Writeback`] thread shares.
+/// What a [`Writeback`] thread shares with the encoding tasks and the checkpoints.
 #[derive(Debug, Default)]
 struct WritebackCounts {
-    /// Files written so far, counted by the encoding tasks.
-    written: std::sync::atomic::AtomicU64,
-    /// Passes made.
+    /// The files written since the thread's last pass, listed by the encoding tasks while the thread runs.
+    pending: Mutex<Vec<PathBuf>>,
+    /// Whether a thread runs (and takes `pending`); without one nothing is listed.
+    running: std::sync::atomic::AtomicBool,
+    /// The bytes of the files written since the last sync began: this recording's share of the machine's data
+    /// waiting to be written, for [`SyncWay::now`].
+    unsynced_bytes: std::sync::atomic::AtomicU64,
+    /// Passes made, by way: one `syncfs` ([`SyncWay::FileSystem`]) and file by file ([`SyncWay::EachFile`]).
     #[cfg_attr(not(test), allow(dead_code))]
-    passes: std::sync::atomic::AtomicU64,
+    passes: [std::sync::atomic::AtomicU64; 2],
     /// The OS error number of the first pass that failed; 0 while none has.
     failed: std::sync::atomic::AtomicI32,
+    /// The way every sync takes where it is set (`1 +` the [`SyncWay`]'s index, for tests of each); 0: the way
+    /// [`SyncWay::now`] picks for each.
+    forced_way: std::sync::atomic::AtomicU8,
+}
+
+impl WritebackCounts {
+    /// The way for a sync now, this recording's unsynced bytes being `ours` ([`SyncWay::now`], unless forced).
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    fn way(&self, ours: u64) -> SyncWay {
+        match self.forced_way.load(std::sync::atomic::Ordering::Relaxed) {
+            1 => SyncWay::FileSystem,
+            2 => SyncWay::EachFile,
+            _ => SyncWay::now(ours),
+        }
+    }
+
+    /// Counts a file of `bytes` bytes written under `path`, and lists it for the next pass where a thread runs.
+    fn wrote(&self, path: &Path, bytes: usize) {
+        use std::sync::atomic::Ordering;
+        self.unsynced_bytes.fetch_add(bytes as u64, Ordering::Relaxed);
+        if self.running.load(Ordering::Relaxed) {
+            self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(path.to_path_buf());
+        }
+    }
+
+    /// Takes the files listed since the last pass.
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    fn take_pending(&self) -> Vec<PathBuf> {
+        std::mem::take(&mut *self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner))
+    }
+
+    /// Forgets `bytes` of the unsynced bytes: a sync that began when they were counted has made them durable.
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    fn synced(&self, bytes: u64) {
+        use std::sync::atomic::Ordering;
+        let _ =
+            self.unsynced_bytes.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |v| Some(v.saturating_sub(bytes)));
+    }
+}
+
+/// The most bytes of other writers' data waiting to be written on the machine (the `Dirty` and `Writeback` of
+/// `/proc/meminfo`, less this recording's unsynced bytes) at which a sync is one `syncfs` of the output's file
+/// system; above it the recording's files are synced each on its own. A `syncfs` writes and waits for every dirty
+/// file of the file system, other programs' too: with 1.5 GB of another file's data waiting (a build's output, or
+/// `dd` without a sync), paper_clear_sky recorded at 61–68 frames/s that way against 690–870 file by file (AMD
+/// EPYC, ext4 on a virtual disk of about 1 GB/s, alternating runs), where with nothing else waiting the `syncfs`
+/// is the faster (paper_clear_sky 986–1063 frames/s against 849–939, crossing_pair 449–489 against 392–485). At
+/// about 1 GB/s, 16 MiB of others' data is 16 ms of waiting at most.
+const FOREIGN_DIRTY_LIMIT_BYTES: u64 = 16 << 20;
+
+/// How a sync makes the recording's files durable ([`sync_written`], and the [`Writeback`] thread's passes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SyncWay {
+    /// One `syncfs` of the output's file system (Linux): one call and one journal commit for all the files, but it
+    /// also waits for every other file of the file system waiting to be written.
+    FileSystem,
+    /// Each file on its own (`fdatasync`, one device cache flush each on ext4), then their directories: waits for
+    /// nothing but the recording's own files.
+    EachFile,
+}
+
+impl SyncWay {
+    /// The way for a sync now, where this recording has written `ours` bytes since the last sync began: one `syncfs`
+    /// while the machine holds at most [`FOREIGN_DIRTY_LIMIT_BYTES`] of others' data waiting to be written, file by
+    /// file otherwise (and where `/proc/meminfo` cannot be read).
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    fn now(ours: u64) -> Self {
+        let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
+        Self::choose(meminfo.as_deref().and_then(waiting_bytes), ours)
+    }
+
+    /// [`SyncWay::now`] for `waiting` bytes of file data waiting to be written on the machine (`None`: unknown).
+    fn choose(waiting: Option<u64>, ours: u64) -> Self {
+        match waiting {
+            Some(w) if w.saturating_sub(ours) <= FOREIGN_DIRTY_LIMIT_BYTES => Self::FileSystem,
+            _ => Self::EachFile,
+        }
+    }
+}
+
+/// The bytes of file data waiting to be written that a `/proc/meminfo` text gives: its `Dirty` and `Writeback`
+/// lines (kB), `None` where either is missing or unreadable.
+fn waiting_bytes(meminfo: &str) -> Option<u64> {
+    let field = |name: &str| -> Option<u64> {
+        let line = meminfo.lines().find(|l| l.split(':').next() == Some(name))?;
+        let mut words = line.split(':').nth(1)?.split_whitespace();
+        let kb = words.next()?.parse::<u64>().ok()?;
+        (words.next() == Some("kB")).then_some(kb.checked_mul(1024)?)
+    };
+    field("Dirty")?.checked_add(field("Writeback")?)
 }
 
 impl Writeback {
@@ -344,28 +443,55 @@ impl Writeback {
         use std::os::fd::AsRawFd;
         use std::sync::atomic::Ordering;
         let handle = std::fs::File::open(dir).ok()?;
+        let running = Arc::clone(&counts);
         let work = move || {
             let (flag, wake) = &*stop;
-            let mut passed = 0;
             let mut stopped = flag.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             while !*stopped {
                 stopped = wake.wait_timeout(stopped, period).unwrap_or_else(std::sync::PoisonError::into_inner).0;
-                let now = counts.written.load(Ordering::Relaxed);
-                if *stopped || now == passed {
+                if *stopped {
                     continue;
                 }
-                passed = now;
-                drop(stopped);
-                // SAFETY: `handle` is an open descriptor for the duration of the call
-                if unsafe { libc::syncfs(handle.as_raw_fd()) } != 0 {
-                    let errno = std::io::Error::last_os_error().raw_os_error().unwrap_or(libc::EIO);
-                    let _ = counts.failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed);
+                let files = counts.take_pending();
+                if files.is_empty() {
+                    continue;
                 }
-                counts.passes.fetch_add(1, Ordering::Relaxed);
+                drop(stopped);
+                let bytes = counts.unsynced_bytes.load(Ordering::Relaxed);
+                let way = counts.way(bytes);
+                let failed = |errno: Option<i32>| {
+                    let errno = errno.unwrap_or(libc::EIO);
+                    let _ = counts.failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed);
+                };
+                match way {
+                    SyncWay::FileSystem => {
+                        // SAFETY: `handle` is an open descriptor for the duration of the call
+                        if unsafe { libc::syncfs(handle.as_raw_fd()) } != 0 {
+                            failed(std::io::Error::last_os_error().raw_os_error());
+                        }
+                    }
+                    SyncWay::EachFile => {
+                        for f in &files {
+                            // a file removed since (a failed run's frames) has nothing to write
+                            let Ok(h) = std::fs::File::open(f) else { continue };
+                            // SAFETY: `h` is an open descriptor for the duration of the call
+                            if unsafe { libc::sync_file_range(h.as_raw_fd(), 0, 0, libc::SYNC_FILE_RANGE_WRITE) } != 0 {
+                                failed(std::io::Error::last_os_error().raw_os_error());
+                            }
+                        }
+                    }
+                }
+                counts.synced(bytes);
+                counts.passes[way as usize].fetch_add(1, Ordering::Relaxed);
                 stopped = flag.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
             }
         };
-        std::thread::Builder::new().name("irsim writeback".into()).spawn(work).ok()
+        running.running.store(true, Ordering::Relaxed);
+        let thread = std::thread::Builder::new().name("irsim writeback".into()).spawn(work).ok();
+        if thread.is_none() {
+            running.running.store(false, Ordering::Relaxed);
+        }
+        thread
     }
 
     #[cfg(not(target_os = "linux"))]
@@ -386,6 +512,9 @@ impl Writeback {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+        // nothing takes the list any more
+        self.counts.running.store(false, std::sync::atomic::Ordering::Relaxed);
+        drop(self.counts.take_pending());
     }
 }
 
@@ -407,28 +536,30 @@ pub fn write_shared(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
     write_through(&tmp, path, bytes)
 }
 
-/// Makes every file written under `dir` so far durable: on Linux one `syncfs` of `dir`'s file system (its data
-/// and the renames that put the files in place, in one journal commit) through `handle`, the directory opened
-/// when the recording began, elsewhere a sync of each of `files` and of their directories.
+/// Makes `files` (written under `dir`), and `also`, durable, with their names: on Linux the way [`SyncWay::now`]
+/// picks, either one `syncfs` of `dir`'s file system (its data and the links and renames that put the files in
+/// place, in one journal commit) through `handle`, the directory opened when the recording began, or a sync of each
+/// file, then of their directories and of `dir` (through `handle`); elsewhere always the latter.
 ///
 /// A `syncfs` reports (Linux 5.8 and later) a write-back error that happened since the descriptor it is given was
 /// opened (and that no call on it has reported yet): through one descriptor held for the whole recording, an error
 /// on any file written since the start is reported, where a descriptor opened afresh for each checkpoint misses one that
-/// another process's `syncfs` of the same file system saw first. `writeback_failed` holds the OS error number of the
-/// first failed pass of the [`Writeback`] thread (0 while none has), read after the sync and reported here as well.
+/// another process's `syncfs` of the same file system saw first. A file's own sync reports an error on it that
+/// no one has seen yet (Linux 4.16 and later), the [`Writeback`] thread's requests being no such call. `writeback`'s
+/// `failed` holds the OS error number of the first failed pass of the [`Writeback`] thread (0 while none has), read
+/// after the sync and reported here as well.
 ///
 /// # Errors
 /// The I/O error with the path.
 fn sync_written(
     dir: &Path,
     handle: Option<&std::fs::File>,
-    files: &[PathBuf],
-    writeback_failed: &std::sync::atomic::AtomicI32,
+    (files, also): (&[PathBuf], &[PathBuf]),
+    writeback: &WritebackCounts,
 ) -> Result<(), RecordError> {
     #[cfg(target_os = "linux")]
     {
         use std::os::fd::AsRawFd;
-        let _ = files;
         let opened;
         let d = match handle {
             Some(h) => h,
@@ -437,12 +568,21 @@ fn sync_written(
                 &opened
             }
         };
-        // SAFETY: `d` is an open descriptor for the duration of the call
-        if unsafe { libc::syncfs(d.as_raw_fd()) } != 0 {
-            return Err(io_err(dir, std::io::Error::last_os_error()));
+        let bytes = writeback.unsynced_bytes.load(std::sync::atomic::Ordering::Relaxed);
+        match writeback.way(bytes) {
+            SyncWay::FileSystem => {
+                // SAFETY: `d` is an open descriptor for the duration of the call
+                if unsafe { libc::syncfs(d.as_raw_fd()) } != 0 {
+                    return Err(io_err(dir, std::io::Error::last_os_error()));
+                }
+            }
+            SyncWay::EachFile => sync_each(files.iter().chain(also), dir, |p| {
+                if p == dir { d.sync_all() } else { std::fs::File::open(p).and_then(|h| h.sync_all()) }
+            })?,
         }
+        writeback.synced(bytes);
         // read after the sync, so that a pass that failed while it ran is reported too
-        let failed = writeback_failed.load(std::sync::atomic::Ordering::Relaxed);
+        let failed = writeback.failed.load(std::sync::atomic::Ordering::Relaxed);
         if failed != 0 {
             return Err(io_err(dir, std::io::Error::from_raw_os_error(failed)));
         }
@@ -450,22 +590,38 @@ fn sync_written(
     }
     #[cfg(not(target_os = "linux"))]
     {
-        let _ = (handle, writeback_failed);
-        let mut dirs = std::collections::BTreeSet::new();
-        for f in files {
-            std::fs::File::open(f).and_then(|h| h.sync_all()).map_err(|e| io_err(f, e))?;
-            if let Some(parent) = f.parent() {
-                dirs.insert(parent.to_path_buf());
-            }
-        }
+        let _ = (handle, writeback);
         // directories cannot be opened for syncing on every platform (Windows): their syncs are best effort
-        for d in dirs.iter().chain(std::iter::once(&dir.to_path_buf())) {
-            if let Ok(h) = std::fs::File::open(d) {
+        sync_each(files.iter().chain(also), dir, |p| {
+            if let Ok(h) = std::fs::File::open(p) {
                 let _ = h.sync_all();
             }
-        }
-        Ok(())
+            Ok(())
+        })
     }
+}
+
+/// Syncs each of `files` (`fdatasync`: their bytes and their length), then, with `sync_dir`, which makes the names
+/// in a directory durable, each of their directories and `dir`, once each.
+///
+/// # Errors
+/// The I/O error with the path.
+fn sync_each<'a>(
+    files: impl Iterator<Item = &'a PathBuf>,
+    dir: &'a Path,
+    sync_dir: impl Fn(&Path) -> std::io::Result<()>,
+) -> Result<(), RecordError> {
+    let mut dirs = std::collections::BTreeSet::from([dir]);
+    for f in files {
+        std::fs::File::open(f).and_then(|h| h.sync_data()).map_err(|e| io_err(f, e))?;
+        if let Some(parent) = f.parent() {
+            dirs.insert(parent);
+        }
+    }
+    for d in dirs {
+        sync_dir(d).map_err(|e| io_err(d, e))?;
+    }
+    Ok(())
 }
 
 /// Name of the lock file a recording holds in its output directory.
@@ -644,7 +800,7 @@ struct TaskSpec {
     format: FrameFormat,
     png: PngCompression,
     max_level: u16,
-    /// The [`Writeback`] thread's counts: each file written is counted there.
+    /// The [`Writeback`] thread's counts: each file written is counted there, and listed for its next pass.
     writeback: Arc<WritebackCounts>,
     /// Whether frames are written as unnamed files and linked ([`write_unnamed_pausing`]); cleared where they cannot
     /// be.
@@ -748,7 +904,9 @@ fn write_job(
     encode_into_pausing(&job.frame, (spec.format, spec.max_level, spec.png), scratch, bytes, &mut pause);
     let mut unsynced = |path: &Path, bytes: &[u8]| {
         let written = write_whole_pausing(path, bytes, &mut pause, &spec.unnamed);
-        spec.writeback.written.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        if written.is_ok() {
+            spec.writeback.wrote(path, bytes.len());
+        }
         written
     };
     // only files that were written go on the list to sync (elsewhere than Linux each is opened to be synced)
@@ -949,14 +1107,13 @@ impl CheckpointJob {
         if let Some((labels, mot)) = &self.texts {
             if cfg!(target_os = "linux") && !self.unsynced.is_empty() {
                 let texts = [labels.as_bytes(), mot.as_bytes(), self.manifest.as_bytes()];
-                let (handle, failed) = (self.dir_handle.as_deref(), &self.writeback.failed);
-                let sync = (handle, failed, self.last);
+                let sync = (self.dir_handle.as_deref(), &*self.writeback, self.last);
                 if let Some(done) = write_synced_with_frames(&self.dir, sync, &mut self.unsynced, texts) {
                     return done;
                 }
             }
             if !self.unsynced.is_empty() {
-                sync_written(&self.dir, self.dir_handle.as_deref(), &self.unsynced, &self.writeback.failed)
+                sync_written(&self.dir, self.dir_handle.as_deref(), (&self.unsynced, &[]), &self.writeback)
                     .map_err(|e| (Reached::Nothing, e))?;
                 self.unsynced.clear();
             }
@@ -974,12 +1131,13 @@ impl CheckpointJob {
 }
 
 /// A checkpoint's labels, MOT file and manifest (`texts`, in that order) written under their temporary names
-/// before the sync that makes the files written since the last checkpoint (`unsynced`) durable, so that the one
-/// `syncfs` makes them durable too, then renamed into place in that order: the same files on disk, in the same
-/// order, as writing each atomically after the sync, without a sync of their own for each (three journal
-/// commits, which also made the renames before them durable). The renames are made durable by the next sync: the
-/// write-back thread's next pass or the next checkpoint's, or, for the recording's `last` checkpoint, one more
-/// `syncfs` here (a journal commit: the files' bytes are on the disk already). At the end of a recording of 60
+/// before the sync that makes the files written since the last checkpoint (`unsynced`) durable, so that the same
+/// sync ([`sync_written`]: one `syncfs`, or file by file) makes them durable too, then renamed into place in that
+/// order: the same files on disk, in the same order, as writing each atomically after the sync, without a sync of
+/// their own for each (three journal commits, which also made the renames before them durable). The renames are
+/// made durable by the next sync: the write-back thread's next `syncfs` or the next checkpoint's sync, or, for the
+/// recording's `last` checkpoint, one more sync here (a journal commit, or a sync of the directory: the files'
+/// bytes are on the disk already). At the end of a recording of 60
 /// frames of 44 KB into ext4 (a probe of the same calls without that last sync, 16 alternating rounds, AMD EPYC):
 /// 4.18 ms that way, 3.09 this way (medians).
 ///
@@ -987,7 +1145,7 @@ impl CheckpointJob {
 /// the caller writes the texts one by one ([`CheckpointJob::write_files`]), which says how far it got.
 fn write_synced_with_frames(
     dir: &Path,
-    (handle, writeback_failed, last): (Option<&std::fs::File>, &std::sync::atomic::AtomicI32, bool),
+    (handle, writeback, last): (Option<&std::fs::File>, &WritebackCounts, bool),
     unsynced: &mut Vec<PathBuf>,
     texts: [&[u8]; 3],
 ) -> Option<Result<(), (Reached, RecordError)>> {
@@ -1004,7 +1162,7 @@ fn write_synced_with_frames(
             return None;
         }
     }
-    if let Err(e) = sync_written(dir, handle, unsynced, writeback_failed) {
+    if let Err(e) = sync_written(dir, handle, (unsynced, &temps), writeback) {
         remove(0);
         return Some(Err((Reached::Nothing, e)));
     }
@@ -1022,7 +1180,7 @@ fn write_synced_with_frames(
         }
     }
     // the names in place for good (the files are in place whatever this says)
-    if last && let Err(e) = sync_written(dir, handle, &[], writeback_failed) {
+    if last && let Err(e) = sync_written(dir, handle, (&[], &[]), writeback) {
         return Some(Err((Reached::Texts, e)));
     }
     Some(Ok(()))
@@ -1413,41 +1571,148 @@ mod tests {
         use std::time::{Duration, Instant};
         let dir = std::env::temp_dir().join(format!("irsim-rec-writeback-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let wb = Writeback::start(Some(&dir), WRITEBACK_PERIOD);
-        assert!(wb.thread.is_some());
-        // nothing written: no pass
-        std::thread::sleep(WRITEBACK_PERIOD * 3);
-        assert_eq!(wb.counts.passes.load(Ordering::SeqCst), 0);
-        // a file written: a pass within a few periods (a loaded machine may be slow to run the thread)
-        std::fs::write(dir.join("f"), b"frame").unwrap();
-        wb.counts.written.fetch_add(1, Ordering::SeqCst);
-        let t = Instant::now();
-        while wb.counts.passes.load(Ordering::SeqCst) == 0 && t.elapsed() < Duration::from_secs(10) {
-            std::thread::sleep(Duration::from_millis(5));
+        let passes = |wb: &Writeback| wb.counts.passes.each_ref().map(|p| p.load(Ordering::SeqCst));
+        // each way, forced: one `syncfs`, and file by file
+        for (forced, way) in [(1, SyncWay::FileSystem), (2, SyncWay::EachFile)] {
+            let wb = Writeback::start(Some(&dir), WRITEBACK_PERIOD);
+            assert!(wb.thread.is_some());
+            wb.counts.forced_way.store(forced, Ordering::SeqCst);
+            // nothing written: no pass
+            std::thread::sleep(WRITEBACK_PERIOD * 3);
+            assert_eq!(passes(&wb), [0, 0]);
+            // a file written: a pass within a few periods (a loaded machine may be slow to run the thread)
+            let f = dir.join(format!("f{forced}"));
+            std::fs::write(&f, b"frame").unwrap();
+            wb.counts.wrote(&f, 5);
+            assert_eq!(wb.counts.unsynced_bytes.load(Ordering::SeqCst), 5);
+            let t = Instant::now();
+            while passes(&wb) == [0, 0] && t.elapsed() < Duration::from_secs(10) {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            let mut expected = [0, 0];
+            expected[way as usize] = 1;
+            assert_eq!(passes(&wb), expected, "{way:?}");
+            assert_eq!(wb.counts.failed.load(Ordering::SeqCst), 0);
+            // the pass took the list and forgot the bytes it handed to the disk
+            assert!(wb.counts.take_pending().is_empty());
+            assert_eq!(wb.counts.unsynced_bytes.load(Ordering::SeqCst), 0);
+            // no more writes: no more passes
+            std::thread::sleep(WRITEBACK_PERIOD * 3);
+            assert_eq!(passes(&wb), expected);
+            // a file removed before the pass (a failed run's frames) is no error
+            wb.counts.wrote(&dir.join("gone"), 5);
+            let t = Instant::now();
+            while passes(&wb) == expected && t.elapsed() < Duration::from_secs(10) {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            assert_eq!(wb.counts.failed.load(Ordering::SeqCst), 0);
         }
-        assert_eq!(wb.counts.passes.load(Ordering::SeqCst), 1);
-        assert_eq!(wb.counts.failed.load(Ordering::SeqCst), 0);
-        // no more writes: no more passes
-        std::thread::sleep(WRITEBACK_PERIOD * 3);
-        assert_eq!(wb.counts.passes.load(Ordering::SeqCst), 1);
-        drop(wb);
         // stopping wakes the thread from its wait, not a period later: with a period of a minute, a thread in
-        // its wait (with files written or not) stops within seconds even on a loaded machine
+        // its wait (with files written or not) stops within seconds even on a loaded machine; after it stops,
+        // files are no longer listed
         let long = Duration::from_secs(60);
         for written in [false, true] {
             let mut wb = Writeback::start(Some(&dir), long);
             if written {
-                wb.counts.written.fetch_add(1, Ordering::SeqCst);
+                wb.counts.wrote(&dir.join("f1"), 5);
             }
             std::thread::sleep(Duration::from_millis(20));
             let t = Instant::now();
             wb.stop();
             assert!(wb.thread.is_none());
             assert!(t.elapsed() < Duration::from_secs(5), "stopping took {:?}", t.elapsed());
+            wb.counts.wrote(&dir.join("f1"), 5);
+            assert!(wb.counts.take_pending().is_empty());
         }
-        // no directory: no thread
-        assert!(Writeback::start(None, WRITEBACK_PERIOD).thread.is_none());
+        // no directory: no thread, and nothing listed for one
+        let wb = Writeback::start(None, WRITEBACK_PERIOD);
+        assert!(wb.thread.is_none());
+        wb.counts.wrote(&dir.join("f1"), 5);
+        assert!(wb.counts.take_pending().is_empty());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A sync is one `syncfs` only while the machine holds little to write besides the recording's own files (a
+    /// `syncfs` would wait for the rest too), and file by file where that cannot be told.
+    #[test]
+    fn the_sync_way_is_one_syncfs_only_while_little_else_waits() {
+        let meminfo = "MemTotal:       32768000 kB\nDirty:              3000 kB\nWriteback:           100 kB\n\
+                       WritebackTmp:          0 kB\n";
+        assert_eq!(waiting_bytes(meminfo), Some(3100 * 1024));
+        for broken in [
+            "",
+            "Dirty: 3000 kB\n",
+            "Writeback: 1 kB\n",
+            "Dirty: x kB\nWriteback: 1 kB\n",
+            "Dirty: 3 MB\nWriteback: 1 kB\n",
+        ] {
+            assert_eq!(waiting_bytes(broken), None, "{broken:?}");
+        }
+        let limit = FOREIGN_DIRTY_LIMIT_BYTES;
+        assert_eq!(SyncWay::choose(Some(0), 0), SyncWay::FileSystem);
+        assert_eq!(SyncWay::choose(Some(limit), 0), SyncWay::FileSystem);
+        assert_eq!(SyncWay::choose(Some(limit + 1), 0), SyncWay::EachFile);
+        // the recording's own bytes are not others'
+        assert_eq!(SyncWay::choose(Some(limit + (500 << 20)), 500 << 20), SyncWay::FileSystem);
+        assert_eq!(SyncWay::choose(Some(100), 500 << 20), SyncWay::FileSystem);
+        assert_eq!(SyncWay::choose(Some(u64::MAX), 0), SyncWay::EachFile);
+        assert_eq!(SyncWay::choose(None, 0), SyncWay::EachFile);
+        // this machine's own /proc/meminfo reads (where there is one)
+        if let Ok(text) = std::fs::read_to_string("/proc/meminfo") {
+            assert!(waiting_bytes(&text).is_some(), "{text}");
+        }
+    }
+
+    /// Both ways of syncing (one `syncfs`, file by file) leave a recording whole: frames, labels and manifest; file
+    /// by file, a file that cannot be synced is reported by its path.
+    #[test]
+    fn each_way_of_syncing_leaves_a_recording_whole() {
+        for (forced, way) in [(1, SyncWay::FileSystem), (2, SyncWay::EachFile)] {
+            let dir = std::env::temp_dir().join(format!("irsim-rec-way-{forced}-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&dir);
+            let _lock = prepare_dir(&dir, false).unwrap();
+            let mut rec = Recorder::new(
+                &dir,
+                (FrameFormat::Png16, PngCompression::Fast),
+                true,
+                65535,
+                2,
+                serde_json::json!({}),
+                5,
+            )
+            .unwrap();
+            rec.writeback.counts.forced_way.store(forced, std::sync::atomic::Ordering::SeqCst);
+            for k in 0..5 {
+                rec.push(Frame::new(8, 8), Some(vec![0; 64]), labels(k));
+            }
+            let p = rec.finish(false).unwrap();
+            assert_eq!((p.status.as_str(), p.frames_written), ("complete", 5), "{way:?}");
+            assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap().lines().count(), 5);
+            for sub in ["frames", "masks"] {
+                assert_eq!(std::fs::read_dir(dir.join(sub)).unwrap().count(), 5, "{way:?} {sub}");
+            }
+            let names: Vec<String> =
+                std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+            assert!(!names.iter().any(|n| n.ends_with(".tmp")), "{way:?}: {names:?}");
+            let m: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
+            assert_eq!(m["status"], "complete");
+            assert_eq!(m["frames_written"], 5);
+            // a file gone before its sync
+            let counts = WritebackCounts::default();
+            counts.forced_way.store(forced, std::sync::atomic::Ordering::SeqCst);
+            let gone = dir.join("frames").join("999999.png");
+            let synced =
+                sync_written(&dir, None, (&[dir.join("frames").join("000000.png"), gone.clone()], &[]), &counts);
+            match way {
+                SyncWay::EachFile => {
+                    let e = synced.unwrap_err().to_string();
+                    assert!(e.contains("999999.png"), "{e}");
+                }
+                SyncWay::FileSystem => synced.unwrap(),
+            }
+            std::fs::remove_dir_all(&dir).unwrap();
+        }
     }
 
     /// A file written without a name appears under its name whole, with nothing beside it; where it cannot be
