@@ -134,15 +134,16 @@ fn write_pieces(f: &mut std::fs::File, bytes: &[u8], pause: &mut dyn FnMut()) ->
 
 /// Writes a recording's file `path` whole, without syncing it: unnamed and linked where `unnamed` holds
 /// ([`write_unnamed_pausing`]), else under its temporary name and renamed; `pause` as in [`write_renamed_pausing`].
+/// Returns the file, still open, where it was written unnamed.
 fn write_whole_pausing(
     path: &Path,
     bytes: &[u8],
     pause: &mut dyn FnMut(),
     unnamed: &std::sync::atomic::AtomicBool,
-) -> Result<(), RecordError> {
+) -> Result<Option<std::fs::File>, RecordError> {
     match write_unnamed_pausing(path, bytes, pause, unnamed) {
-        Some(()) => Ok(()),
-        None => write_renamed_pausing(&temporary_of(path), path, bytes, false, pause),
+        Some(f) => Ok(Some(f)),
+        None => write_renamed_pausing(&temporary_of(path), path, bytes, false, pause).map(|()| None),
     }
 }
 
@@ -183,7 +184,7 @@ fn write_renamed_pausing(
 }
 
 /// Writes `bytes` under `path`, Linux: into a file without a name in `path`'s directory (`O_TMPFILE`), given its
-/// name when it is whole (`linkat`), so that, as with a temporary file renamed into place, a file under `path` is
+/// name when it is whole (`linkat`) and returned still open, so that, as with a temporary file renamed into place, a file under `path` is
 /// always complete, and a process killed before the link leaves nothing behind. One directory entry is made, where a
 /// rename of a temporary file makes one, removes it and makes another, each after a search of the directory: the
 /// kernel's time per frame (system calls, in `perf`) went from 94 to 81 µs, 3000 frames of 256 × 256 png16 on one
@@ -203,7 +204,7 @@ fn write_unnamed_pausing(
     bytes: &[u8],
     pause: &mut dyn FnMut(),
     unnamed: &std::sync::atomic::AtomicBool,
-) -> Option<()> {
+) -> Option<std::fs::File> {
     use std::sync::atomic::Ordering;
     if !unnamed.load(Ordering::Relaxed) {
         return None;
@@ -225,7 +226,7 @@ fn write_unnamed_pausing(
     if linked.as_ref().is_err_and(|e| e.raw_os_error() != Some(libc::EEXIST)) {
         unnamed.store(false, Ordering::Relaxed);
     }
-    linked.ok()
+    linked.ok().map(|()| f)
 }
 
 /// A file without a name in `dir`, open for writing (`O_TMPFILE`), asked for with the mode a file made by name is
@@ -273,7 +274,12 @@ fn unnamed_files_fit(dir: &Path) -> bool {
 
 /// Elsewhere than Linux: no unnamed files; the caller writes a temporary file and renames it.
 #[cfg(not(target_os = "linux"))]
-fn write_unnamed_pausing(_: &Path, _: &[u8], _: &mut dyn FnMut(), _: &std::sync::atomic::AtomicBool) -> Option<()> {
+fn write_unnamed_pausing(
+    _: &Path,
+    _: &[u8],
+    _: &mut dyn FnMut(),
+    _: &std::sync::atomic::AtomicBool,
+) -> Option<std::fs::File> {
     None
 }
 
@@ -329,7 +335,17 @@ struct WritebackCounts {
     #[cfg_attr(not(test), allow(dead_code))]
     passes: [std::sync::atomic::AtomicU64; 2],
     /// The OS error number of the first pass that failed; 0 while none has.
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
     failed: std::sync::atomic::AtomicI32,
+    /// The file the first failed pass failed on (`None`: the file system's, a failed `syncfs`).
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    failed_on: Mutex<Option<PathBuf>>,
+    /// Files held open ([`Held`]), and the most that may be.
+    held: std::sync::atomic::AtomicUsize,
+    max_held: std::sync::atomic::AtomicUsize,
+    /// Every path a sync made durable file by file (files, then directories), in order, for tests.
+    #[cfg(test)]
+    synced_paths: Mutex<Vec<PathBuf>>,
     /// The way every sync takes where it is set (`1 +` the [`SyncWay`]'s index, for tests of each); 0: the way
     /// [`SyncWay::now`] picks for each.
     forced_way: std::sync::atomic::AtomicU8,
@@ -361,6 +377,27 @@ impl WritebackCounts {
         std::mem::take(&mut *self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner))
     }
 
+    /// Keeps the first failed pass's OS error number `errno`, and the file it failed on (`None`: a `syncfs`).
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    fn pass_failed(&self, errno: Option<i32>, on: Option<&Path>) {
+        use std::sync::atomic::Ordering;
+        let errno = errno.unwrap_or(libc::EIO);
+        if self.failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed).is_ok() {
+            *self.failed_on.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = on.map(Path::to_path_buf);
+        }
+    }
+
+    /// The first failed pass's error, as an error on the file it failed on, or on `dir` (a `syncfs`); `None` while
+    /// no pass has failed.
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    fn pass_error(&self, dir: &Path) -> Option<RecordError> {
+        let errno = self.failed.load(std::sync::atomic::Ordering::Relaxed);
+        (errno != 0).then(|| {
+            let on = self.failed_on.lock().unwrap_or_else(std::sync::PoisonError::into_inner).clone();
+            io_err(on.as_deref().unwrap_or(dir), std::io::Error::from_raw_os_error(errno))
+        })
+    }
+
     /// Forgets `bytes` of the unsynced bytes: a sync that began when they were counted has made them durable.
     #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
     fn synced(&self, bytes: u64) {
@@ -370,14 +407,90 @@ impl WritebackCounts {
     }
 }
 
+/// A file the recording wrote and has not yet made durable: its path and, where it may be held open, the file.
+#[derive(Debug)]
+struct Written {
+    path: PathBuf,
+    file: Option<Held>,
+}
+
+impl Written {
+    /// A file known by its path only (it is opened again to be synced).
+    fn by_path(path: PathBuf) -> Self {
+        Self { path, file: None }
+    }
+}
+
+/// A written file held open from its write until a checkpoint syncs it, so that the sync reports a write-back error
+/// on it. The kernel keeps such an error with the file while it is in memory, and reports it to the next sync through
+/// any descriptor; once the file is closed the kernel may drop it from memory, and its error with it, before the
+/// checkpoint reopens it by path. (One `syncfs` through the directory held since the start reports it from the file
+/// system's record instead.) The files held open are counted against a budget ([`descriptor_budget`]); past it a
+/// file is closed as before and reopened to be synced.
+#[derive(Debug)]
+struct Held {
+    file: std::fs::File,
+    counts: Arc<WritebackCounts>,
+}
+
+impl Held {
+    /// `file`, held open if the budget allows; closed otherwise.
+    fn keep(counts: &Arc<WritebackCounts>, file: std::fs::File) -> Option<Self> {
+        use std::sync::atomic::Ordering;
+        if counts.held.fetch_add(1, Ordering::Relaxed) < counts.max_held.load(Ordering::Relaxed) {
+            Some(Self { file, counts: Arc::clone(counts) })
+        } else {
+            counts.held.fetch_sub(1, Ordering::Relaxed);
+            None
+        }
+    }
+}
+
+impl Drop for Held {
+    fn drop(&mut self) {
+        self.counts.held.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// How many written files a recording may hold open ([`Held`]): a quarter of the process's limit on open files,
+/// at most 8192, after raising its soft limit toward the hard one (to 65 536 at most, once per process: a 256 × 256
+/// recording with masks writes about 4000 files a second, and a file is held for up to a checkpoint's period and its
+/// sync). None off Linux, where files are always reopened to be synced.
+fn descriptor_budget() -> usize {
+    #[cfg(target_os = "linux")]
+    {
+        static BUDGET: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+        *BUDGET.get_or_init(|| {
+            let mut limit = libc::rlimit { rlim_cur: 0, rlim_max: 0 };
+            // SAFETY: `limit` is a struct the call writes
+            if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } != 0 {
+                return 0;
+            }
+            let wanted = limit.rlim_max.min(1 << 16);
+            if limit.rlim_cur < wanted {
+                let raised = libc::rlimit { rlim_cur: wanted, rlim_max: limit.rlim_max };
+                // SAFETY: `raised` is a struct the call reads
+                if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &raised) } == 0 {
+                    limit.rlim_cur = wanted;
+                }
+            }
+            usize::try_from(limit.rlim_cur / 4).unwrap_or(usize::MAX).min(8192)
+        })
+    }
+    #[cfg(not(target_os = "linux"))]
+    0
+}
+
 /// The most bytes of other writers' data waiting to be written on the machine (the `Dirty` and `Writeback` of
 /// `/proc/meminfo`, less this recording's unsynced bytes) at which a sync is one `syncfs` of the output's file
 /// system; above it the recording's files are synced each on its own. A `syncfs` writes and waits for every dirty
-/// file of the file system, other programs' too: with 1.5 GB of another file's data waiting (a build's output, or
-/// `dd` without a sync), paper_clear_sky recorded at 61–68 frames/s that way against 690–870 file by file (AMD
-/// EPYC, ext4 on a virtual disk of about 1 GB/s, alternating runs), where with nothing else waiting the `syncfs`
-/// is the faster (paper_clear_sky 986–1063 frames/s against 849–939, crossing_pair 449–489 against 392–485). At
-/// about 1 GB/s, 16 MiB of others' data is 16 ms of waiting at most.
+/// file of the file system, other programs' too: after `dd` wrote 1.5 GB without a sync, paper_clear_sky recorded
+/// at 61–68 frames/s with only `syncfs` against 548–898 with this choice (AMD EPYC, ext4 on a virtual disk of
+/// about 1 GB/s, alternating runs), where with nothing else waiting the `syncfs` is the faster: syncing file by
+/// file always, paper_vibration recorded at 1359–1556 frames/s against 1622–2036 (one device cache flush per file,
+/// and the last checkpoint is waited for). At about 1 GB/s, 16 MiB of others' data is 16 ms of waiting at most.
+/// Counts of the recording's own bytes err toward fewer (a pass and a checkpoint each forget what they began with),
+/// so the choice errs toward file by file.
 const FOREIGN_DIRTY_LIMIT_BYTES: u64 = 16 << 20;
 
 /// How a sync makes the recording's files durable ([`sync_written`], and the [`Writeback`] thread's passes).
@@ -459,15 +572,12 @@ impl Writeback {
                 drop(stopped);
                 let bytes = counts.unsynced_bytes.load(Ordering::Relaxed);
                 let way = counts.way(bytes);
-                let failed = |errno: Option<i32>| {
-                    let errno = errno.unwrap_or(libc::EIO);
-                    let _ = counts.failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed);
-                };
+                let errno = || std::io::Error::last_os_error().raw_os_error();
                 match way {
                     SyncWay::FileSystem => {
                         // SAFETY: `handle` is an open descriptor for the duration of the call
                         if unsafe { libc::syncfs(handle.as_raw_fd()) } != 0 {
-                            failed(std::io::Error::last_os_error().raw_os_error());
+                            counts.pass_failed(errno(), None);
                         }
                     }
                     SyncWay::EachFile => {
@@ -476,7 +586,7 @@ impl Writeback {
                             let Ok(h) = std::fs::File::open(f) else { continue };
                             // SAFETY: `h` is an open descriptor for the duration of the call
                             if unsafe { libc::sync_file_range(h.as_raw_fd(), 0, 0, libc::SYNC_FILE_RANGE_WRITE) } != 0 {
-                                failed(std::io::Error::last_os_error().raw_os_error());
+                                counts.pass_failed(errno(), Some(f));
                             }
                         }
                     }
@@ -545,18 +655,23 @@ pub fn write_shared(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
 /// opened (and that no call on it has reported yet): through one descriptor held for the whole recording, an error
 /// on any file written since the start is reported, where a descriptor opened afresh for each checkpoint misses one that
 /// another process's `syncfs` of the same file system saw first. A file's own sync reports an error on it that
-/// no one has seen yet (Linux 4.16 and later), the [`Writeback`] thread's requests being no such call. `writeback`'s
-/// `failed` holds the OS error number of the first failed pass of the [`Writeback`] thread (0 while none has), read
-/// after the sync and reported here as well.
+/// no one has seen yet (Linux 4.16 and later), the [`Writeback`] thread's requests being no such call, while the
+/// file stays in memory: files are synced through the descriptor they were written with where it was held open
+/// ([`Held`]). `writeback` holds the first failed pass of the [`Writeback`] thread, read after the sync and
+/// reported here as well, on the file it failed on.
 ///
 /// # Errors
 /// The I/O error with the path.
 fn sync_written(
     dir: &Path,
     handle: Option<&std::fs::File>,
-    (files, also): (&[PathBuf], &[PathBuf]),
+    (files, also): (&[Written], &[PathBuf]),
     writeback: &WritebackCounts,
 ) -> Result<(), RecordError> {
+    let each = || {
+        let files = files.iter().map(|w| (w.path.as_path(), w.file.as_ref().map(|h| &h.file)));
+        files.chain(also.iter().map(|p| (p.as_path(), None)))
+    };
     #[cfg(target_os = "linux")]
     {
         use std::os::fd::AsRawFd;
@@ -576,23 +691,19 @@ fn sync_written(
                     return Err(io_err(dir, std::io::Error::last_os_error()));
                 }
             }
-            SyncWay::EachFile => sync_each(files.iter().chain(also), dir, |p| {
+            SyncWay::EachFile => sync_each(each(), dir, writeback, |p| {
                 if p == dir { d.sync_all() } else { std::fs::File::open(p).and_then(|h| h.sync_all()) }
             })?,
         }
         writeback.synced(bytes);
         // read after the sync, so that a pass that failed while it ran is reported too
-        let failed = writeback.failed.load(std::sync::atomic::Ordering::Relaxed);
-        if failed != 0 {
-            return Err(io_err(dir, std::io::Error::from_raw_os_error(failed)));
-        }
-        Ok(())
+        writeback.pass_error(dir).map_or(Ok(()), Err)
     }
     #[cfg(not(target_os = "linux"))]
     {
-        let _ = (handle, writeback);
+        let _ = handle;
         // directories cannot be opened for syncing on every platform (Windows): their syncs are best effort
-        sync_each(files.iter().chain(also), dir, |p| {
+        sync_each(each(), dir, writeback, |p| {
             if let Ok(h) = std::fs::File::open(p) {
                 let _ = h.sync_all();
             }
@@ -601,25 +712,38 @@ fn sync_written(
     }
 }
 
-/// Syncs each of `files` (`fdatasync`: their bytes and their length), then, with `sync_dir`, which makes the names
-/// in a directory durable, each of their directories and `dir`, once each.
+/// Syncs each of `files` (`fdatasync`: their bytes and their length), through the file where it is open, else
+/// opened by its path; then, with `sync_dir`, which makes the names in a directory durable, each of their
+/// directories and `dir`, once each.
 ///
 /// # Errors
 /// The I/O error with the path.
 fn sync_each<'a>(
-    files: impl Iterator<Item = &'a PathBuf>,
+    files: impl Iterator<Item = (&'a Path, Option<&'a std::fs::File>)>,
     dir: &'a Path,
+    writeback: &WritebackCounts,
     sync_dir: impl Fn(&Path) -> std::io::Result<()>,
 ) -> Result<(), RecordError> {
+    let log = |_p: &Path| {
+        #[cfg(test)]
+        writeback.synced_paths.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(_p.to_path_buf());
+    };
+    let _ = writeback;
     let mut dirs = std::collections::BTreeSet::from([dir]);
-    for f in files {
-        std::fs::File::open(f).and_then(|h| h.sync_data()).map_err(|e| io_err(f, e))?;
-        if let Some(parent) = f.parent() {
+    for (path, open) in files {
+        let synced = match open {
+            Some(f) => f.sync_data(),
+            None => std::fs::File::open(path).and_then(|h| h.sync_data()),
+        };
+        synced.map_err(|e| io_err(path, e))?;
+        log(path);
+        if let Some(parent) = path.parent() {
             dirs.insert(parent);
         }
     }
     for d in dirs {
         sync_dir(d).map_err(|e| io_err(d, e))?;
+        log(d);
     }
     Ok(())
 }
@@ -791,7 +915,7 @@ struct Done {
     result: Result<(), RecordError>,
     labels: FrameLabels,
     frame: Frame,
-    files: Vec<PathBuf>,
+    files: Vec<Written>,
 }
 
 /// What every encoding task of a recording shares.
@@ -890,7 +1014,7 @@ fn write_job(
     scratch: &mut EncodeScratch,
     bytes: &mut Vec<u8>,
     pausing: bool,
-) -> (Result<(), RecordError>, Vec<PathBuf>) {
+) -> (Result<(), RecordError>, Vec<Written>) {
     // each file appears under its name complete (linked or renamed into place when whole); it is made durable
     // with the others at the next checkpoint, before the labels that list it
     // the encoder and the writes look for the pool's jobs as they go (between system calls, and every
@@ -902,28 +1026,20 @@ fn write_job(
     };
     let frame_path = spec.dir.join("frames").join(format!("{:06}.{}", job.index, spec.format.extension()));
     encode_into_pausing(&job.frame, (spec.format, spec.max_level, spec.png), scratch, bytes, &mut pause);
-    let mut unsynced = |path: &Path, bytes: &[u8]| {
-        let written = write_whole_pausing(path, bytes, &mut pause, &spec.unnamed);
-        if written.is_ok() {
-            spec.writeback.wrote(path, bytes.len());
-        }
-        written
-    };
-    // only files that were written go on the list to sync (elsewhere than Linux each is opened to be synced)
+    // only files that were written go on the list to sync, each still open where it may be ([`Held`])
     let mut files = Vec::new();
-    let mut result = unsynced(&frame_path, bytes);
-    if result.is_ok() {
-        files.push(frame_path);
-    }
+    let mut unsynced = |path: PathBuf, bytes: &[u8]| {
+        let file = write_whole_pausing(&path, bytes, &mut pause, &spec.unnamed)?;
+        spec.writeback.wrote(&path, bytes.len());
+        files.push(Written { file: file.and_then(|f| Held::keep(&spec.writeback, f)), path });
+        Ok(())
+    };
+    let mut result = unsynced(frame_path, bytes);
     if let (Ok(()), Some(mask)) = (&result, &job.mask) {
         bytes.clear();
         crate::imaging::frame::write_gray8_png(mask, job.frame.width(), job.frame.height(), &mut *bytes)
             .expect("a mask is the frame's size");
-        let mask_path = spec.dir.join("masks").join(format!("{:06}.png", job.index));
-        result = unsynced(&mask_path, bytes);
-        if result.is_ok() {
-            files.push(mask_path);
-        }
+        result = unsynced(spec.dir.join("masks").join(format!("{:06}.png", job.index)), bytes);
     }
     (result, files)
 }
@@ -1044,7 +1160,7 @@ pub struct Recorder {
     frames_requested: u64,
     agc: Option<(Agc, u32)>,
     /// Files the tasks wrote since the last checkpoint's sync.
-    unsynced: Vec<PathBuf>,
+    unsynced: Vec<Written>,
     /// Frame buffers the tasks are done with.
     spare: Vec<Frame>,
     /// The checkpoint being written in the background.
@@ -1075,7 +1191,7 @@ enum Reached {
 /// for the next checkpoint).
 struct CheckpointOutcome {
     result: Result<(), (Reached, RecordError)>,
-    unsynced: Vec<PathBuf>,
+    unsynced: Vec<Written>,
 }
 
 /// What one checkpoint writes (a snapshot of the recorder's state, so that a thread of its own can write it).
@@ -1087,7 +1203,7 @@ struct CheckpointJob {
     /// The frames committed: those the labels list and the manifest counts.
     frames: u64,
     /// Files to make durable before the labels that list them.
-    unsynced: Vec<PathBuf>,
+    unsynced: Vec<Written>,
     /// The labels and MOT texts, where the files on disk do not hold them yet.
     texts: Option<(String, String)>,
     manifest: String,
@@ -1146,7 +1262,7 @@ impl CheckpointJob {
 fn write_synced_with_frames(
     dir: &Path,
     (handle, writeback, last): (Option<&std::fs::File>, &WritebackCounts, bool),
-    unsynced: &mut Vec<PathBuf>,
+    unsynced: &mut Vec<Written>,
     texts: [&[u8]; 3],
 ) -> Option<Result<(), (Reached, RecordError)>> {
     let paths = ["labels.jsonl", "gt_mot.txt", "manifest.json"].map(|name| dir.join(name));
@@ -1205,6 +1321,7 @@ impl Recorder {
         let (done_tx, done_rx) = channel::<Done>();
         let dir_handle = std::fs::File::open(dir).ok().map(Arc::new);
         let writeback = Writeback::start(dir_handle.is_some().then_some(dir), WRITEBACK_PERIOD);
+        writeback.counts.max_held.store(descriptor_budget(), std::sync::atomic::Ordering::Relaxed);
         let spec = TaskSpec {
             dir: dir.to_path_buf(),
             format,
@@ -1390,11 +1507,11 @@ impl Recorder {
             return;
         }
         let job = self.checkpoint_job("running");
-        let (frames, files) = (job.frames, job.unsynced.clone());
+        let (frames, files) = (job.frames, job.unsynced.iter().map(|w| w.path.clone()).collect());
         match std::thread::Builder::new().name("irsim checkpoint".into()).spawn(move || job.write()) {
             Ok(handle) => self.writing = Some(Writing { handle, frames, files }),
             Err(_) => {
-                self.unsynced.extend(files);
+                self.unsynced.extend(files.into_iter().map(Written::by_path));
                 if let Err(e) = self.checkpoint("running") {
                     self.error.get_or_insert(e);
                 }
@@ -1414,7 +1531,7 @@ impl Recorder {
                     Reached::Nothing,
                     RecordError::Io { path: self.dir.display().to_string(), message: "checkpoint failed".into() },
                 )),
-                unsynced: files,
+                unsynced: files.into_iter().map(Written::by_path).collect(),
             });
             if let Err(e) = self.apply_checkpoint(frames, outcome) {
                 self.error.get_or_insert(e);
@@ -1483,7 +1600,7 @@ impl Recorder {
         }
         // the removed files are no longer to be synced
         if n < self.sent {
-            self.unsynced.retain(|f| f.exists());
+            self.unsynced.retain(|f| f.path.exists());
         }
         if n < self.committed {
             let (l, m) = if n == 0 { (0, 0) } else { self.ends[n as usize - 1] };
@@ -1584,7 +1701,6 @@ mod tests {
             let f = dir.join(format!("f{forced}"));
             std::fs::write(&f, b"frame").unwrap();
             wb.counts.wrote(&f, 5);
-            assert_eq!(wb.counts.unsynced_bytes.load(Ordering::SeqCst), 5);
             let t = Instant::now();
             while passes(&wb) == [0, 0] && t.elapsed() < Duration::from_secs(10) {
                 std::thread::sleep(Duration::from_millis(5));
@@ -1605,6 +1721,8 @@ mod tests {
             while passes(&wb) == expected && t.elapsed() < Duration::from_secs(10) {
                 std::thread::sleep(Duration::from_millis(5));
             }
+            expected[way as usize] = 2;
+            assert_eq!(passes(&wb), expected, "{way:?}");
             assert_eq!(wb.counts.failed.load(Ordering::SeqCst), 0);
         }
         // stopping wakes the thread from its wait, not a period later: with a period of a minute, a thread in
@@ -1663,10 +1781,13 @@ mod tests {
         }
     }
 
-    /// Both ways of syncing (one `syncfs`, file by file) leave a recording whole: frames, labels and manifest; file
-    /// by file, a file that cannot be synced is reported by its path.
+    /// Both ways of syncing (one `syncfs`, file by file) leave a recording whole: frames, masks, labels and
+    /// manifest. File by file, every frame and mask, the three texts' temporaries, `frames/`, `masks/` and the
+    /// output directory are synced, each file before its directory; a file that cannot be synced is reported by its
+    /// path. The written files are held open until a checkpoint has synced them, and none is left open after.
     #[test]
     fn each_way_of_syncing_leaves_a_recording_whole() {
+        use std::sync::atomic::Ordering;
         for (forced, way) in [(1, SyncWay::FileSystem), (2, SyncWay::EachFile)] {
             let dir = std::env::temp_dir().join(format!("irsim-rec-way-{forced}-{}", std::process::id()));
             let _ = std::fs::remove_dir_all(&dir);
@@ -1681,11 +1802,20 @@ mod tests {
                 5,
             )
             .unwrap();
-            rec.writeback.counts.forced_way.store(forced, std::sync::atomic::Ordering::SeqCst);
+            let counts = Arc::clone(&rec.writeback.counts);
+            counts.forced_way.store(forced, Ordering::SeqCst);
             for k in 0..5 {
                 rec.push(Frame::new(8, 8), Some(vec![0; 64]), labels(k));
             }
+            rec.wait_for_all();
+            // where files are written unnamed (Linux, most file systems), each is held open until its sync (unless
+            // a slow machine took more than a second, and a checkpoint has taken some already)
+            if cfg!(target_os = "linux") && rec.queue.spec.unnamed.load(Ordering::SeqCst) && rec.writing.is_none() {
+                assert_eq!(counts.held.load(Ordering::SeqCst), 10, "{way:?}");
+                assert_eq!(rec.unsynced.iter().filter(|w| w.file.is_some()).count(), 10);
+            }
             let p = rec.finish(false).unwrap();
+            assert_eq!(counts.held.load(Ordering::SeqCst), 0, "{way:?}: files left open");
             assert_eq!((p.status.as_str(), p.frames_written), ("complete", 5), "{way:?}");
             assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap().lines().count(), 5);
             for sub in ["frames", "masks"] {
@@ -1698,20 +1828,57 @@ mod tests {
                 serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
             assert_eq!(m["status"], "complete");
             assert_eq!(m["frames_written"], 5);
+            let synced = std::mem::take(&mut *counts.synced_paths.lock().unwrap());
+            if way == SyncWay::EachFile && cfg!(target_os = "linux") {
+                let at = |p: &Path| synced.iter().position(|s| s == p).unwrap_or_else(|| panic!("{p:?} not synced"));
+                for k in 0..5 {
+                    for (sub, ext) in [("frames", "png"), ("masks", "png")] {
+                        let file = at(&dir.join(sub).join(format!("{k:06}.{ext}")));
+                        assert!(file < at(&dir.join(sub)), "{sub}/{k}: synced after its directory");
+                    }
+                }
+                for text in ["labels.jsonl", "gt_mot.txt", "manifest.json"] {
+                    assert!(at(&temporary_of(&dir.join(text))) < at(&dir), "{text}'s temporary");
+                }
+                // the last checkpoint syncs the output directory once more, after the renames
+                assert_eq!(synced.last(), Some(&dir));
+            } else if cfg!(target_os = "linux") {
+                assert_eq!(synced, Vec::<PathBuf>::new(), "one syncfs syncs no file on its own");
+            }
             // a file gone before its sync
             let counts = WritebackCounts::default();
-            counts.forced_way.store(forced, std::sync::atomic::Ordering::SeqCst);
+            counts.forced_way.store(forced, Ordering::SeqCst);
             let gone = dir.join("frames").join("999999.png");
-            let synced =
-                sync_written(&dir, None, (&[dir.join("frames").join("000000.png"), gone.clone()], &[]), &counts);
-            match way {
-                SyncWay::EachFile => {
-                    let e = synced.unwrap_err().to_string();
-                    assert!(e.contains("999999.png"), "{e}");
-                }
-                SyncWay::FileSystem => synced.unwrap(),
+            let files = [dir.join("frames").join("000000.png"), gone].map(Written::by_path);
+            let synced = sync_written(&dir, None, (&files, &[]), &counts);
+            if way == SyncWay::FileSystem && cfg!(target_os = "linux") {
+                synced.unwrap();
+            } else {
+                let e = synced.unwrap_err().to_string();
+                assert!(e.contains("999999.png"), "{e}");
             }
             std::fs::remove_dir_all(&dir).unwrap();
+        }
+    }
+
+    /// Files are held open within the budget only, and closed when dropped.
+    #[test]
+    fn written_files_are_held_open_within_the_budget() {
+        use std::sync::atomic::Ordering;
+        let counts = Arc::new(WritebackCounts::default());
+        counts.max_held.store(2, Ordering::SeqCst);
+        let open = || std::fs::File::open(std::env::current_exe().unwrap()).unwrap();
+        let kept: Vec<Option<Held>> = (0..3).map(|_| Held::keep(&counts, open())).collect();
+        assert_eq!(kept.iter().map(Option::is_some).collect::<Vec<_>>(), [true, true, false]);
+        assert_eq!(counts.held.load(Ordering::SeqCst), 2);
+        drop(kept);
+        assert_eq!(counts.held.load(Ordering::SeqCst), 0);
+        assert!(Held::keep(&counts, open()).is_some());
+        // the process's budget: some files on Linux (a quarter of a limit of at least 64), none elsewhere
+        if cfg!(target_os = "linux") {
+            assert!((16..=8192).contains(&descriptor_budget()), "{}", descriptor_budget());
+        } else {
+            assert_eq!(descriptor_budget(), 0);
         }
     }
 
@@ -1791,6 +1958,7 @@ mod tests {
     /// disk).
     #[test]
     fn a_failed_checkpoint_hands_back_its_files_and_says_how_far_it_got() {
+        let paths = |w: &[Written]| w.iter().map(|w| w.path.clone()).collect::<Vec<_>>();
         let dir = std::env::temp_dir().join(format!("irsim-rec-ckpt-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(dir.join("frames")).unwrap();
@@ -1802,7 +1970,7 @@ mod tests {
             dir_handle: std::fs::File::open(d).ok().map(Arc::new),
             writeback: Arc::default(),
             frames: 1,
-            unsynced: vec![frame.clone()],
+            unsynced: vec![Written::by_path(frame.clone())],
             texts: Some(("labels\n".into(), "mot\n".into())),
             manifest: "{}".into(),
             last: true,
@@ -1818,16 +1986,18 @@ mod tests {
         // a directory that is not there: the sync fails, nothing is written, the file comes back
         let out = job(&dir.join("missing")).write();
         assert!(matches!(out.result, Err((Reached::Nothing, _))), "{:?}", out.result.err());
-        assert_eq!(out.unsynced, std::slice::from_ref(&frame));
+        assert_eq!(paths(&out.unsynced), std::slice::from_ref(&frame));
         // a failed pass of the writeback thread (Linux): the sync succeeds, the pass's error is reported
         #[cfg(target_os = "linux")]
         {
             let failing = job(&dir);
-            failing.writeback.failed.store(libc::EIO, std::sync::atomic::Ordering::Relaxed);
+            failing.writeback.pass_failed(Some(libc::EIO), Some(&frame));
             let out = failing.write();
             let Err((Reached::Nothing, e)) = &out.result else { panic!("{:?}", out.result.err()) };
             assert!(e.to_string().contains(&std::io::Error::from_raw_os_error(libc::EIO).to_string()), "{e}");
-            assert_eq!(out.unsynced, std::slice::from_ref(&frame));
+            // on the file it failed on
+            assert!(e.to_string().contains("000000.png"), "{e}");
+            assert_eq!(paths(&out.unsynced), std::slice::from_ref(&frame));
             assert!(!dir.join("labels.jsonl").exists());
             assert_eq!(temporaries(&dir), Vec::<String>::new());
         }
