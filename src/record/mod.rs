@@ -433,14 +433,21 @@ struct Held {
     counts: Arc<WritebackCounts>,
 }
 
+/// Files held open ([`Held`]) by all the process's recordings (a dataset's, a window's and tests' may run at once).
+static HELD_IN_PROCESS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 impl Held {
-    /// `file`, held open if the budget allows; closed otherwise.
+    /// `file`, held open if the recording's budget and the process's ([`descriptor_budget`]) allow; closed
+    /// otherwise.
     fn keep(counts: &Arc<WritebackCounts>, file: std::fs::File) -> Option<Self> {
         use std::sync::atomic::Ordering;
-        if counts.held.fetch_add(1, Ordering::Relaxed) < counts.max_held.load(Ordering::Relaxed) {
+        let mine = counts.held.fetch_add(1, Ordering::Relaxed) < counts.max_held.load(Ordering::Relaxed);
+        let process = HELD_IN_PROCESS.fetch_add(1, Ordering::Relaxed) < descriptor_budget();
+        if mine && process {
             Some(Self { file, counts: Arc::clone(counts) })
         } else {
             counts.held.fetch_sub(1, Ordering::Relaxed);
+            HELD_IN_PROCESS.fetch_sub(1, Ordering::Relaxed);
             None
         }
     }
@@ -449,10 +456,11 @@ impl Held {
 impl Drop for Held {
     fn drop(&mut self) {
         self.counts.held.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
+        HELD_IN_PROCESS.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
     }
 }
 
-/// How many written files a recording may hold open ([`Held`]): a quarter of the process's limit on open files,
+/// How many written files the process's recordings may hold open ([`Held`]): a quarter of its limit on open files,
 /// at most 8192, after raising its soft limit toward the hard one (to 65 536 at most, once per process: a 256 × 256
 /// recording with masks writes about 4000 files a second, and a file is held for up to a checkpoint's period and its
 /// sync). None off Linux, where files are always reopened to be synced.
