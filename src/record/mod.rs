@@ -1797,19 +1797,7 @@ mod tests {
     fn each_way_of_syncing_leaves_a_recording_whole() {
         use std::sync::atomic::Ordering;
         for (forced, way) in [(1, SyncWay::FileSystem), (2, SyncWay::EachFile)] {
-            let dir = std::env::temp_dir().join(format!("irsim-rec-way-{forced}-{}", std::process::id()));
-            let _ = std::fs::remove_dir_all(&dir);
-            let _lock = prepare_dir(&dir, false).unwrap();
-            let mut rec = Recorder::new(
-                &dir,
-                (FrameFormat::Png16, PngCompression::Fast),
-                true,
-                65535,
-                2,
-                serde_json::json!({}),
-                5,
-            )
-            .unwrap();
+            let (dir, _lock, mut rec) = fresh_recorder(&format!("way-{forced}"), true, 65535, 5);
             let counts = Arc::clone(&rec.writeback.counts);
             counts.forced_way.store(forced, Ordering::SeqCst);
             for k in 0..5 {
@@ -1957,6 +1945,17 @@ mod tests {
         assert_eq!(f32::from_le_bytes(b[b.len() - 4..].try_into().unwrap()), 6.5);
     }
 
+    /// A recorder of 16-bit PNGs (`fast`) for 2 threads into a fresh directory of the temporary directory, named
+    /// after `name`: the directory, its lock (held while it is kept) and the recorder.
+    fn fresh_recorder(name: &str, masks: bool, max_level: u16, frames: u64) -> (PathBuf, DirLock, Recorder) {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let lock = prepare_dir(&dir, false).unwrap();
+        let png = (FrameFormat::Png16, PngCompression::Fast);
+        let rec = Recorder::new(&dir, png, masks, max_level, 2, serde_json::json!({}), frames).unwrap();
+        (dir, lock, rec)
+    }
+
     fn labels(frame: u64) -> FrameLabels {
         FrameLabels { frame, t_s: frame as f64 * 0.1, targets: Vec::new() }
     }
@@ -2022,12 +2021,7 @@ mod tests {
 
     #[test]
     fn interruption_leaves_matching_frames_labels_and_manifest() {
-        let dir = std::env::temp_dir().join(format!("irsim-rec-int-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let _lock = prepare_dir(&dir, false).unwrap();
-        let mut rec =
-            Recorder::new(&dir, (FrameFormat::Png16, PngCompression::Fast), false, 65535, 2, serde_json::json!({}), 10)
-                .unwrap();
+        let (dir, _lock, mut rec) = fresh_recorder("int", false, 65535, 10);
         for k in 0..3 {
             rec.push(Frame::new(8, 8), None, labels(k));
         }
@@ -2048,19 +2042,7 @@ mod tests {
     #[test]
     fn frames_are_the_same_whoever_encodes_them() {
         let record = |name: &str| {
-            let dir = std::env::temp_dir().join(format!("irsim-rec-{name}-{}", std::process::id()));
-            let _ = std::fs::remove_dir_all(&dir);
-            let _lock = prepare_dir(&dir, false).unwrap();
-            let mut rec = Recorder::new(
-                &dir,
-                (FrameFormat::Png16, PngCompression::Fast),
-                true,
-                4095,
-                2,
-                serde_json::json!({}),
-                40,
-            )
-            .unwrap();
+            let (dir, _lock, mut rec) = fresh_recorder(name, true, 4095, 40);
             let idle = rec.idle_work();
             // the workers held awake over the whole loop, as `irsim record` holds them: the recorder waits for
             // frames (and encodes them itself) while they look for work
@@ -2096,12 +2078,7 @@ mod tests {
 
     #[test]
     fn a_write_error_is_reported_and_recorded() {
-        let dir = std::env::temp_dir().join(format!("irsim-rec-err-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let _lock = prepare_dir(&dir, false).unwrap();
-        let mut rec =
-            Recorder::new(&dir, (FrameFormat::Png16, PngCompression::Fast), false, 65535, 2, serde_json::json!({}), 10)
-                .unwrap();
+        let (dir, _lock, mut rec) = fresh_recorder("err", false, 65535, 10);
         rec.push(Frame::new(8, 8), None, labels(0));
         // make every later frame write fail, as a full disk would
         std::fs::remove_dir_all(dir.join("frames")).unwrap();
@@ -2122,12 +2099,7 @@ mod tests {
 
     #[test]
     fn a_failure_the_caller_reports_ends_the_run_as_failed() {
-        let dir = std::env::temp_dir().join(format!("irsim-rec-fail-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let _lock = prepare_dir(&dir, false).unwrap();
-        let mut rec =
-            Recorder::new(&dir, (FrameFormat::Png16, PngCompression::Fast), false, 65535, 2, serde_json::json!({}), 10)
-                .unwrap();
+        let (dir, _lock, mut rec) = fresh_recorder("fail", false, 65535, 10);
         rec.push(Frame::new(8, 8), None, labels(0));
         rec.fail("internal error computing frame 1".into());
         assert!(rec.failed());
