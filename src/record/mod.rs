@@ -184,18 +184,18 @@ fn write_renamed_pausing(
 }
 
 /// Writes `bytes` under `path`, Linux: into a file without a name in `path`'s directory (`O_TMPFILE`), given its
-/// name when it is whole (`linkat`) and returned still open, so that, as with a temporary file renamed into place, a file under `path` is
+/// name when it is whole (`linkat`), so that, as with a temporary file renamed into place, a file under `path` is
 /// always complete, and a process killed before the link leaves nothing behind. One directory entry is made, where a
 /// rename of a temporary file makes one, removes it and makes another, each after a search of the directory: the
 /// kernel's time per frame (system calls, in `perf`) went from 94 to 81 µs, 3000 frames of 256 × 256 png16 on one
 /// thread of an AMD EPYC into an ext4 directory. `pause` is called between the system calls and after every
 /// [`PAUSE_BYTES`] written.
 ///
-/// Returns `None` where it could not, and the caller writes the file the other way (whose errors say why, if the
-/// cause was not this way's). Where the cause would come again for every file (no `O_TMPFILE` in the kernel or the
-/// file system; a link refused for any reason but the name being taken: no `/proc`, through which the link names
-/// the file, or a sandbox refusing the call), `unnamed` is cleared, so that the run's later files go the other way
-/// at once.
+/// Returns the file, still open, or `None` where it could not, and the caller writes the file the other way (whose
+/// errors say why, if the cause was not this way's). Where the cause would come again for every file (no `O_TMPFILE` in
+/// the kernel or the file system; a link refused for any reason but the name being taken: no `/proc`, through which the
+/// link names the file, or a sandbox refusing the call), `unnamed` is cleared, so that the run's later files go the
+/// other way at once.
 ///
 /// [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
 #[cfg(target_os = "linux")]
