@@ -385,8 +385,10 @@ impl WritebackCounts {
     fn pass_failed(&self, errno: Option<i32>, on: Option<&Path>) {
         use std::sync::atomic::Ordering;
         let errno = errno.unwrap_or(libc::EIO);
+        // held across the number's change, so that a reader who sees the number and then takes the lock finds the file
+        let mut failed_on = self.failed_on.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         if self.failed.compare_exchange(0, errno, Ordering::Relaxed, Ordering::Relaxed).is_ok() {
-            *self.failed_on.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = on.map(Path::to_path_buf);
+            *failed_on = on.map(Path::to_path_buf);
         }
     }
 
@@ -754,21 +756,21 @@ fn sync_each<'a>(
     // side by side, so that the disk's cache flushes, one per file, are shared (a flush asked for while another is
     // under way is served by the next one)
     let threads = (files.len() / SYNCS_PER_THREAD).clamp(1, SYNC_THREADS);
+    // thread `t`'s files: every `threads`-th from the `t`-th; the first error among them
+    let group = |t: usize| files.iter().skip(t).step_by(threads).find_map(|&f| sync(f).err());
     let first_error = std::thread::scope(|scope| {
         // the files of a thread that cannot be started are synced on this one
         let mut mine = vec![0];
         let mut parts = Vec::new();
         for t in 1..threads {
-            let files = &files;
-            let part = move || files.iter().skip(t).step_by(threads).find_map(|&f| sync(f).err());
-            match std::thread::Builder::new().name("irsim sync".into()).spawn_scoped(scope, part) {
+            match std::thread::Builder::new().name("irsim sync".into()).spawn_scoped(scope, move || group(t)) {
                 Ok(handle) => parts.push(handle),
                 Err(_) => mine.push(t),
             }
         }
         #[cfg(test)]
         writeback.most_sync_threads.fetch_max(parts.len() + 1, std::sync::atomic::Ordering::Relaxed);
-        let mine = mine.into_iter().find_map(|t| files.iter().skip(t).step_by(threads).find_map(|&f| sync(f).err()));
+        let mine = mine.into_iter().find_map(group);
         // every thread joined before an error is picked, so that none is left to the scope's end
         let theirs: Vec<_> = parts
             .into_iter()
