@@ -289,16 +289,27 @@ fn unnamed_files_fit(_: &Path) -> bool {
     false
 }
 
-/// How often [`Writeback`] hands the files written since its last pass to the disk. A recording shorter than
-/// this leaves every file to its last sync (paper_vibration's 60 frames: 3.5–5 ms of a 35 ms loop). A first wait
-/// of 5 ms, doubling after each pass, cut that sync to 0.15 ms but not the run: the passes took as long while it
-/// ran (one 8.9 ms), and 5 interleaved recordings of paper_vibration on a 2-vCPU Intel Xeon ran at 1218–1688
-/// frames/s with it against 1321–1657 without (means 1456 and 1462).
+/// How often [`Writeback`] hands the files written since its last pass to the disk, once the recording has run
+/// a while (see [`WRITEBACK_FIRST_WAIT`] for its first passes).
 #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
 const WRITEBACK_PERIOD: std::time::Duration = std::time::Duration::from_millis(100);
 
-/// A thread of its own that starts the disk on the recording's files as they come: every [`WRITEBACK_PERIOD`],
-/// if files were written since its last pass, the files written since then are handed to the disk (Linux), so that
+/// The wait before [`Writeback`]'s first pass; each later wait is twice the one before, up to
+/// [`WRITEBACK_PERIOD`] (passes 6, 18, 42, 90 and 186 ms into the recording, then every 100 ms). A recording
+/// shorter than the period would otherwise leave every file to its last checkpoint's sync, which then writes
+/// them all while the simulation has nothing left to do: paper_vibration's 60 frames at 256 × 256 (3.7 MB), a
+/// `syncfs` of 8.5–10.7 ms at the end of a 35 ms loop (`strace -f -T`), 0.9–4.9 ms with these waits. Started
+/// early, the disk writes them while the frames are computed. Into fresh ext4 directories (AMD EPYC of family
+/// 25, 2 vCPUs), alternating runs of `irsim record`, frames/s, medians, every 100 ms against these waits:
+/// paper_vibration 1828 → 2072 (8 runs each), 1730 → 2023 and 1828 → 1965 (6), paper_clear_sky 861 → 923 (8),
+/// crossing_pair 495 → 527 (6); longer runs within the noise (2000 frames at 256 × 256 2408 → 2369, head_on 451 →
+/// 448, 6 each). A first wait of 3 ms gained less, one of 10 ms too. On a 2-vCPU Intel Xeon and on a Zen 5 EPYC
+/// early passes had shown no gain (docs/accuracy.md, "The write-back thread's first passes sooner").
+#[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+const WRITEBACK_FIRST_WAIT: std::time::Duration = std::time::Duration::from_millis(6);
+
+/// A thread of its own that starts the disk on the recording's files as they come: every [`WRITEBACK_PERIOD`]
+/// (sooner at first, [`WRITEBACK_FIRST_WAIT`]), if files were written since its last pass, the files written since then are handed to the disk (Linux), so that
 /// a checkpoint's sync, the last one's above all, finds little left to write. The pass is made the way
 /// [`SyncWay::now`] picks: while the file system holds little to write besides this recording's files, one `syncfs`
 /// of it (ten times a second at most, and only while files are being written), which costs the machine less than
@@ -549,20 +560,21 @@ fn waiting_bytes(meminfo: &str) -> Option<u64> {
 }
 
 impl Writeback {
-    /// Starts the thread for `dir`, passing every `period`; where `dir` is `None` (the recording could not open its
+    /// Starts the thread for `dir`, passing `first` after its start, then after twice the last wait each time, up
+    /// to `period`; where `dir` is `None` (the recording could not open its
     /// directory) or no thread can be started or no descriptor opened (or off Linux), none runs and the checkpoints'
     /// syncs write everything.
-    fn start(dir: Option<&Path>, period: std::time::Duration) -> Self {
+    fn start(dir: Option<&Path>, (first, period): (std::time::Duration, std::time::Duration)) -> Self {
         let counts = Arc::<WritebackCounts>::default();
         let stop = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
-        let thread = dir.and_then(|dir| Self::spawn(dir, period, Arc::clone(&counts), Arc::clone(&stop)));
+        let thread = dir.and_then(|dir| Self::spawn(dir, (first, period), Arc::clone(&counts), Arc::clone(&stop)));
         Self { counts, stop, thread }
     }
 
     #[cfg(target_os = "linux")]
     fn spawn(
         dir: &Path,
-        period: std::time::Duration,
+        (first, period): (std::time::Duration, std::time::Duration),
         counts: Arc<WritebackCounts>,
         stop: Arc<(Mutex<bool>, std::sync::Condvar)>,
     ) -> Option<std::thread::JoinHandle<()>> {
@@ -573,8 +585,10 @@ impl Writeback {
         let work = move || {
             let (flag, wake) = &*stop;
             let mut stopped = flag.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            let mut wait = first.min(period);
             while !*stopped {
-                stopped = wake.wait_timeout(stopped, period).unwrap_or_else(std::sync::PoisonError::into_inner).0;
+                stopped = wake.wait_timeout(stopped, wait).unwrap_or_else(std::sync::PoisonError::into_inner).0;
+                wait = (wait * 2).min(period);
                 if *stopped {
                     continue;
                 }
@@ -620,7 +634,7 @@ impl Writeback {
     #[cfg(not(target_os = "linux"))]
     fn spawn(
         _: &Path,
-        _: std::time::Duration,
+        _: (std::time::Duration, std::time::Duration),
         _: Arc<WritebackCounts>,
         _: Arc<(Mutex<bool>, std::sync::Condvar)>,
     ) -> Option<std::thread::JoinHandle<()>> {
@@ -1375,7 +1389,7 @@ impl Recorder {
         }
         let (done_tx, done_rx) = channel::<Done>();
         let dir_handle = std::fs::File::open(dir).ok().map(Arc::new);
-        let writeback = Writeback::start(dir_handle.is_some().then_some(dir), WRITEBACK_PERIOD);
+        let writeback = Writeback::start(dir_handle.is_some().then_some(dir), (WRITEBACK_FIRST_WAIT, WRITEBACK_PERIOD));
         writeback.counts.max_held.store(descriptor_budget(), std::sync::atomic::Ordering::Relaxed);
         let spec = TaskSpec {
             dir: dir.to_path_buf(),
@@ -1746,7 +1760,7 @@ mod tests {
         let passes = |wb: &Writeback| wb.counts.passes.each_ref().map(|p| p.load(Ordering::SeqCst));
         // each way, forced: one `syncfs`, and file by file
         for (forced, way) in [(1, SyncWay::FileSystem), (2, SyncWay::EachFile)] {
-            let wb = Writeback::start(Some(&dir), WRITEBACK_PERIOD);
+            let wb = Writeback::start(Some(&dir), (WRITEBACK_PERIOD, WRITEBACK_PERIOD));
             assert!(wb.thread.is_some());
             wb.counts.forced_way.store(forced, Ordering::SeqCst);
             // nothing written: no pass
@@ -1785,7 +1799,7 @@ mod tests {
         // files are no longer listed
         let long = Duration::from_secs(60);
         for written in [false, true] {
-            let mut wb = Writeback::start(Some(&dir), long);
+            let mut wb = Writeback::start(Some(&dir), (long, long));
             if written {
                 wb.counts.wrote(&dir.join("f1"), 5);
             }
@@ -1797,8 +1811,21 @@ mod tests {
             wb.counts.wrote(&dir.join("f1"), 5);
             assert!(wb.counts.take_pending().is_empty());
         }
+        // the first passes come sooner than the period: waits of 5 ms, 10, 20… against a period of a minute, so a
+        // pass within seconds of each file is one of the short waits (each wait missed doubles the next, which
+        // reaches seconds only after a dozen)
+        let mut wb = Writeback::start(Some(&dir), (Duration::from_millis(5), long));
+        for n in 1..=3 {
+            wb.counts.wrote(&dir.join("f1"), 5);
+            let t = Instant::now();
+            while passes(&wb).iter().sum::<u64>() < n && t.elapsed() < Duration::from_secs(10) {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            assert_eq!(passes(&wb).iter().sum::<u64>(), n, "pass {n} after {:?}", t.elapsed());
+        }
+        wb.stop();
         // no directory: no thread, and nothing listed for one
-        let wb = Writeback::start(None, WRITEBACK_PERIOD);
+        let wb = Writeback::start(None, (WRITEBACK_FIRST_WAIT, WRITEBACK_PERIOD));
         assert!(wb.thread.is_none());
         wb.counts.wrote(&dir.join("f1"), 5);
         assert!(wb.counts.take_pending().is_empty());
