@@ -301,18 +301,27 @@ const WRITEBACK_PERIOD: std::time::Duration = std::time::Duration::from_millis(1
 /// `syncfs` of 8.5–10.7 ms at the end of a 35 ms loop (`strace -f -T`), 0.9–4.9 ms with these waits. Started
 /// early, the disk writes them while the frames are computed. Into fresh ext4 directories (AMD EPYC of family
 /// 25, 2 vCPUs), alternating runs of `irsim record`, frames/s, medians, every 100 ms against these waits:
-/// paper_vibration 1828 → 2072 (8 runs each), 1730 → 2023 and 1828 → 1965 (6), paper_clear_sky 861 → 923 (8),
-/// crossing_pair 495 → 527 (6); longer runs within the noise (2000 frames at 256 × 256 2408 → 2369, head_on 451 →
-/// 448, 6 each). A first wait of 3 ms gained less, one of 10 ms too. On a 2-vCPU Intel Xeon and on a Zen 5 EPYC
-/// early passes had shown no gain (docs/accuracy.md, "The write-back thread's first passes sooner").
+/// paper_vibration 1828 → 2072 (8 runs each), 1726 → 2023 and 1828 → 1965 (6), paper_clear_sky 860 → 924 (8),
+/// crossing_pair 495 → 527 (6); the longer runs' medians 0.1–2 % lower, well inside their spread (2000 frames at
+/// 256 × 256 2408 → 2370, runs 2030–2472 against 2229–2554; head_on 451 → 448, 446–463 against 379–461; 6 each).
+/// First waits of 3 and 10 ms gained less (docs/accuracy.md, "The write-back thread's first passes sooner"). On a
+/// 2-vCPU Intel Xeon and on a Zen 5 EPYC early passes had shown no gain.
 #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
 const WRITEBACK_FIRST_WAIT: std::time::Duration = std::time::Duration::from_millis(6);
 
+/// The [`Writeback`] thread's wait after `wait`: twice it, at least a millisecond (a wait of 0 would spin) and
+/// at most `period`.
+#[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+fn next_wait(wait: std::time::Duration, period: std::time::Duration) -> std::time::Duration {
+    (wait * 2).max(std::time::Duration::from_millis(1)).min(period)
+}
+
 /// A thread of its own that starts the disk on the recording's files as they come: every [`WRITEBACK_PERIOD`]
-/// (sooner at first, [`WRITEBACK_FIRST_WAIT`]), if files were written since its last pass, the files written since then are handed to the disk (Linux), so that
-/// a checkpoint's sync, the last one's above all, finds little left to write. The pass is made the way
-/// [`SyncWay::now`] picks: while the file system holds little to write besides this recording's files, one `syncfs`
-/// of it (ten times a second at most, and only while files are being written), which costs the machine less than
+/// (sooner at first, from [`WRITEBACK_FIRST_WAIT`] on), if files were written since its last pass, the files
+/// written since then are handed to the disk (Linux), so that a checkpoint's sync, the last one's above all, finds
+/// little left to write. The pass is made the way [`SyncWay::now`] picks: while the file system holds little to
+/// write besides this recording's files, one `syncfs` of it (ten times a second at most after its first passes,
+/// and only while files are being written), which costs the machine less than
 /// asking for each file's write-back (one device request and one notification of the device each): 256 × 256 png16
 /// into fresh ext4 directories on one thread of an AMD EPYC, 1616–1817 frames/s asking for each file as it was
 /// written against 2046–2155 with the `syncfs` (interleaved rounds). Where other writers' data wait too (a build
@@ -560,10 +569,9 @@ fn waiting_bytes(meminfo: &str) -> Option<u64> {
 }
 
 impl Writeback {
-    /// Starts the thread for `dir`, passing `first` after its start, then after twice the last wait each time, up
-    /// to `period`; where `dir` is `None` (the recording could not open its
-    /// directory) or no thread can be started or no descriptor opened (or off Linux), none runs and the checkpoints'
-    /// syncs write everything.
+    /// Starts the thread for `dir`, passing `first` after its start, then after waits that double up to `period`
+    /// ([`next_wait`]); where `dir` is `None` (the recording could not open its directory) or no thread can be
+    /// started or no descriptor opened (or off Linux), none runs and the checkpoints' syncs write everything.
     fn start(dir: Option<&Path>, (first, period): (std::time::Duration, std::time::Duration)) -> Self {
         let counts = Arc::<WritebackCounts>::default();
         let stop = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
@@ -588,7 +596,7 @@ impl Writeback {
             let mut wait = first.min(period);
             while !*stopped {
                 stopped = wake.wait_timeout(stopped, wait).unwrap_or_else(std::sync::PoisonError::into_inner).0;
-                wait = (wait * 2).min(period);
+                wait = next_wait(wait, period);
                 if *stopped {
                     continue;
                 }
@@ -1813,7 +1821,7 @@ mod tests {
         }
         // the first passes come sooner than the period: waits of 5 ms, 10, 20… against a period of a minute, so a
         // pass within seconds of each file is one of the short waits (each wait missed doubles the next, which
-        // reaches seconds only after a dozen)
+        // reaches ten seconds only after a dozen)
         let mut wb = Writeback::start(Some(&dir), (Duration::from_millis(5), long));
         for n in 1..=3 {
             wb.counts.wrote(&dir.join("f1"), 5);
@@ -1830,6 +1838,33 @@ mod tests {
         wb.counts.wrote(&dir.join("f1"), 5);
         assert!(wb.counts.take_pending().is_empty());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The write-back thread's waits double from the first up to the period, never 0 (a loop that would spin).
+    #[test]
+    fn the_writeback_waits_double_up_to_the_period() {
+        use std::time::Duration;
+        let ms = Duration::from_millis;
+        let mut wait = WRITEBACK_FIRST_WAIT.min(WRITEBACK_PERIOD);
+        let mut waits = vec![wait];
+        for _ in 0..6 {
+            wait = next_wait(wait, WRITEBACK_PERIOD);
+            waits.push(wait);
+        }
+        assert_eq!(waits, [6, 12, 24, 48, 96, 100, 100].map(ms));
+        // the passes documented on WRITEBACK_FIRST_WAIT: 6, 18, 42, 90 and 186 ms into the recording
+        let mut t = Duration::ZERO;
+        let at: Vec<Duration> = waits
+            .iter()
+            .map(|&w| {
+                t += w;
+                t
+            })
+            .collect();
+        assert_eq!(at[..5], [6, 18, 42, 90, 186].map(ms));
+        assert_eq!(next_wait(ms(200), ms(100)), ms(100));
+        assert_eq!(next_wait(Duration::ZERO, ms(100)), ms(1));
+        assert_eq!(next_wait(ms(30), ms(50)), ms(50));
     }
 
     /// A sync is one `syncfs` only while the machine holds little to write besides the recording's own files (a
