@@ -115,3 +115,32 @@ where
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--help` is made from the doc comments, which rustdoc reads too: an intra-doc link there reaches the user
+    /// as `[`crate::…`]`. Every command's and subcommand's long help, its options' and their values' included,
+    /// must read as plain text.
+    #[test]
+    fn help_texts_hold_no_rustdoc_links() {
+        use clap::CommandFactory;
+        fn check(cmd: &mut clap::Command, path: &str) -> usize {
+            let help = cmd.render_long_help().to_string();
+            for bad in ["[`", "`]", "crate::", "](", "super::"] {
+                assert!(!help.contains(bad), "`{path} --help` holds {bad:?}:\n{help}");
+            }
+            let mut seen = 1;
+            for sub in cmd.get_subcommands_mut() {
+                let name = format!("{path} {}", sub.get_name());
+                seen += check(sub, &name);
+            }
+            seen
+        }
+        let mut cli = Cli::command();
+        cli.build();
+        // every command is looked at, not only the top level's list
+        assert!(check(&mut cli, "irsim") > 8);
+    }
+}

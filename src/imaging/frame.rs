@@ -241,8 +241,8 @@ pub fn write_gray8_png<W: Write>(pixels: &[u8], width: usize, height: usize, out
 pub enum PngCompression {
     /// Stored, no deflate (the largest files, the least CPU).
     None,
-    /// The `Sub` filter and a Huffman-only deflate made for 16-bit frames (the default; see
-    /// [`crate::imaging::png16`]).
+    /// The `Sub` filter and a Huffman-only deflate made for 16-bit frames (the default; irsim's own encoder,
+    /// `imaging::png16`).
     #[default]
     Fast,
     /// zlib's default level with adaptive filters.
