@@ -25,10 +25,12 @@
 //! directory opened when the recording began, so that a write-back error on any file since then is reported) while the
 //! machine holds little else waiting to be written, and a sync of each file and of its directory otherwise, so that a
 //! recording waits for at most a few milliseconds of other programs' writes (a build's output); elsewhere always the
-//! latter (`SyncWay`). On Linux the labels, MOT file and manifest are written under temporary names before that sync,
-//! which makes them durable with the frames, and renamed into place after it; the last checkpoint syncs once more, for
-//! the names. A checkpoint during the run is written by a thread of its own from a copy of the texts, so the simulation
-//! does not wait for the disk (a checkpoint still being written when the next is due delays that one); the last one, at
+//! latter (`SyncWay`). The labels and the MOT lines are each appended, before that sync, to one of two hidden files
+//! that take turns being linked in place under the file's name (`ShadowedText`): a checkpoint writes the lines since
+//! the last but one, not the whole text, and a recording keeps only those in memory. The manifest is written under a
+//! temporary name before the sync; after it, the labels, the MOT file and the manifest are put in place; the last
+//! checkpoint removes the hidden files and syncs once more, for the names. A checkpoint during the run is written by a
+//! thread of its own from a copy of the lines it appends, so the simulation does not wait for the disk (a checkpoint still being written when the next is due delays that one); the last one, at
 //! the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint, and never leaves
 //! labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the
 //! manifest, so a process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one
@@ -868,7 +870,8 @@ fn lock_dir(dir: &Path) -> Result<DirLock, RecordError> {
 }
 
 /// Whether `name`, in an output directory, is a temporary a recording makes and renames (left behind by one that
-/// was killed): a subdirectory being made ([`make_subdirectory`]) or a label, MOT or manifest file being written.
+/// was killed): a subdirectory being made ([`make_subdirectory`]), a label, MOT or manifest file being written, or
+/// one of the hidden copies the labels and MOT lines are appended to ([`ShadowedText`]).
 fn is_leftover(name: &str) -> bool {
     let made = ["frames", "masks"].iter().any(|sub| {
         name.strip_prefix('.')
@@ -878,6 +881,7 @@ fn is_leftover(name: &str) -> bool {
             .is_some_and(|n| n.split('.').all(|part| !part.is_empty() && part.bytes().all(|b| b.is_ascii_digit())))
     });
     made || ["labels.jsonl.tmp", "gt_mot.txt.tmp", "manifest.json.tmp"].contains(&name)
+        || [".labels.jsonl.0", ".labels.jsonl.1", ".gt_mot.txt.0", ".gt_mot.txt.1"].contains(&name)
 }
 
 /// Prepares `dir`: creates it and takes its lock, or refuses if another recording holds the lock, or if the
@@ -1223,10 +1227,9 @@ pub struct Recorder {
     pending: BTreeMap<u64, FrameLabels>,
     committed: u64,
     sent: u64,
-    labels_text: String,
-    mot_text: String,
-    /// Ends of each committed frame's text in `labels_text` and `mot_text`.
-    ends: Vec<(usize, usize)>,
+    /// The committed frames' label lines and MOT lines.
+    labels: ShadowedText,
+    mot: ShadowedText,
     /// Frames whose labels and MOT lines the files on disk hold (the last successful checkpoint).
     on_disk: u64,
     /// Whether the label and MOT files have been written at all.
@@ -1269,6 +1272,158 @@ enum Reached {
 struct CheckpointOutcome {
     result: Result<(), (Reached, RecordError)>,
     unsynced: Vec<Written>,
+    /// Per text, its append's shadow and frames, and whether it was appended and put in place.
+    texts: Option<[((usize, u64), bool, bool); 2]>,
+}
+
+/// A text a recording adds lines to at each committed frame (the labels, the MOT lines) and puts in place at each
+/// checkpoint without writing it whole: two hidden files in the output directory (its "shadows", `.labels.jsonl.0`
+/// and `.labels.jsonl.1`) take turns. A checkpoint appends the lines the shadow not in place lacks (those since the
+/// checkpoint before last) to it, after cutting it back to the lines it is known to hold (a failed append's bytes go),
+/// and once the frames and it are synced links it under a temporary name and renames that over the file's name. The
+/// file under the name is never written while it is there, so it is always a whole, synced text, as when the text
+/// was written whole to a temporary file and renamed; where the file system has no hard links, the shadow is copied
+/// (and synced) instead. Each line is written twice in all, where writing the text whole at each checkpoint (once a
+/// second) wrote a recording of n frames' lines about n / (frames a second) times: at 20 000 frames of 256 × 256 the
+/// last checkpoint wrote 13 MB of labels, and a recording of 10⁶ frames would have rewritten 600 MB every second and
+/// held them in memory twice. Only the lines not yet in both shadows stay in memory. The last checkpoint removes the
+/// shadows' names (the file in place keeps its own).
+#[derive(Debug)]
+struct ShadowedText {
+    /// The file's name in the output directory (`labels.jsonl`, `gt_mot.txt`).
+    name: &'static str,
+    /// The lines of the committed frames from `first` on; those before are in both shadows.
+    text: String,
+    first: u64,
+    /// Where each committed frame's lines end, bytes from the start of the text.
+    ends: Vec<u64>,
+    /// The frames whose lines each shadow holds (it may hold more bytes: a failed append's, cut before the next).
+    held: [u64; 2],
+    /// The shadow in place under `name`.
+    shown: Option<usize>,
+}
+
+impl ShadowedText {
+    fn new(name: &'static str) -> Self {
+        Self { name, text: String::new(), first: 0, ends: Vec::new(), held: [0, 0], shown: None }
+    }
+
+    /// Bytes of the first `frames` committed frames' lines.
+    fn end(&self, frames: u64) -> u64 {
+        frames.checked_sub(1).map_or(0, |i| self.ends[i as usize])
+    }
+
+    /// Adds the next committed frame's lines, written by `lines`.
+    fn push(&mut self, lines: impl FnOnce(&mut String)) {
+        lines(&mut self.text);
+        self.ends.push(self.end(self.first) + self.text.len() as u64);
+    }
+
+    /// The path of shadow `slot` in `dir`.
+    fn shadow(&self, dir: &Path, slot: usize) -> PathBuf {
+        dir.join(format!(".{}.{slot}", self.name))
+    }
+
+    /// What a checkpoint of the first `frames` committed frames appends, to the shadow not in place.
+    fn append_for(&self, dir: &Path, frames: u64) -> Append {
+        let slot = self.shown.map_or(0, |s| 1 - s);
+        let (keep, base) = (self.end(self.held[slot]), self.end(self.first));
+        let bytes = self.text[(keep - base) as usize..(self.end(frames) - base) as usize].to_owned();
+        Append { slot, frames, shadow: self.shadow(dir, slot), keep, bytes, name: dir.join(self.name) }
+    }
+
+    /// Files how a checkpoint's append went: shadow `slot` holds the first `frames` frames (`appended`) and is in
+    /// place (`shown`). The lines both shadows hold are dropped from memory.
+    fn applied(&mut self, (slot, frames): (usize, u64), appended: bool, shown: bool) {
+        if appended {
+            self.held[slot] = frames;
+        }
+        if shown {
+            self.shown = Some(slot);
+        }
+        let first = self.held[0].min(self.held[1]);
+        if first > self.first {
+            let cut = (self.end(first) - self.end(self.first)) as usize;
+            self.text.drain(..cut);
+            self.first = first;
+        }
+    }
+
+    /// Forgets the frames after the first `n`; a shadow holding more is cut back at its next append.
+    fn truncate(&mut self, n: u64) {
+        if n >= self.ends.len() as u64 {
+            return;
+        }
+        if n >= self.first {
+            self.text.truncate((self.end(n) - self.end(self.first)) as usize);
+        } else {
+            self.text.clear();
+            self.first = n;
+        }
+        self.ends.truncate(n as usize);
+        self.held = self.held.map(|k| k.min(n));
+    }
+}
+
+/// Whether `a` and `b` name the same file (Unix; elsewhere, false).
+fn same_file(a: &Path, b: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        matches!((std::fs::metadata(a), std::fs::metadata(b)), (Ok(x), Ok(y)) if x.dev() == y.dev() && x.ino() == y.ino())
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = (a, b);
+        false
+    }
+}
+
+/// One checkpoint's append to a [`ShadowedText`]'s shadow, and how it is put in place.
+#[derive(Debug)]
+struct Append {
+    slot: usize,
+    /// The committed frames the shadow holds after it.
+    frames: u64,
+    shadow: PathBuf,
+    /// The bytes the shadow is cut back to first (the lines it holds).
+    keep: u64,
+    bytes: String,
+    /// The file's path under its own name.
+    name: PathBuf,
+}
+
+impl Append {
+    /// Cuts the shadow back to what it holds and appends the new lines (not synced: the checkpoint's sync does).
+    fn write(&self) -> Result<(), RecordError> {
+        use std::io::{Seek, SeekFrom};
+        let err = |e| io_err(&self.shadow, e);
+        // never the file in place (a checkpoint whose thread did not report may have put this shadow there)
+        if same_file(&self.shadow, &self.name) {
+            return Err(err(std::io::Error::other("the hidden copy is the file in place; not written")));
+        }
+        let mut f =
+            std::fs::OpenOptions::new().write(true).create(true).truncate(false).open(&self.shadow).map_err(err)?;
+        f.set_len(self.keep).map_err(err)?;
+        f.seek(SeekFrom::Start(self.keep)).map_err(err)?;
+        f.write_all(self.bytes.as_bytes()).map_err(err)
+    }
+
+    /// Puts the shadow in place under the file's name: linked under the temporary name, which is renamed over the
+    /// name (where the file system has no hard links, a copy, synced before the rename).
+    fn show(&self) -> Result<(), RecordError> {
+        let temp = temporary_of(&self.name);
+        let _ = std::fs::remove_file(&temp);
+        if std::fs::hard_link(&self.shadow, &temp).is_err() {
+            std::fs::copy(&self.shadow, &temp)
+                .and_then(|_| std::fs::OpenOptions::new().write(true).open(&temp)?.sync_all())
+                .map_err(|e| io_err(&temp, e))?;
+        }
+        std::fs::rename(&temp, &self.name).map_err(|e| {
+            let _ = std::fs::remove_file(&temp);
+            io_err(&self.name, e)
+        })
+    }
 }
 
 /// What one checkpoint writes (a snapshot of the recorder's state, so that a thread of its own can write it).
@@ -1281,102 +1436,94 @@ struct CheckpointJob {
     frames: u64,
     /// Files to make durable before the labels that list them.
     unsynced: Vec<Written>,
-    /// The labels and MOT texts, where the files on disk do not hold them yet.
-    texts: Option<(String, String)>,
+    /// The labels' and the MOT lines' appends, where the files on disk do not hold them yet.
+    texts: Option<[Append; 2]>,
     manifest: String,
-    /// The recording's last checkpoint: no write-back pass follows it, so it makes its files' names durable too.
+    /// The recording's last checkpoint: no write-back pass follows it, so it makes its files' names durable too;
+    /// it removes these (the texts' shadows) first, when it has put everything in place.
     last: bool,
+    shadows: Vec<PathBuf>,
+    /// How the texts' appends went: appended, put in place.
+    done: [(bool, bool); 2],
 }
 
 impl CheckpointJob {
-    /// Syncs, then writes the labels, the MOT file and the manifest, each atomically, in that order (on Linux
-    /// the three written before the sync and renamed into place after it, [`write_synced_with_frames`]).
+    /// Appends the texts' new lines to their shadows and writes the manifest under its temporary name, syncs them
+    /// with the frames written since the last checkpoint, then puts the labels, the MOT file and the manifest in
+    /// place, in that order (see [`ShadowedText`]).
     fn write(mut self) -> CheckpointOutcome {
         let result = self.write_files();
-        CheckpointOutcome { result, unsynced: self.unsynced }
+        let texts =
+            self.texts.as_ref().map(|t| [0, 1].map(|i| ((t[i].slot, t[i].frames), self.done[i].0, self.done[i].1)));
+        CheckpointOutcome { result, unsynced: self.unsynced, texts }
     }
 
     fn write_files(&mut self) -> Result<(), (Reached, RecordError)> {
-        if let Some((labels, mot)) = &self.texts {
-            if cfg!(target_os = "linux") && !self.unsynced.is_empty() {
-                let texts = [labels.as_bytes(), mot.as_bytes(), self.manifest.as_bytes()];
-                let sync = (self.dir_handle.as_deref(), &*self.writeback, self.last);
-                if let Some(done) = write_synced_with_frames(&self.dir, sync, &mut self.unsynced, texts) {
-                    return done;
+        let manifest = self.dir.join("manifest.json");
+        let manifest_temp = temporary_of(&manifest);
+        let mut early = false;
+        if let Some(texts) = &self.texts {
+            for (i, append) in texts.iter().enumerate() {
+                append.write().map_err(|e| (Reached::Nothing, e))?;
+                self.done[i].0 = true;
+            }
+            // the manifest too, so that the same sync makes it durable (where it cannot be written now, a full
+            // disk, it is written after the texts are in place, as it can)
+            early = std::fs::write(&manifest_temp, self.manifest.as_bytes()).is_ok();
+            let mut also: Vec<PathBuf> = texts.iter().map(|a| a.shadow.clone()).collect();
+            if early {
+                also.push(manifest_temp.clone());
+            }
+            let synced = sync_written(&self.dir, self.dir_handle.as_deref(), (&self.unsynced, &also), &self.writeback);
+            if let Err(e) = synced {
+                if early {
+                    let _ = std::fs::remove_file(&manifest_temp);
+                }
+                return Err((Reached::Nothing, e));
+            }
+            self.unsynced.clear();
+            // labels first: a failure between the two leaves the MOT file behind, never ahead
+            for (i, (append, reached)) in texts.iter().zip([Reached::Nothing, Reached::Labels]).enumerate() {
+                if let Err(e) = append.show() {
+                    if early {
+                        let _ = std::fs::remove_file(&manifest_temp);
+                    }
+                    return Err((reached, e));
+                }
+                self.done[i].1 = true;
+            }
+        } else if !self.unsynced.is_empty() {
+            sync_written(&self.dir, self.dir_handle.as_deref(), (&self.unsynced, &[]), &self.writeback)
+                .map_err(|e| (Reached::Nothing, e))?;
+            self.unsynced.clear();
+        }
+        let placed = if early {
+            std::fs::rename(&manifest_temp, &manifest).map_err(|e| {
+                let _ = std::fs::remove_file(&manifest_temp);
+                io_err(&manifest, e)
+            })
+        } else {
+            write_atomic(&manifest, self.manifest.as_bytes())
+        };
+        if let Err(e) = placed {
+            // a full disk may still take the manifest in place of the old one (same size or so)
+            std::fs::write(&manifest, self.manifest.as_bytes()).map_err(|_| (Reached::Texts, e))?;
+        }
+        if self.last {
+            // everything is in place: the shadows' names go (the files in place keep theirs), and one more sync
+            // makes the names durable (the frames' and texts' bytes are on the disk already)
+            for p in &self.shadows {
+                if let Err(e) = std::fs::remove_file(p)
+                    && e.kind() != std::io::ErrorKind::NotFound
+                {
+                    return Err((Reached::Texts, io_err(p, e)));
                 }
             }
-            if !self.unsynced.is_empty() {
-                sync_written(&self.dir, self.dir_handle.as_deref(), (&self.unsynced, &[]), &self.writeback)
-                    .map_err(|e| (Reached::Nothing, e))?;
-                self.unsynced.clear();
-            }
-            // labels first: a failure between the two leaves the MOT file behind, never ahead
-            write_atomic(&self.dir.join("labels.jsonl"), labels.as_bytes()).map_err(|e| (Reached::Nothing, e))?;
-            write_atomic(&self.dir.join("gt_mot.txt"), mot.as_bytes()).map_err(|e| (Reached::Labels, e))?;
-        }
-        let path = self.dir.join("manifest.json");
-        if let Err(e) = write_atomic(&path, self.manifest.as_bytes()) {
-            // a full disk may still take the manifest in place of the old one (same size or so)
-            std::fs::write(&path, self.manifest.as_bytes()).map_err(|_| (Reached::Texts, e))?;
+            sync_written(&self.dir, self.dir_handle.as_deref(), (&[], &[]), &self.writeback)
+                .map_err(|e| (Reached::Texts, e))?;
         }
         Ok(())
     }
-}
-
-/// A checkpoint's labels, MOT file and manifest (`texts`, in that order) written under their temporary names
-/// before the sync that makes the files written since the last checkpoint (`unsynced`) durable, so that the same
-/// sync ([`sync_written`]: one `syncfs`, or file by file) makes them durable too, then renamed into place in that
-/// order: the same files on disk, in the same order, as writing each atomically after the sync, without a sync of
-/// their own for each (three journal commits, which also made the renames before them durable). The renames are
-/// made durable by the next sync: the write-back thread's next `syncfs` or the next checkpoint's sync, or, for the
-/// recording's `last` checkpoint, one more sync here (a journal commit, or a sync of the directory: the files'
-/// bytes are on the disk already). At the end of a recording of 60
-/// frames of 44 KB into ext4 (a probe of the same calls without that last sync, 16 alternating rounds, AMD EPYC):
-/// 4.18 ms that way, 3.09 this way (medians).
-///
-/// `None` where a temporary file could not be written (a full disk): the temporary files are removed and
-/// the caller writes the texts one by one ([`CheckpointJob::write_files`]), which says how far it got.
-fn write_synced_with_frames(
-    dir: &Path,
-    (handle, writeback, last): (Option<&std::fs::File>, &WritebackCounts, bool),
-    unsynced: &mut Vec<Written>,
-    texts: [&[u8]; 3],
-) -> Option<Result<(), (Reached, RecordError)>> {
-    let paths = ["labels.jsonl", "gt_mot.txt", "manifest.json"].map(|name| dir.join(name));
-    let temps = paths.each_ref().map(|p| temporary_of(p));
-    let remove = |from: usize| {
-        for t in &temps[from..] {
-            let _ = std::fs::remove_file(t);
-        }
-    };
-    for (t, bytes) in temps.iter().zip(texts) {
-        if std::fs::write(t, bytes).is_err() {
-            remove(0);
-            return None;
-        }
-    }
-    if let Err(e) = sync_written(dir, handle, (unsynced, &temps), writeback) {
-        remove(0);
-        return Some(Err((Reached::Nothing, e)));
-    }
-    unsynced.clear();
-    // labels first: a failure between two renames leaves the later files behind, never ahead
-    let reached = [Reached::Nothing, Reached::Labels, Reached::Texts];
-    for (i, (t, p)) in temps.iter().zip(&paths).enumerate() {
-        if let Err(e) = std::fs::rename(t, p) {
-            remove(i);
-            // the manifest in place of the old one, as written one by one
-            if i == 2 && std::fs::write(p, texts[2]).is_ok() {
-                break;
-            }
-            return Some(Err((reached[i], io_err(p, e))));
-        }
-    }
-    // the names in place for good (the files are in place whatever this says)
-    if last && let Err(e) = sync_written(dir, handle, (&[], &[]), writeback) {
-        return Some(Err((Reached::Texts, e)));
-    }
-    Some(Ok(()))
 }
 
 impl Recorder {
@@ -1420,9 +1567,8 @@ impl Recorder {
             pending: BTreeMap::new(),
             committed: 0,
             sent: 0,
-            labels_text: String::new(),
-            mot_text: String::new(),
-            ends: Vec::new(),
+            labels: ShadowedText::new("labels.jsonl"),
+            mot: ShadowedText::new("gt_mot.txt"),
             on_disk: 0,
             texts_written: false,
             last_checkpoint: Instant::now(),
@@ -1553,10 +1699,11 @@ impl Recorder {
     /// Commits the frames back in order.
     fn commit(&mut self) {
         while let Some(labels) = self.pending.remove(&self.committed) {
-            self.labels_text.push_str(&serde_json::to_string(&labels).expect("labels serialize"));
-            self.labels_text.push('\n');
-            labels.push_mot_lines(&mut self.mot_text);
-            self.ends.push((self.labels_text.len(), self.mot_text.len()));
+            self.labels.push(|t| {
+                t.push_str(&serde_json::to_string(&labels).expect("labels serialize"));
+                t.push('\n');
+            });
+            self.mot.push(|t| labels.push_mot_lines(t));
             self.committed += 1;
         }
     }
@@ -1609,6 +1756,7 @@ impl Recorder {
                     RecordError::Io { path: self.dir.display().to_string(), message: "checkpoint failed".into() },
                 )),
                 unsynced: files.into_iter().map(Written::by_path).collect(),
+                texts: None,
             });
             if let Err(e) = self.apply_checkpoint(frames, outcome) {
                 self.error.get_or_insert(e);
@@ -1631,21 +1779,36 @@ impl Recorder {
             obj.extend(p);
         }
         self.last_checkpoint = Instant::now();
+        let last = status != "running";
+        let shadows = if last {
+            let (l, t) = (&self.labels, &self.mot);
+            [l.shadow(&self.dir, 0), l.shadow(&self.dir, 1), t.shadow(&self.dir, 0), t.shadow(&self.dir, 1)].into()
+        } else {
+            Vec::new()
+        };
         CheckpointJob {
             dir: self.dir.clone(),
             dir_handle: self.dir_handle.clone(),
             writeback: Arc::clone(&self.writeback.counts),
             frames: self.committed,
             unsynced: if texts { std::mem::take(&mut self.unsynced) } else { Vec::new() },
-            texts: texts.then(|| (self.labels_text.clone(), self.mot_text.clone())),
+            texts: texts.then(|| {
+                [self.labels.append_for(&self.dir, self.committed), self.mot.append_for(&self.dir, self.committed)]
+            }),
             manifest: serde_json::to_string_pretty(&m).expect("manifest serializes"),
-            last: status != "running",
+            last,
+            shadows,
+            done: [(false, false); 2],
         }
     }
 
     /// Files the outcome of a checkpoint of `frames` frames.
     fn apply_checkpoint(&mut self, frames: u64, outcome: CheckpointOutcome) -> Result<(), RecordError> {
-        let CheckpointOutcome { result, mut unsynced } = outcome;
+        let CheckpointOutcome { result, mut unsynced, texts } = outcome;
+        if let Some([labels, mot]) = texts {
+            self.labels.applied(labels.0, labels.1, labels.2);
+            self.mot.applied(mot.0, mot.1, mot.2);
+        }
         // files it did not make durable are made so by the next checkpoint, before labels list them again
         if !unsynced.is_empty() {
             unsynced.append(&mut self.unsynced);
@@ -1680,10 +1843,8 @@ impl Recorder {
             self.unsynced.retain(|f| f.path.exists());
         }
         if n < self.committed {
-            let (l, m) = if n == 0 { (0, 0) } else { self.ends[n as usize - 1] };
-            self.labels_text.truncate(l);
-            self.mot_text.truncate(m);
-            self.ends.truncate(n as usize);
+            self.labels.truncate(n);
+            self.mot.truncate(n);
             self.committed = n;
         }
     }
@@ -1909,6 +2070,8 @@ mod tests {
             let (dir, _lock, mut rec) = fresh_recorder(&format!("way-{forced}"), true, 65535, 10);
             let counts = Arc::clone(&rec.writeback.counts);
             counts.forced_way.store(forced, Ordering::SeqCst);
+            // the recorder's first checkpoint (its manifest) was synced the way this machine picked
+            counts.synced_paths.lock().unwrap().clear();
             for k in 0..10 {
                 rec.push(Frame::new(8, 8), Some(vec![0; 64]), labels(k));
             }
@@ -1929,6 +2092,8 @@ mod tests {
             let names: Vec<String> =
                 std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
             assert!(!names.iter().any(|n| n.ends_with(".tmp")), "{way:?}: {names:?}");
+            // nor the texts' shadows
+            assert!(!names.iter().any(|n| n.starts_with(".labels") || n.starts_with(".gt_mot")), "{way:?}: {names:?}");
             let m: serde_json::Value =
                 serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
             assert_eq!(m["status"], "complete");
@@ -1946,9 +2111,12 @@ mod tests {
                         synced_then(&dir.join(sub).join(format!("{k:06}.png")), &dir.join(sub));
                     }
                 }
-                for text in ["labels.jsonl", "gt_mot.txt", "manifest.json"] {
-                    synced_then(&temporary_of(&dir.join(text)), &dir);
+                // the texts' shadows the last checkpoint appended to, and the manifest's temporary
+                for text in ["labels.jsonl", "gt_mot.txt"] {
+                    let shadow = (0..2).map(|k| dir.join(format!(".{text}.{k}"))).find(|p| synced.contains(p));
+                    synced_then(&shadow.unwrap_or_else(|| panic!("no shadow of {text} synced: {synced:?}")), &dir);
                 }
+                synced_then(&temporary_of(&dir.join("manifest.json")), &dir);
                 // the last checkpoint syncs the output directory once more, after the renames
                 assert_eq!(synced.last(), Some(&dir));
             } else if cfg!(target_os = "linux") {
@@ -2081,6 +2249,78 @@ mod tests {
         FrameLabels { frame, t_s: frame as f64 * 0.1, targets: Vec::new() }
     }
 
+    /// A text is appended, checkpoint after checkpoint, to two hidden files in turn, each linked in place when
+    /// synced: the file under the name always holds every line so far, a checkpoint writes only the lines its shadow
+    /// lacks, memory keeps only those not in both, a failed append's bytes are cut, forgotten frames are cut from
+    /// both, and the file in place is never written.
+    #[test]
+    fn texts_are_appended_to_two_shadows_in_turn_and_never_written_in_place() {
+        let dir = std::env::temp_dir().join(format!("irsim-rec-shadow-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut t = ShadowedText::new("labels.jsonl");
+        let line = |k: u64| format!("{{\"frame\":{k:04}}}\n");
+        let per_frame = line(0).len();
+        let mut all = String::new();
+        let in_place = || std::fs::read_to_string(dir.join("labels.jsonl")).unwrap();
+        let checkpoint = |t: &mut ShadowedText| {
+            let a = t.append_for(&dir, t.ends.len() as u64);
+            a.write().unwrap();
+            a.show().unwrap();
+            t.applied((a.slot, a.frames), true, true);
+            a.bytes.len()
+        };
+        let mut files = Vec::new();
+        for round in 0..5u64 {
+            for k in 3 * round..3 * round + 3 {
+                t.push(|s| s.push_str(&line(k)));
+                all.push_str(&line(k));
+            }
+            let appended = checkpoint(&mut t);
+            assert_eq!(in_place(), all, "round {round}");
+            // the lines since the checkpoint before last, not the whole text
+            assert_eq!(appended, per_frame * if round == 0 { 3 } else { 6 });
+            // in memory: the lines the other shadow lacks
+            assert_eq!(t.text.len(), per_frame * 3, "round {round}");
+            #[cfg(unix)]
+            files.push(std::os::unix::fs::MetadataExt::ino(&std::fs::metadata(dir.join("labels.jsonl")).unwrap()));
+        }
+        // two files take turns under the name
+        #[cfg(unix)]
+        assert!(files[0] == files[2] && files[1] == files[3] && files[0] != files[1], "{files:?}");
+        // bytes a failed append left in the shadow not in place are cut before the next
+        let free = t.shadow(&dir, 1 - t.shown.unwrap());
+        std::fs::OpenOptions::new().append(true).open(&free).unwrap().write_all(b"half a li").unwrap();
+        t.push(|s| s.push_str(&line(15)));
+        all.push_str(&line(15));
+        checkpoint(&mut t);
+        assert_eq!(in_place(), all);
+        // frames forgotten below what both shadows hold: the next checkpoint lists only those kept
+        t.truncate(4);
+        t.push(|s| s.push_str(&line(99)));
+        let kept: String = (0..4).map(line).chain([line(99)]).collect();
+        checkpoint(&mut t);
+        assert_eq!(in_place(), kept);
+        checkpoint(&mut t);
+        assert_eq!(in_place(), kept, "the other shadow, cut back too");
+        // the shadow in place is never written, even when a checkpoint's outcome was lost
+        #[cfg(unix)]
+        {
+            let shown = t.shown.unwrap();
+            let lost = Append {
+                slot: shown,
+                frames: 0,
+                shadow: t.shadow(&dir, shown),
+                keep: 0,
+                bytes: "x".into(),
+                name: dir.join("labels.jsonl"),
+            };
+            assert!(lost.write().is_err());
+            assert_eq!(in_place(), kept);
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     /// A checkpoint that fails hands back the files it did not make durable (the next one syncs them before its
     /// labels list them) and says how far it got (labels written and not the MOT file: the labels are what is on
     /// disk).
@@ -2099,9 +2339,18 @@ mod tests {
             writeback: Arc::default(),
             frames: 1,
             unsynced: vec![Written::by_path(frame.clone())],
-            texts: Some(("labels\n".into(), "mot\n".into())),
+            texts: Some({
+                let one = |name, line: &str| {
+                    let mut text = ShadowedText::new(name);
+                    text.push(|t| t.push_str(line));
+                    text.append_for(d, 1)
+                };
+                [one("labels.jsonl", "labels\n"), one("gt_mot.txt", "mot\n")]
+            }),
             manifest: "{}".into(),
             last: true,
+            shadows: Vec::new(),
+            done: [(false, false); 2],
         };
         // the temporary files of the texts, which a failed checkpoint leaves none of
         let temporaries = |d: &Path| -> Vec<String> {
@@ -2286,8 +2535,12 @@ mod tests {
         // what a killed recording leaves: a subdirectory made and not yet renamed, a labels file being written
         std::fs::create_dir_all(dir.join(".frames.123.1764322211000000000.tmp")).unwrap();
         std::fs::write(dir.join("labels.jsonl.tmp"), "half").unwrap();
+        // and the hidden copies its labels and MOT lines were appended to
+        for shadow in [".labels.jsonl.0", ".labels.jsonl.1", ".gt_mot.txt.0", ".gt_mot.txt.1"] {
+            std::fs::write(dir.join(shadow), "lines").unwrap();
+        }
         // and names alike that are not a recording's
-        for other in [".frames.tmp", ".frames.12a.tmp", ".masks..tmp", "labels.jsonl.tmp.bak"] {
+        for other in [".frames.tmp", ".frames.12a.tmp", ".masks..tmp", "labels.jsonl.tmp.bak", ".labels.jsonl.2"] {
             std::fs::write(dir.join(other), "mine").unwrap();
         }
         assert!(matches!(prepare_dir(&dir, false), Err(RecordError::NotEmpty(_))));
@@ -2298,7 +2551,15 @@ mod tests {
         names.sort();
         assert_eq!(
             names,
-            [".frames.12a.tmp", ".frames.tmp", ".masks..tmp", "frames", "keep.txt", "labels.jsonl.tmp.bak"]
+            [
+                ".frames.12a.tmp",
+                ".frames.tmp",
+                ".labels.jsonl.2",
+                ".masks..tmp",
+                "frames",
+                "keep.txt",
+                "labels.jsonl.tmp.bak"
+            ]
         );
         assert_eq!(std::fs::read_to_string(dir.join("keep.txt")).unwrap(), "mine");
         std::fs::remove_dir_all(&dir).unwrap();
