@@ -11,8 +11,8 @@
 //!
 //! [`PAUSE_BYTES`]: crate::imaging::png16::PAUSE_BYTES
 //!
-//! Frames are committed in order: the labels on disk always describe exactly the frames on disk. Labels, the MOT
-//! file and the manifest are rewritten at checkpoints (every second) and at the end, so an interruption (Ctrl-C,
+//! Frames are committed in order: the labels on disk always describe exactly the frames on disk. The labels and MOT
+//! lines are appended and put in place, and the manifest rewritten, at checkpoints (every second) and at the end, so an interruption (Ctrl-C,
 //! SIGTERM, SIGHUP) or a write error (disk full) leaves complete frames, matching labels, and a manifest whose
 //! `status` and `frames_written` say where the run stopped.
 //!
@@ -30,11 +30,11 @@
 //! the last but one, not the whole text, and a recording keeps only those in memory. The manifest is written under a
 //! temporary name before the sync; after it, the labels, the MOT file and the manifest are put in place; the last
 //! checkpoint removes the hidden files and syncs once more, for the names. A checkpoint during the run is written by a
-//! thread of its own from a copy of the lines it appends, so the simulation does not wait for the disk (a checkpoint still being written when the next is due delays that one); the last one, at
-//! the end, is waited for. A crash of the machine loses at most the frames since the last checkpoint, and never leaves
-//! labels that list a frame the disk does not hold. A checkpoint writes the labels, then the MOT file, then the
-//! manifest, so a process killed in the middle of one (`kill -9`) may leave the manifest's `frames_written` one
-//! checkpoint behind the labels, never ahead of them.
+//! thread of its own from a copy of the lines it appends, so the simulation does not wait for the disk (a checkpoint
+//! still being written when the next is due delays that one); the last one, at the end, is waited for. A crash of the
+//! machine loses at most the frames since the last checkpoint, and never leaves labels that list a frame the disk does
+//! not hold. A checkpoint writes the labels, then the MOT file, then the manifest, so a process killed in the middle of
+//! one (`kill -9`) may leave the manifest's `frames_written` one checkpoint behind the labels, never ahead of them.
 
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
@@ -1272,20 +1272,27 @@ enum Reached {
 struct CheckpointOutcome {
     result: Result<(), (Reached, RecordError)>,
     unsynced: Vec<Written>,
-    /// Per text, its append's shadow and frames, and whether it was appended and put in place.
-    texts: Option<[((usize, u64), bool, bool); 2]>,
+    /// Per text, how its append went.
+    texts: Option<[TextOutcome; 2]>,
 }
+
+/// How a checkpoint's append to a [`ShadowedText`] went: its shadow and the frames it was to hold, whether the
+/// lines were appended and synced, and whether the shadow was put in place.
+type TextOutcome = ((usize, u64), bool, bool);
 
 /// A text a recording adds lines to at each committed frame (the labels, the MOT lines) and puts in place at each
 /// checkpoint without writing it whole: two hidden files in the output directory (its "shadows", `.labels.jsonl.0`
 /// and `.labels.jsonl.1`) take turns. A checkpoint appends the lines the shadow not in place lacks (those since the
 /// checkpoint before last) to it, after cutting it back to the lines it is known to hold (a failed append's bytes go),
-/// and once the frames and it are synced links it under a temporary name and renames that over the file's name. The
-/// file under the name is never written while it is there, so it is always a whole, synced text, as when the text
+/// and once the frames and it are synced links it under a temporary name and renames that over the file's name, then
+/// syncs once more, so that no crash finds the name still on the file the next checkpoint appends to. The lines count
+/// as the shadow's only once synced (a failed sync's are appended again). The file under the name is never written
+/// while it is there (a shadow that is the file in place, `same_file`, Unix, is refused; so is one shorter than what
+/// it holds), so it is always a whole, synced text, as when the text
 /// was written whole to a temporary file and renamed; where the file system has no hard links, the shadow is copied
 /// (and synced) instead. Each line is written twice in all, where writing the text whole at each checkpoint (once a
-/// second) wrote a recording of n frames' lines about n / (frames a second) times: at 20 000 frames of 256 × 256 the
-/// last checkpoint wrote 13 MB of labels, and a recording of 10⁶ frames would have rewritten 600 MB every second and
+/// second) wrote each of a recording's n lines n / (2 · frames a second) times on average: at 20 000 frames of
+/// 256 × 256 each checkpoint near the end wrote the whole 12.3 MB of labels, and a recording of 10⁶ frames would have rewritten 600 MB every second and
 /// held them in memory twice. Only the lines not yet in both shadows stay in memory. The last checkpoint removes the
 /// shadows' names (the file in place keeps its own).
 #[derive(Debug)]
@@ -1404,6 +1411,10 @@ impl Append {
         }
         let mut f =
             std::fs::OpenOptions::new().write(true).create(true).truncate(false).open(&self.shadow).map_err(err)?;
+        // a shadow shorter than the lines it holds was cut by someone else: not padded and put in place
+        if f.metadata().map_err(err)?.len() < self.keep {
+            return Err(err(std::io::Error::other(format!("shorter than the {} bytes written to it", self.keep))));
+        }
         f.set_len(self.keep).map_err(err)?;
         f.seek(SeekFrom::Start(self.keep)).map_err(err)?;
         f.write_all(self.bytes.as_bytes()).map_err(err)
@@ -1452,7 +1463,24 @@ impl CheckpointJob {
     /// with the frames written since the last checkpoint, then puts the labels, the MOT file and the manifest in
     /// place, in that order (see [`ShadowedText`]).
     fn write(mut self) -> CheckpointOutcome {
-        let result = self.write_files();
+        // a panic here still reports how far the texts got, so that the recorder never takes a shadow in place
+        // for the one not in place
+        let result =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.write_files())).unwrap_or_else(|p| {
+                let what = panic_text(p.as_ref());
+                let reached = match self.done.map(|d| d.1) {
+                    [true, true] => Reached::Texts,
+                    [true, false] => Reached::Labels,
+                    _ => Reached::Nothing,
+                };
+                Err((
+                    reached,
+                    RecordError::Io {
+                        path: self.dir.display().to_string(),
+                        message: format!("checkpoint failed: {what}"),
+                    },
+                ))
+            });
         let texts =
             self.texts.as_ref().map(|t| [0, 1].map(|i| ((t[i].slot, t[i].frames), self.done[i].0, self.done[i].1)));
         CheckpointOutcome { result, unsynced: self.unsynced, texts }
@@ -1463,9 +1491,8 @@ impl CheckpointJob {
         let manifest_temp = temporary_of(&manifest);
         let mut early = false;
         if let Some(texts) = &self.texts {
-            for (i, append) in texts.iter().enumerate() {
+            for append in texts {
                 append.write().map_err(|e| (Reached::Nothing, e))?;
-                self.done[i].0 = true;
             }
             // the manifest too, so that the same sync makes it durable (where it cannot be written now, a full
             // disk, it is written after the texts are in place, as it can)
@@ -1482,6 +1509,8 @@ impl CheckpointJob {
                 return Err((Reached::Nothing, e));
             }
             self.unsynced.clear();
+            // the lines are the shadows' only once synced: a failed sync's are written again by the next checkpoint
+            self.done = self.done.map(|(_, shown)| (true, shown));
             // labels first: a failure between the two leaves the MOT file behind, never ahead
             for (i, (append, reached)) in texts.iter().zip([Reached::Nothing, Reached::Labels]).enumerate() {
                 if let Err(e) = append.show() {
@@ -1491,6 +1520,12 @@ impl CheckpointJob {
                     return Err((reached, e));
                 }
                 self.done[i].1 = true;
+            }
+            // the names made durable now: the next checkpoint appends to the shadows they were taken from, which
+            // a crash must not find still under the names
+            if !self.last {
+                sync_written(&self.dir, self.dir_handle.as_deref(), (&[], &[]), &self.writeback)
+                    .map_err(|e| (Reached::Texts, e))?;
             }
         } else if !self.unsynced.is_empty() {
             sync_written(&self.dir, self.dir_handle.as_deref(), (&self.unsynced, &[]), &self.writeback)
@@ -1708,7 +1743,8 @@ impl Recorder {
         }
     }
 
-    /// Makes the frames written so far durable, then rewrites labels, MOT file and manifest atomically: the
+    /// Makes the frames written so far durable with the new label and MOT lines, then puts the labels, the MOT file
+    /// and the manifest in place (see [`ShadowedText`]): the
     /// labels on disk never list a frame that a crash of the machine could lose. Waits for a checkpoint being
     /// written in the background first.
     fn checkpoint(&mut self, status: &str) -> Result<(), RecordError> {
@@ -1822,11 +1858,21 @@ impl Recorder {
             }
             Err((reached, e)) => {
                 if reached != Reached::Nothing {
-                    // the labels list these frames; the MOT file is rewritten next time unless it was written too
+                    // the labels list these frames; the MOT file is put in place next time unless it was too
                     self.on_disk = frames;
                     self.texts_written = reached == Reached::Texts;
                 }
                 Err(e)
+            }
+        }
+    }
+
+    /// Removes the texts' shadows' names, whatever state they are in (the files in place keep theirs): what a
+    /// recording that ends without its last checkpoint, or after a failed one, would leave.
+    fn remove_shadows(&self) {
+        for text in [&self.labels, &self.mot] {
+            for slot in 0..2 {
+                let _ = std::fs::remove_file(text.shadow(&self.dir, slot));
             }
         }
     }
@@ -1912,6 +1958,7 @@ impl Drop for Recorder {
         self.wait_for_all();
         self.writeback.stop();
         self.settle_checkpoint(true);
+        self.remove_shadows();
     }
 }
 
@@ -2364,6 +2411,8 @@ mod tests {
         let out = job(&dir.join("missing")).write();
         assert!(matches!(out.result, Err((Reached::Nothing, _))), "{:?}", out.result.err());
         assert_eq!(paths(&out.unsynced), std::slice::from_ref(&frame));
+        // neither text's lines are its shadow's, nor in place
+        assert_eq!(out.texts, Some([((0, 1), false, false); 2]));
         // a failed pass of the writeback thread (Linux): the sync succeeds, the pass's error is reported
         #[cfg(target_os = "linux")]
         {
@@ -2375,6 +2424,8 @@ mod tests {
             // on the file it failed on
             assert!(e.to_string().contains("000000.png"), "{e}");
             assert_eq!(paths(&out.unsynced), std::slice::from_ref(&frame));
+            // appended but not synced: the next checkpoint appends the lines again
+            assert_eq!(out.texts, Some([((0, 1), false, false); 2]));
             assert!(!dir.join("labels.jsonl").exists());
             assert_eq!(temporaries(&dir), Vec::<String>::new());
         }
@@ -2383,6 +2434,8 @@ mod tests {
         let out = job(&dir).write();
         assert!(matches!(out.result, Err((Reached::Labels, _))), "{:?}", out.result.err());
         assert!(out.unsynced.is_empty(), "synced before the labels were written");
+        // both texts' lines synced into their shadows; the labels' in place, the MOT lines' not
+        assert_eq!(out.texts, Some([((0, 1), true, true), ((0, 1), true, false)]));
         assert_eq!(std::fs::read_to_string(dir.join("labels.jsonl")).unwrap(), "labels\n");
         assert!(!dir.join("manifest.json").exists(), "the manifest is not put in place ahead of the MOT file");
         assert_eq!(temporaries(&dir), Vec::<String>::new());
