@@ -881,7 +881,7 @@ fn is_leftover(name: &str) -> bool {
             .is_some_and(|n| n.split('.').all(|part| !part.is_empty() && part.bytes().all(|b| b.is_ascii_digit())))
     });
     made || ["labels.jsonl.tmp", "gt_mot.txt.tmp", "manifest.json.tmp"].contains(&name)
-        || [".labels.jsonl.0", ".labels.jsonl.1", ".gt_mot.txt.0", ".gt_mot.txt.1"].contains(&name)
+        || TEXT_FILES.iter().any(|text| (0..2).any(|slot| shadow_name(text, slot) == name))
 }
 
 /// Prepares `dir`: creates it and takes its lock, or refuses if another recording holds the lock, or if the
@@ -1328,7 +1328,7 @@ impl ShadowedText {
 
     /// The path of shadow `slot` in `dir`.
     fn shadow(&self, dir: &Path, slot: usize) -> PathBuf {
-        dir.join(format!(".{}.{slot}", self.name))
+        dir.join(shadow_name(self.name, slot))
     }
 
     /// What a checkpoint of the first `frames` committed frames appends, to the shadow not in place.
@@ -1371,6 +1371,14 @@ impl ShadowedText {
         self.held = self.held.map(|k| k.min(n));
     }
 }
+
+/// The name of a [`ShadowedText`]'s shadow `slot` (0 or 1) of the file `name`: `.labels.jsonl.0`.
+fn shadow_name(name: &str, slot: usize) -> String {
+    format!(".{name}.{slot}")
+}
+
+/// The files whose lines [`ShadowedText`]s hold.
+const TEXT_FILES: [&str; 2] = ["labels.jsonl", "gt_mot.txt"];
 
 /// Whether `a` and `b` name the same file (Unix; elsewhere, false).
 fn same_file(a: &Path, b: &Path) -> bool {
@@ -1497,28 +1505,25 @@ impl CheckpointJob {
             // the manifest too, so that the same sync makes it durable (where it cannot be written now, a full
             // disk, it is written after the texts are in place, as it can)
             early = std::fs::write(&manifest_temp, self.manifest.as_bytes()).is_ok();
+            // a checkpoint that stops before the manifest's rename takes its temporary away
+            let stop = |reached, e| {
+                if early {
+                    let _ = std::fs::remove_file(&manifest_temp);
+                }
+                (reached, e)
+            };
             let mut also: Vec<PathBuf> = texts.iter().map(|a| a.shadow.clone()).collect();
             if early {
                 also.push(manifest_temp.clone());
             }
             let synced = sync_written(&self.dir, self.dir_handle.as_deref(), (&self.unsynced, &also), &self.writeback);
-            if let Err(e) = synced {
-                if early {
-                    let _ = std::fs::remove_file(&manifest_temp);
-                }
-                return Err((Reached::Nothing, e));
-            }
+            synced.map_err(|e| stop(Reached::Nothing, e))?;
             self.unsynced.clear();
             // the lines are the shadows' only once synced: a failed sync's are written again by the next checkpoint
             self.done = self.done.map(|(_, shown)| (true, shown));
             // labels first: a failure between the two leaves the MOT file behind, never ahead
             for (i, (append, reached)) in texts.iter().zip([Reached::Nothing, Reached::Labels]).enumerate() {
-                if let Err(e) = append.show() {
-                    if early {
-                        let _ = std::fs::remove_file(&manifest_temp);
-                    }
-                    return Err((reached, e));
-                }
+                append.show().map_err(|e| stop(reached, e))?;
                 self.done[i].1 = true;
             }
             // the names made durable now: the next checkpoint appends to the shadows they were taken from, which
@@ -1602,8 +1607,8 @@ impl Recorder {
             pending: BTreeMap::new(),
             committed: 0,
             sent: 0,
-            labels: ShadowedText::new("labels.jsonl"),
-            mot: ShadowedText::new("gt_mot.txt"),
+            labels: ShadowedText::new(TEXT_FILES[0]),
+            mot: ShadowedText::new(TEXT_FILES[1]),
             on_disk: 0,
             texts_written: false,
             last_checkpoint: Instant::now(),
@@ -1816,12 +1821,7 @@ impl Recorder {
         }
         self.last_checkpoint = Instant::now();
         let last = status != "running";
-        let shadows = if last {
-            let (l, t) = (&self.labels, &self.mot);
-            [l.shadow(&self.dir, 0), l.shadow(&self.dir, 1), t.shadow(&self.dir, 0), t.shadow(&self.dir, 1)].into()
-        } else {
-            Vec::new()
-        };
+        let shadows = if last { self.shadow_paths() } else { Vec::new() };
         CheckpointJob {
             dir: self.dir.clone(),
             dir_handle: self.dir_handle.clone(),
@@ -1870,11 +1870,14 @@ impl Recorder {
     /// Removes the texts' shadows' names, whatever state they are in (the files in place keep theirs): what a
     /// recording that ends without its last checkpoint, or after a failed one, would leave.
     fn remove_shadows(&self) {
-        for text in [&self.labels, &self.mot] {
-            for slot in 0..2 {
-                let _ = std::fs::remove_file(text.shadow(&self.dir, slot));
-            }
+        for p in self.shadow_paths() {
+            let _ = std::fs::remove_file(p);
         }
+    }
+
+    /// The paths of both texts' shadows.
+    fn shadow_paths(&self) -> Vec<PathBuf> {
+        [&self.labels, &self.mot].iter().flat_map(|t| [t.shadow(&self.dir, 0), t.shadow(&self.dir, 1)]).collect()
     }
 
     /// Forgets the frames after the first `n` committed ones: their files, and their label and MOT lines.
