@@ -47,11 +47,22 @@ pub struct RunOptions {
     pub masks: bool,
     /// Time each stage ([`StageTimings`](super::StageTimings)).
     pub timings: bool,
+    /// The renders the sky's blur is planned for where the run's own frames are replayed from the first after
+    /// the last until this many are rendered (`irsim bench` on a scenario file); `None`: the run's own frames.
+    pub replayed_to: Option<u64>,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        Self { seed: None, noise: true, vibration: true, keep_float: false, masks: false, timings: false }
+        Self {
+            seed: None,
+            noise: true,
+            vibration: true,
+            keep_float: false,
+            masks: false,
+            timings: false,
+            replayed_to: None,
+        }
     }
 }
 
@@ -144,7 +155,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
     {
         // planned for what is rendered: on a coarse grid, its cameras with its PSF
         let step = sensor.background_step;
-        let views = planned_views(scenario).map(|c| coarse_camera(&c, step));
+        let views = replayed_views(scenario, options.replayed_to).map(|c| coarse_camera(&c, step));
         let plan = plan_sky_blur(plane, psf, cfg.prefilter(sensor.dn_per_radiance), (w / step, h / step), views);
         sensor.sky_blur = plan.choice;
         sensor.sky_blur_plan = Some(plan);
@@ -503,11 +514,20 @@ fn layer_spec(spec: &SkyGenSpec, seed: u64) -> SkyGenSpec {
 /// The steady cameras (no vibration, no pointing noise) of the run's frames, for planning: every frame up to
 /// 4096 of them, an even sample of 4096 beyond.
 pub(crate) fn planned_views(scenario: &CheckedScenario) -> impl Iterator<Item = Camera> + '_ {
+    replayed_views(scenario, None)
+}
+
+/// [`planned_views`] of a run whose own frames are replayed, from the first after the last, until `renders` are
+/// rendered (`None`, or no more than its own: its own frames): the views of every render up to 4096 of them, an
+/// even sample of 4096 beyond.
+fn replayed_views(scenario: &CheckedScenario, renders: Option<u64>) -> impl Iterator<Item = Camera> + '_ {
     let spec = &scenario.spec;
-    let frames = spec.run.frames.max(1);
-    let stride = frames.div_ceil(4096).max(1);
+    let own = spec.run.frames.max(1);
+    let renders = renders.map_or(own, |n| n.max(own));
+    let stride = renders.div_ceil(4096).max(1);
     let intrinsics = scenario.sensor.intrinsics;
-    (0..frames).step_by(stride as usize).map(move |k| {
+    (0..renders).step_by(stride as usize).map(move |k| {
+        let k = k % own;
         let t = spec.run.start_time_s + k as f64 / spec.run.frame_rate_hz;
         let (eye, velocity) = scenario.observer_trajectory.state(t);
         let tracked = |name: &str, lag_s: f64| {
@@ -817,6 +837,26 @@ mod tests {
                 assert!(moved.length() < 1e-6, "{anchor_px:?} ({x}, {y}): {moved}");
             }
         }
+    }
+
+    #[test]
+    fn a_replayed_run_plans_its_own_views_again_for_every_render() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/paper_clear_sky.toml");
+        let scenario = crate::scenario::load::load(&path).unwrap();
+        let own: Vec<Camera> = planned_views(&scenario).collect();
+        assert_eq!(own.len(), 90);
+        // no more renders than its own frames: its own views
+        assert_eq!(replayed_views(&scenario, None).collect::<Vec<_>>(), own);
+        assert_eq!(replayed_views(&scenario, Some(40)).collect::<Vec<_>>(), own);
+        // 200 renders: its 90 views, the 90 again, then the first 20
+        let replayed: Vec<Camera> = replayed_views(&scenario, Some(200)).collect();
+        assert_eq!(replayed.len(), 200);
+        assert!(replayed.iter().enumerate().all(|(k, v)| *v == own[k % 90]));
+        assert_ne!(own[0], own[89], "a tracking camera's views differ");
+        // beyond 4096, an even sample of them: every third render's of 10 000
+        let sampled: Vec<Camera> = replayed_views(&scenario, Some(10_000)).collect();
+        assert_eq!(sampled.len(), 3334);
+        assert!(sampled.iter().enumerate().all(|(k, v)| *v == own[(3 * k) % 90]));
     }
 
     #[test]
