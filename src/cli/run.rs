@@ -137,9 +137,9 @@ pub struct BenchArgs {
     pub scenarios: Vec<PathBuf>,
     /// Frames timed per case. A scenario file's own frames are run, and run again from its first frame until
     /// this many are timed, so that the rate is that of the scenario as written (its targets in view, and its
-    /// sky, as they are when it is recorded), not of a run stretched past its end; the sky's blur (textures
-    /// made once, or a blur every frame) is planned for every frame rendered, the first pass's textures serving
-    /// the passes after it.
+    /// sky, as they are when it is recorded), not of a run stretched past its end; where the sky's blur is
+    /// planned (`[quality] sky_blur = "auto"`, the draft preset's: textures made once, or a blur every frame),
+    /// it is planned for every frame rendered, the first pass's textures serving the passes after it.
     #[arg(long, default_value_t = 2000)]
     pub frames: u64,
     /// Accuracy against speed: draft, standard or reference, in place of each scenario's `[quality]` table.
@@ -678,17 +678,17 @@ impl StageSplit {
 /// Runs `scenario` headless without disk writes for `frames` frames after 10 warm-up frames; `each` sees the
 /// app after every timed frame. After frame `period − 1` the run starts again from its first frame (every
 /// stage's state is a function of the frame's index and time), so that a scenario is timed on its own `period`
-/// frames however many are timed; where it is replayed, its sky's blur is planned for every render
-/// ([`RunOptions::replayed_to`]), the textures a prefiltered sky makes on its first pass serving the passes
-/// after it.
+/// frames however many are timed; where more are timed than it has, its sky's blur, where it is planned, is
+/// planned for every render ([`RunOptions::replayed_to`]), the textures a prefiltered sky makes on its first pass
+/// serving the passes after it.
 fn run_timed(
     scenario: &CheckedScenario,
     frames: u64,
     period: u64,
     mut each: impl FnMut(&mut bevy::app::App),
 ) -> Result<(StageSplit, bevy::app::App), CliError> {
-    // what is planned for the run (the sky's blur) planned for every render, its own frames replayed
-    let replayed_to = (period < frames + 10).then_some(frames + 10);
+    // a run replayed past its own frames: the sky's blur, where it is planned, planned for every render
+    let replayed_to = (frames > period).then_some(frames + 10);
     let options = RunOptions { timings: true, replayed_to, ..RunOptions::default() };
     let mut app = headless_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
@@ -801,7 +801,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
         for path in &a.scenarios {
             // as written, its own frames replayed until `frames` are timed: what is planned for the run from its
             // views (the sky layer's margin, a staring camera's one render) is the scenario's own, and the sky's
-            // blur (a texture made once, or a blur every frame) is planned for every render (`run_timed`)
+            // blur, where it is planned (a texture made once, or a blur every frame), for every render (`run_timed`)
             let scenario = load_for_frames(path, None).map_err(|e| CliError::Invalid(e.to_string()))?;
             let own = scenario.spec.run.frames;
             let scenario = with_quality(scenario, a.quality)?;
@@ -813,9 +813,8 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
                 details.insert(
                     0,
                     format!(
-                        "  {frames} frames timed after 10 warm-up frames: the scenario's {own} frames, run again \
-                         from the first after the last, the sky's blur planned for {} renders",
-                        frames + 10
+                        "  {frames} frames timed after 10 warm-up frames: the scenario's {own} frames as written, \
+                         run again from the first after the last"
                     ),
                 );
             }

@@ -47,8 +47,9 @@ pub struct RunOptions {
     pub masks: bool,
     /// Time each stage ([`StageTimings`](super::StageTimings)).
     pub timings: bool,
-    /// The renders the sky's blur is planned for where the run's own frames are replayed from the first after
-    /// the last until this many are rendered (`irsim bench` on a scenario file); `None`: the run's own frames.
+    /// Where the run's own frames are replayed, from the first after the last, until this many are rendered
+    /// (`irsim bench` timing more frames than a scenario has): the renders the sky's blur is planned for, where
+    /// it is planned (`[quality] sky_blur = "auto"`); `None`: the run's own frames.
     pub replayed_to: Option<u64>,
 }
 
