@@ -688,7 +688,7 @@ fn run_timed(
     mut each: impl FnMut(&mut bevy::app::App),
 ) -> Result<(StageSplit, bevy::app::App), CliError> {
     // a run replayed past its own frames: the sky's blur, where it is planned, planned for every render
-    let replayed_to = (frames > period).then_some(frames + 10);
+    let replayed_to = (frames > period).then_some(frames.saturating_add(10));
     let options = RunOptions { timings: true, replayed_to, ..RunOptions::default() };
     let mut app = headless_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
@@ -809,7 +809,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             let (fps, mut details) = time_headless(&scenario, frames, own)?;
             details.extend(super::steal::steal_note(before));
             super::say(&format!("{:<40} {fps:>9.1} frames/s", path.display()))?;
-            if own < frames + 10 {
+            if own < frames.saturating_add(10) {
                 details.insert(
                     0,
                     format!(
