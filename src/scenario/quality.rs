@@ -403,7 +403,10 @@ pub const REFERENCE_PREFILTER_SPACING_PX: f64 = 0.25;
 /// The draft preset's `prefilter_spacing_px`.
 pub const DRAFT_PREFILTER_SPACING_PX: f64 = 0.75;
 /// The standard preset's `prefilter_grid_error_dn`: clear skies take coarser grids (paper_clear_sky two nodes a
-/// texel, estimated 0.30 DN; head_on one, 0.14 DN), cumulus keeps three (estimated 0.9–1.2 DN at three).
+/// texel, estimated 0.30 DN; head_on one, 0.14 DN), cumulus keeps three (estimated 0.9–1.2 DN at three). The
+/// estimate is the largest over the image's blocks, a layer's margin of clear sky (`layer_margin_px`) included:
+/// head_on's 250 frames come near its layer's edge, so its layer has the margin and reads two nodes a texel (one
+/// without it), and so does paper_clear_sky's in runs longer than about 200 frames (three, against two).
 /// Against the reference preset (`irsim record S --frames 8 --no-noise --format npy`) paper_clear_sky moved
 /// from 0.115 to 0.123 DN rms and head_on from 0.019 to 0.042 (docs/accuracy.md; the report's own 8 frames give
 /// 0.122 and 0.042).
