@@ -675,7 +675,10 @@ impl StageSplit {
     }
 }
 
-/// Runs `scenario` headless without disk writes for `frames` frames after 10 warm-up frames; `each` sees the
+/// Frames [`run_timed`] runs before it starts the clock.
+const WARM_UP_FRAMES: u64 = 10;
+
+/// Runs `scenario` headless without disk writes for `frames` frames after [`WARM_UP_FRAMES`]; `each` sees the
 /// app after every timed frame. After frame `period − 1` the run starts again from its first frame (every
 /// stage's state is a function of the frame's index and time), so that a scenario is timed on its own `period`
 /// frames however many are timed; where more are timed than it has, its sky's blur, where it is planned, is
@@ -688,7 +691,7 @@ fn run_timed(
     mut each: impl FnMut(&mut bevy::app::App),
 ) -> Result<(StageSplit, bevy::app::App), CliError> {
     // a run replayed past its own frames: the sky's blur, where it is planned, planned for every render
-    let replayed_to = (frames > period).then_some(frames.saturating_add(10));
+    let replayed_to = (frames > period).then_some(frames.saturating_add(WARM_UP_FRAMES));
     let options = RunOptions { timings: true, replayed_to, ..RunOptions::default() };
     let mut app = headless_app(scenario, options)
         .map_err(|e| CliError::Invalid(located(&scenario.source, &e.field, &e.message).to_string()))?;
@@ -699,7 +702,7 @@ fn run_timed(
             clock.frame = 0;
         }
     };
-    for _ in 0..10 {
+    for _ in 0..WARM_UP_FRAMES {
         replay(&mut app);
         step(&mut app);
     }
@@ -802,18 +805,18 @@ pub fn bench(a: &BenchArgs) -> Result<(), CliError> {
             // as written, its own frames replayed until `frames` are timed: what is planned for the run from its
             // views (the sky layer's margin, a staring camera's one render) is the scenario's own, and the sky's
             // blur, where it is planned (a texture made once, or a blur every frame), for every render (`run_timed`)
-            let scenario = load_for_frames(path, None).map_err(|e| CliError::Invalid(e.to_string()))?;
+            let scenario = load_scenario(path)?;
             let own = scenario.spec.run.frames;
             let scenario = with_quality(scenario, a.quality)?;
             let before = super::steal::CpuTicks::now();
             let (fps, mut details) = time_headless(&scenario, frames, own)?;
             details.extend(super::steal::steal_note(before));
             super::say(&format!("{:<40} {fps:>9.1} frames/s", path.display()))?;
-            if own < frames.saturating_add(10) {
+            if own < frames.saturating_add(WARM_UP_FRAMES) {
                 details.insert(
                     0,
                     format!(
-                        "  {frames} frames timed after 10 warm-up frames: the scenario's {own} frames as written, \
+                        "  {frames} frames timed after {WARM_UP_FRAMES} warm-up frames: the scenario's {own} frames as written, \
                          run again from the first after the last"
                     ),
                 );
