@@ -95,6 +95,17 @@ pub fn snr(peak_dn: f64, sigma_dn: f64) -> f64 {
     if sigma_dn > 0.0 { peak_dn.abs() / sigma_dn } else { peak_dn.abs() / 1e-3 }
 }
 
+/// The window of a `width` × `height` frame that [`clutter_sigma`] reads around `roi`: the region grown by 10 px
+/// on each side, and by up to 15 px more where it is under 30 px across, clipped to the frame (`None` where
+/// nothing is left).
+pub fn clutter_window(roi: PixelRect, width: usize, height: usize) -> Option<PixelRect> {
+    let grow_x = 10 + 15usize.saturating_sub(roi.width() / 2);
+    let grow_y = 10 + 15usize.saturating_sub(roi.height() / 2);
+    let (x0, y0) = (roi.x0.saturating_sub(grow_x), roi.y0.saturating_sub(grow_y));
+    let (x1, y1) = ((roi.x1 + grow_x).min(width), (roi.y1 + grow_y).min(height));
+    (x0 < x1 && y0 < y1).then_some(PixelRect { x0, y0, x1, y1 })
+}
+
 /// Standard deviation of `background` (its units) in a window around `roi` (the region grown by 10 px on each
 /// side, at least 31 px wide), the region itself left out.
 ///
@@ -102,14 +113,8 @@ pub fn snr(peak_dn: f64, sigma_dn: f64) -> f64 {
 /// summed in eight f64 lanes: a scene's targets each take one at every frame, and the pixel-by-pixel version
 /// with one sum was most of swarm's output stage.
 pub fn clutter_sigma(background: &Frame, roi: PixelRect) -> f64 {
-    let (w, h) = (background.width(), background.height());
-    let grow_x = 10 + 15usize.saturating_sub(roi.width() / 2);
-    let grow_y = 10 + 15usize.saturating_sub(roi.height() / 2);
-    let (x0, y0) = (roi.x0.saturating_sub(grow_x), roi.y0.saturating_sub(grow_y));
-    let (x1, y1) = ((roi.x1 + grow_x).min(w), (roi.y1 + grow_y).min(h));
-    if x0 >= x1 || y0 >= y1 {
-        return 0.0;
-    }
+    let w = background.width();
+    let Some(PixelRect { x0, y0, x1, y1 }) = clutter_window(roi, w, background.height()) else { return 0.0 };
     // each row of the window as its runs outside the region (the region's columns, clipped to the window, cut
     // a row that crosses it in two)
     let (cut0, cut1) = (roi.x0.clamp(x0, x1), roi.x1.clamp(x0, x1).max(roi.x0.clamp(x0, x1)));

@@ -130,6 +130,66 @@ fn many_targets_labels_are_the_same_on_any_number_of_threads() {
     }
 }
 
+#[test]
+fn handing_the_render_to_the_frame_changes_no_frame_and_no_label() {
+    // swarm's camera shakes at every frame, and paper_clear_sky's tracks its target: from the second frame on the
+    // render becomes the frame instead of being copied into it, and only the windows the labels read are kept of
+    // it. Frames and labels (the targets' clutter among them) are the same bits as in a run that keeps the whole
+    // background; that run's background is the render, the other's not outside those windows.
+    use irsim::sim::SensorFrame;
+    for name in ["swarm", "paper_clear_sky"] {
+        let s = load(&root().join(format!("scenarios/{name}.toml"))).unwrap();
+        let run = |whole_background: bool| {
+            let mut app = build_app(&s, RunOptions { whole_background, ..RunOptions::default() }).unwrap();
+            let frames: Vec<_> = (0..4).map(|_| (step(&mut app), current_frame(&mut app).pixels().to_vec())).collect();
+            let world = app.world_mut();
+            let background = world.query::<&SensorFrame>().single(world).unwrap().background.pixels().to_vec();
+            (frames, background)
+        };
+        let ((handed, partial), (copied, whole)) = (run(false), run(true));
+        for (k, ((la, fa), (lb, fb))) in handed.iter().zip(&copied).enumerate() {
+            assert_eq!(la, lb, "{name}: frame {k}'s labels");
+            assert!(fa.iter().zip(fb).all(|(a, b)| a.to_bits() == b.to_bits()), "{name}: frame {k}'s pixels");
+            assert!(la.targets.iter().any(|t| t.in_frame && t.scr > 0.0), "{name}: frame {k} has a target's clutter");
+        }
+        let differ = partial.iter().zip(&whole).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+        assert!(differ > whole.len() / 2, "{name}: the render was handed over ({differ} pixels differ)");
+    }
+    // a camera that holds still, moves, stops and moves again (swarm without its shake, its aim turned between
+    // frames): the renders reused, handed over and made again give the frames and labels a kept background gives
+    use irsim::scenario::Pointing;
+    use irsim::sim::Aim;
+    let s = load(&root().join("scenarios/swarm.toml")).unwrap();
+    let aims = [0.0, 0.0, 0.0, 1.0, 2.0, 3.0, 3.0, 3.0, 4.0, 5.0, 5.0];
+    let run = |whole_background: bool| {
+        let options = RunOptions { whole_background, vibration: false, ..RunOptions::default() };
+        let mut app = build_app(&s, options).unwrap();
+        let mut frames = Vec::new();
+        for &east_m in &aims {
+            let world = app.world_mut();
+            world.query::<&mut Aim>().single_mut(world).unwrap().pointing =
+                Pointing::LookAt { target_m: DVec3::new(east_m, 1200.0, 560.0), roll_deg: 0.0 };
+            let labels = step(&mut app);
+            let pixels = current_frame(&mut app).pixels().to_vec();
+            let world = app.world_mut();
+            let background = world.query::<&SensorFrame>().single(world).unwrap().background.pixels().to_vec();
+            frames.push((labels, pixels, background));
+        }
+        frames
+    };
+    let (handed, copied) = (run(false), run(true));
+    let mut kept = Vec::new();
+    for (k, ((la, fa, ba), (lb, fb, bb))) in handed.iter().zip(&copied).enumerate() {
+        assert_eq!(la, lb, "still and moving: frame {k}'s labels");
+        assert!(fa.iter().zip(fb).all(|(a, b)| a.to_bits() == b.to_bits()), "still and moving: frame {k}'s pixels");
+        kept.push(ba.iter().zip(bb).all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+    // handed over at the second of two moving frames running (4, 5, 9); rendered whole at the first still frame
+    // after them (6, 10), reused while still (1, 2, 7), rendered and copied at the first moving one (3, 8)
+    let whole: Vec<bool> = (0..aims.len()).map(|k| ![4, 5, 9].contains(&k)).collect();
+    assert_eq!(kept, whole, "frames whose background is the whole render");
+}
+
 /// Frame hashes of `scenarios/paper_clear_sky.toml`, frames 0–2, default options.
 ///
 /// If this test fails after a change that is meant to change the output (a new model, a fixed bug), update

@@ -379,6 +379,7 @@ pub fn record_scenario(
         vibration: plan.vibration,
         keep_float: plan.format == FrameFormat::Npy,
         masks: plan.masks,
+        whole_background: false,
         timings: true,
         replayed_to: None,
     };

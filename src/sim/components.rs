@@ -313,9 +313,21 @@ pub struct SensorFrame {
     pub frame: Frame,
     /// The frame before quantization, DN (kept only when asked for).
     pub float_frame: Option<Frame>,
-    /// The sky as last rendered (radiance, blurred), and the camera it was rendered for.
+    /// The sky as last rendered (radiance, blurred), and the camera it was rendered for (`None` where the buffer
+    /// does not hold it). While the camera moves frame after frame, and unless
+    /// [`SimSettings::whole_background`](super::SimSettings::whole_background) is set, the render is handed to
+    /// `frame` whole (the two buffers swapped, where a copy of 1.3 MB a frame at 640 × 512 was 3–4 % of a run's
+    /// CPU) and this buffer then holds the render only in the windows its targets' labels read
+    /// ([`crate::labels::clutter_window`]): a frame's own render is needed again only by a camera that holds still
+    /// (one that stops after moving renders its first still view once more).
     pub background: Frame,
     pub(super) background_camera: Option<Camera>,
+    /// The camera of the last frame's view, whether that view was rendered or reused.
+    pub(super) last_camera: Option<Camera>,
+    /// Whether the last frame's camera differed from the frame's before it.
+    pub(super) moving: bool,
+    /// Whether this frame's render was handed to `frame` (see `background`).
+    pub(super) handed_over: bool,
     /// What the last render of the background did.
     pub background_stats: BackgroundStats,
     pub(super) renderer: BackgroundRenderer,
@@ -377,7 +389,9 @@ impl SensorFrame {
         self.view_offset
     }
 
-    /// The noise-free, blurred background at pixel `(x, y)` (radiance; 0 outside the frame).
+    /// The noise-free, blurred background at pixel `(x, y)` (radiance; 0 outside the frame): of the current
+    /// view where the run keeps the whole background ([`SimSettings::whole_background`](super::SimSettings)),
+    /// else only within the windows the labels read while the camera moves.
     pub fn background_at(&self, x: usize, y: usize) -> f32 {
         let (w, h) = (self.background.width(), self.background.height());
         if x >= w || y >= h {

@@ -69,6 +69,10 @@ fn render_view(
         return;
     };
     let sf = &mut *sf;
+    sf.handed_over = false;
+    let moved = sf.last_camera != Some(pose.current);
+    let moved_before = std::mem::replace(&mut sf.moving, moved);
+    sf.last_camera = Some(pose.current);
     if sf.background_camera != Some(pose.current) {
         let tolerance_px = settings.quality.view_shift_tolerance_px;
         let in_frame = if read_shifted(sensor, sky, pose, tolerance_px, sf) {
@@ -79,6 +83,15 @@ fn render_view(
         };
         sf.background_camera = Some(pose.current);
         if in_frame {
+            return;
+        }
+        if moved && moved_before && !settings.whole_background {
+            // a camera that moved in the last two frames will most likely move again before this render could
+            // be reused: the render becomes the frame, and the targets stage keeps what the labels read of it
+            // (`SensorFrame::background`)
+            std::mem::swap(&mut sf.frame, &mut sf.background);
+            sf.background_camera = None;
+            sf.handed_over = true;
             return;
         }
     }

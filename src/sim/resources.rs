@@ -43,6 +43,11 @@ pub struct SimSettings {
     pub keep_float: bool,
     /// Produce per-frame target masks.
     pub masks: bool,
+    /// Keep the whole noise-free background of the current view after each frame (a window reads any pixel of it,
+    /// [`SensorFrame::background_at`](super::SensorFrame::background_at)). Without it, while the camera moves
+    /// frame after frame, the render's buffer becomes the frame instead of being copied into it (see
+    /// [`SensorFrame::background`](super::SensorFrame::background)).
+    pub whole_background: bool,
     /// Every accuracy switch (the fusion's solver and guidance are read from it each frame).
     pub quality: Quality,
     /// How targets are drawn.

@@ -45,6 +45,9 @@ pub struct RunOptions {
     pub keep_float: bool,
     /// Produce masks.
     pub masks: bool,
+    /// Keep the whole background after each frame ([`SimSettings::whole_background`]): a window's readout of
+    /// the sky behind any pixel needs it; a run that reads only frames and labels does not.
+    pub whole_background: bool,
     /// Time each stage ([`StageTimings`](super::StageTimings)).
     pub timings: bool,
     /// Where the run's own frames are replayed, from the first after the last, until this many are rendered
@@ -61,6 +64,7 @@ impl Default for RunOptions {
             vibration: true,
             keep_float: false,
             masks: false,
+            whole_background: false,
             timings: false,
             replayed_to: None,
         }
@@ -100,6 +104,7 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         vibration: options.vibration,
         keep_float: options.keep_float,
         masks: options.masks,
+        whole_background: options.whole_background,
         quality: scenario.quality,
         blob: sensor_spec.blob,
         detectable_snr: spec.labels.detectable_snr,
@@ -175,6 +180,9 @@ pub fn spawn_scenario(world: &mut World, scenario: &CheckedScenario, options: Ru
         float_frame: None,
         background: Frame::new(w, h),
         background_camera: None,
+        last_camera: None,
+        moving: false,
+        handed_over: false,
         background_stats: BackgroundStats::default(),
         renderer: BackgroundRenderer::new(),
         columns: Vec::new(),

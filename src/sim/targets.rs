@@ -78,13 +78,29 @@ impl TargetShapes<'_, '_> {
 pub fn draw_targets(
     settings: Res<SimSettings>,
     mut patches: ResMut<TargetPatches>,
-    sensor: Query<(&Sensor, &SensorFrame)>,
+    mut sensor: Query<(&Sensor, &mut SensorFrame)>,
     mut targets: Query<(Entity, &Signature, &mut Footprint)>,
 ) {
-    let Ok((sensor, sf)) = sensor.single() else { return };
+    let Ok((sensor, mut sf)) = sensor.single_mut() else { return };
+    let sf = &mut *sf;
+    if sf.handed_over {
+        // the render became the frame (`SensorFrame::background`): what the labels read of it, kept before the
+        // fusion changes the frame
+        let (w, h) = (sf.frame.width(), sf.frame.height());
+        let (frame, background) = (sf.frame.pixels(), sf.background.pixels_mut());
+        for (_, _, fp) in &targets {
+            let Some(r) = fp.roi.and_then(|roi| crate::labels::clutter_window(roi, w, h)) else { continue };
+            for y in r.y0..r.y1 {
+                let row = y * w + r.x0..y * w + r.x1;
+                background[row.clone()].copy_from_slice(&frame[row]);
+            }
+        }
+    }
+    // the frame holds the render until the fusion, whichever buffer it was made in
+    let sky = if sf.handed_over { &sf.frame } else { &sf.background };
     let patches = &mut *patches;
     patches.used = 0;
-    let (w, h) = (sf.background.width(), sf.background.height());
+    let (w, h) = (sky.width(), sky.height());
     // first the targets to draw, each given the next patch buffer (in the query's order, as before) ...
     let mut jobs = Vec::new();
     let mut shapes = patches.shapes_used;
@@ -92,12 +108,12 @@ pub fn draw_targets(
         let (Some(ellipse), Some(roi), Some(signal)) = (fp.ellipse, fp.roi, sig.signal) else { continue };
         let (cx, cy) = (ellipse.center.x.floor(), ellipse.center.y.floor());
         let bg = if cx >= 0.0 && cy >= 0.0 && (cx as usize) < w && (cy as usize) < h {
-            f64::from(sf.background.get(cx as usize, cy as usize))
+            f64::from(sky.get(cx as usize, cy as usize))
         } else {
             // off-frame centre: the nearest pixel of the region
             let x = (cx.max(roi.x0 as f64) as usize).min(roi.x1 - 1);
             let y = (cy.max(roi.y0 as f64) as usize).min(roi.y1 - 1);
-            f64::from(sf.background.get(x, y))
+            f64::from(sky.get(x, y))
         };
         fp.background_radiance = bg;
         fp.patch = None;
@@ -173,4 +189,7 @@ pub fn draw_targets(
             (peak * sensor.dn_per_radiance).abs() < settings.quality.fusion_skip_below_sigma * sensor.noise_dn(bg);
         patches.additive.push(faint);
     }
+    // the frame stops being the render once the fusion writes it (and the output hands it on): from here on the
+    // windows kept in the background are where the render is read (a second run of this stage reads them)
+    sf.handed_over = false;
 }

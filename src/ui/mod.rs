@@ -190,7 +190,8 @@ pub fn view(a: &ViewArgs) -> Result<(), CliError> {
     let scenario = crate::scenario::load::load_for_frames(&a.scenario, a.frames.map(|n| n.max(file_frames)))
         .map_err(|e| CliError::Invalid(e.to_string()))?;
     let scenario = crate::cli::run::with_quality(scenario, a.quality)?;
-    let options = RunOptions { seed: a.seed, ..RunOptions::default() };
+    // the panel reads the sky behind the pixel under the pointer: the whole background is kept
+    let options = RunOptions { seed: a.seed, whole_background: true, ..RunOptions::default() };
     let rate = scenario.spec.run.frame_rate_hz;
     let title = window_title(&scenario.spec.name, None, 0.0);
     // the scenario's world first: a bad sky image or PSF is reported before any window opens
