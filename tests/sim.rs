@@ -184,8 +184,8 @@ fn handing_the_render_to_the_frame_changes_no_frame_and_no_label() {
         assert!(fa.iter().zip(fb).all(|(a, b)| a.to_bits() == b.to_bits()), "still and moving: frame {k}'s pixels");
         kept.push(ba.iter().zip(bb).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
-    // handed over at the second of two moving frames running (4, 5, 9); rendered whole at the first still frame
-    // after them (6, 10), reused while still (1, 2, 7), rendered and copied at the first moving one (3, 8)
+    // handed over from the second of the moving frames running on (4, 5, 9); rendered whole at the first still
+    // frame after them (6, 10), reused while still (1, 2, 7), rendered and copied at the first moving one (3, 8)
     let whole: Vec<bool> = (0..aims.len()).map(|k| ![4, 5, 9].contains(&k)).collect();
     assert_eq!(kept, whole, "frames whose background is the whole render");
 }
