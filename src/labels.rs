@@ -106,8 +106,8 @@ pub fn clutter_window(roi: PixelRect, width: usize, height: usize) -> Option<Pix
     (x0 < x1 && y0 < y1).then_some(PixelRect { x0, y0, x1, y1 })
 }
 
-/// Standard deviation of `background` (its units) in a window around `roi` (the region grown by 10 px on each
-/// side, at least 31 px wide), the region itself left out.
+/// Standard deviation of `background` (its units) in the window [`clutter_window`] gives around `roi`, the region
+/// itself left out.
 ///
 /// Two passes (the mean, then the squared deviations from it) over the window's rows as runs of pixels, each
 /// summed in eight f64 lanes: a scene's targets each take one at every frame, and the pixel-by-pixel version
